@@ -1,0 +1,50 @@
+"""The embedder axis: images and texts into one vector space, cosine-comparable.
+
+Every backend returns L2-normalised float32 rows so that inner product == cosine similarity,
+which is what the stores index. `name` must identify the model and its settings precisely
+enough that two memories built with the same name are comparable: it is stored in the memory
+and checked on open.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from ..registry import Registry
+
+
+@runtime_checkable
+class Embedder(Protocol):
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def dim(self) -> int: ...
+
+    def embed_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        """RGB uint8 (H, W, 3) images -> (N, dim) float32, rows L2-normalised."""
+        ...
+
+    def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
+        """Texts -> (N, dim) float32, rows L2-normalised, in the same space as images."""
+        ...
+
+
+EMBEDDERS: Registry[Embedder] = Registry("embedder")
+
+
+def l2_normalize(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float32)
+    n = np.linalg.norm(x, axis=-1, keepdims=True)
+    return (x / np.maximum(n, 1e-12)).astype(np.float32)
+
+
+def create_embedder(spec: str = "offline", **kwargs: object) -> Embedder:
+    """Create an embedder by spec: `offline`, `open_clip:MODEL/PRETRAINED`, `hf:NAME_OR_PATH`, ..."""
+    from . import _load_backends
+
+    _load_backends()
+    return EMBEDDERS.create(spec, **kwargs)

@@ -1,0 +1,19 @@
+"""Sources (video + pose track, TUM RGB-D folder, image folder, ROS bags / MCAP), pose tracks,
+keyframe selection and the ingest pipeline."""
+
+from __future__ import annotations
+
+from .base import SOURCES, FrameSource, SourceStats
+
+__all__ = ["SOURCES", "FrameSource", "SourceStats"]
+
+
+def _load_backends() -> None:
+    import importlib
+
+    for mod in ("video", "tum", "folder", "rosbag"):
+        try:
+            importlib.import_module(f"{__name__}.{mod}")
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{mod}":
+                raise

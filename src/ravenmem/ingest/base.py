@@ -1,0 +1,39 @@
+"""The source axis: anything that yields timestamped, posed RGB frames, streaming.
+
+A source must never load a whole recording into RAM: it yields frames one at a time.
+It counts what it had to drop (unreadable frames, frames outside the pose track) in
+`stats` so that `ravenmem ingest` and `info` can report them instead of guessing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+from ..registry import Registry
+from ..types import Frame
+
+
+@dataclass
+class SourceStats:
+    """What a source saw and dropped, with a reason for each drop."""
+
+    frames_seen: int = 0
+    frames_yielded: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
+    raw_bytes: int = 0  # decoded RGB bytes of every frame seen (for the compression factor)
+
+    def skip(self, reason: str, n: int = 1) -> None:
+        self.skipped[reason] = self.skipped.get(reason, 0) + n
+
+
+@runtime_checkable
+class FrameSource(Protocol):
+    name: str
+    stats: SourceStats
+
+    def __iter__(self) -> Iterator[Frame]: ...
+
+
+SOURCES: Registry[FrameSource] = Registry("source format")

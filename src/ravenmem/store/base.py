@@ -1,0 +1,83 @@
+"""The store axis: where memories live and how the four tools query them.
+
+A store keeps, per memory, one embedding (float32, L2-normalised, the embedder's dim), the
+metadata of `MemoryRecord` and its OCR text. It assigns increasing integer ids in insertion
+order. Every write call is durable when it returns (the memory is "acknowledged"): a process
+killed afterwards reopens with it.
+
+The store does not know about embedders or images; the `Memory` facade (ravenmem.memory)
+turns queries into vectors and writes thumbnails. Stores are thread-safe: one thread may
+`add` while others search.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from ..registry import Registry
+from ..types import Filter, MemoryRecord
+
+
+@runtime_checkable
+class Store(Protocol):
+    dim: int
+
+    def add(self, records: Sequence[MemoryRecord], embeddings: np.ndarray) -> list[int]:
+        """Store records (their `id` is ignored) with (N, dim) embeddings; return the new ids."""
+        ...
+
+    def search_vector(self, query: np.ndarray, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:
+        """Top-k (id, cosine) for one (dim,) query, best first, honouring the filter."""
+        ...
+
+    def search_text(self, text: str, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:
+        """Top-k (id, score in [0, 1]) over the stored OCR text, best first; [] when none match."""
+        ...
+
+    def by_time(self, t: float, k: int, filt: Filter | None = None) -> list[MemoryRecord]:
+        """The k memories with timestamp >= t, in forward chronological order."""
+        ...
+
+    def nearest(
+        self, x: float, y: float, z: float | None, k: int, radius: float | None = None, filt: Filter | None = None
+    ) -> list[tuple[int, float]]:
+        """The k spatially nearest (id, distance in metres), nearest first; planar when z is None."""
+        ...
+
+    def get(self, ids: Sequence[int], with_embeddings: bool = False) -> list[MemoryRecord]:
+        """Records for ids, in the order given (unknown ids raise KeyError)."""
+        ...
+
+    def count(self) -> int: ...
+
+    def stats(self) -> dict[str, object]:
+        """Counts, time span, spatial extent, bytes on disk: what `ravenmem info` prints."""
+        ...
+
+    def get_meta(self, key: str) -> str | None: ...
+
+    def set_meta(self, key: str, value: str) -> None: ...
+
+    def close(self) -> None: ...
+
+
+STORES: Registry[Store] = Registry("store")
+
+
+def open_store(uri: str, dim: int, **kwargs: object) -> Store:
+    """Open (creating if needed) a store from a URI.
+
+    - a plain folder path (or `local:PATH`): the embedded FAISS + SQLite store in that folder;
+    - `milvus:///path/file.db`: Milvus Lite; `milvus://host:19530`: a Milvus server.
+    """
+    from . import _load_backends
+
+    _load_backends()
+    if uri.startswith("milvus://"):
+        return STORES.create("milvus:" + uri[len("milvus://"):], dim=dim, **kwargs)
+    if uri.startswith("local:"):
+        uri = uri[len("local:"):]
+    return STORES.create("local:" + uri, dim=dim, **kwargs)

@@ -68,6 +68,7 @@ class Frame:
     source: str = ""
     index: int = 0
     depth: np.ndarray | None = None
+    path: str | None = None  # the image file, when the source reads one (kept if thumbnails are off)
 
 
 @dataclass

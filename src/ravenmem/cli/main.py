@@ -1,0 +1,219 @@
+"""The `ravenmem` command: a thin layer over the Python API.
+
+Errors a user can fix (`RavenmemError`) print one line and exit 2; every command has `--json`.
+Other areas (agent, nav, eval) add their commands through a `register(app)` in their module.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ..errors import InputError, RavenmemError
+from ..types import Hit
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help="ravenmem: a long-term visual memory for robots.")
+console = Console()
+MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
+
+
+def fmt_time(t: float) -> str:
+    return datetime.fromtimestamp(t, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
+def hit_dict(h: Hit, rank: int, mem: Any) -> dict[str, Any]:
+    """A hit as plain data: what --json prints and what the agent shows a model."""
+    r = h.memory
+    img = mem.image_file(r)
+    t0 = mem.time_span()[0]
+    return {
+        "rank": rank, "id": r.id, "score": h.score, "distance": h.distance, "t": r.t, "time": fmt_time(r.t),
+        "offset_s": round(r.t - t0, 3), "x": r.pose.x, "y": r.pose.y, "z": r.pose.z, "yaw": r.pose.yaw,
+        "image": str(img) if img else r.image_path, "source": r.source, "frame_index": r.frame_index,
+        "ocr_text": r.ocr_text, "ocr_match": h.ocr_match,
+    }  # fmt: skip
+
+
+def print_json(obj: Any) -> None:
+    sys.stdout.write(json.dumps(obj, indent=2, default=str) + "\n")
+
+
+def parse_floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
+    try:
+        vals = [float(v) for v in text.replace(" ", "").split(",")]
+    except ValueError:
+        raise InputError(f"{what}: expected {' or '.join(map(str, n))} comma-separated numbers, got {text!r}") from None
+    if len(vals) not in n:
+        raise InputError(f"{what}: expected {' or '.join(map(str, n))} comma-separated numbers, got {text!r}")
+    return vals
+
+
+@app.command()
+def ingest(
+    source: Annotated[str, typer.Argument(help="video file, TUM folder, image folder, ROS 1/2 bag or MCAP")],
+    memory: MemoryOpt,
+    format: Annotated[str | None, typer.Option(help="tum | video | folder | rosbag (default: detect)")] = None,
+    poses: Annotated[Path | None, typer.Option(help="pose track: CSV t,x,y,z[,yaw|,qx,qy,qz,qw] or TUM")] = None,
+    image_topic: Annotated[str | None, typer.Option(help="bag image topic")] = None,
+    pose_topic: Annotated[str | None, typer.Option(help="bag pose topic (Odometry, PoseStamped or /tf)")] = None,
+    embedder: Annotated[str, typer.Option(help="offline | open_clip:MODEL/TAG | hf:NAME_OR_PATH")] = "offline",
+    store: Annotated[str | None, typer.Option(help="store URI for a new memory (default: embedded)")] = None,
+    keyframes: Annotated[str | None, typer.Option(help="e.g. 'stride=5,fps=2,min_translation=0.1,max_similarity=0.95'")] = None,
+    stride: Annotated[int | None, typer.Option(help="keep every Nth frame")] = None,
+    fps: Annotated[float | None, typer.Option(help="target keyframe rate")] = None,
+    ocr: Annotated[bool, typer.Option(help="read text in keyframes (slower)")] = True,
+    thumb_size: Annotated[int, typer.Option(help="thumbnail longer side in px (0 = off)")] = 320,
+    batch_size: Annotated[int, typer.Option(help="frames embedded per batch")] = 16,
+    json_out: JsonOpt = False,
+) -> None:
+    """Build (or extend) a memory from a recording."""
+    import ravenmem
+    from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
+    from ravenmem.ingest.pipeline import ingest as run_ingest
+    from ravenmem.ingest.sources import open_source
+
+    cfg = parse_keyframes(keyframes) if keyframes else KeyframeConfig()
+    if stride is not None:
+        cfg.stride = stride
+    if fps is not None:
+        cfg.fps = fps
+    kwargs = {k: v for k, v in dict(poses=poses, image_topic=image_topic, pose_topic=pose_topic).items() if v is not None}
+    src = open_source(source, format, **kwargs)
+    mem = ravenmem.create(memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True)
+    with mem:
+        rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size)
+        total = mem.count()
+    out = rep.as_dict() | {"memory": str(memory), "memories_total": total}
+    if json_out:
+        print_json(out)
+        return
+    console.print(f"[bold]{rep.source}[/]: {rep.frames_seen} frames seen, {rep.kept} kept "
+                  f"({rep.keyframes_per_s:.1f} keyframes/s, {rep.seconds:.1f} s); memory now holds {total}")
+    for reason, n in sorted(rep.skipped.items()):
+        console.print(f"  skipped {n}: {reason}")
+    if rep.kept == 0:
+        raise InputError(f"no frame of {source} was kept: nothing was added to {memory}")
+
+
+@app.command()
+def search(
+    memory: MemoryOpt,
+    text: Annotated[str | None, typer.Argument(help="text query")] = None,
+    image: Annotated[Path | None, typer.Option(help="query image file")] = None,
+    time: Annotated[str | None, typer.Option("--time", help="K memories forward from this time")] = None,
+    position: Annotated[str | None, typer.Option(help="x,y or x,y,z: spatially nearest memories")] = None,
+    k: Annotated[int, typer.Option("-k", "--k", help="how many results")] = 5,
+    after: Annotated[str | None, typer.Option(help="only memories at or after this time")] = None,
+    before: Annotated[str | None, typer.Option(help="only memories at or before this time")] = None,
+    near: Annotated[str | None, typer.Option(help="only memories within x,y,r (metres)")] = None,
+    radius: Annotated[float | None, typer.Option(help="with --position: max distance (m)")] = None,
+    json_out: JsonOpt = False,
+) -> None:
+    """Search a memory with one of the four tools: text, --image, --time or --position."""
+    import ravenmem
+
+    modes = [m for m, v in (("text", text), ("image", image), ("time", time), ("position", position)) if v is not None]
+    if len(modes) != 1:
+        raise InputError("give exactly one of: a text query, --image, --time or --position")
+    if k < 1:
+        raise InputError(f"-k must be >= 1, got {k}")
+    region = tuple(parse_floats(near, (3,), "--near")) if near else None
+    with ravenmem.open(memory) as mem:
+        q = mem.query().limit(k).after(after).before(before)
+        if region:
+            q = q.near(*region)
+        if text is not None:
+            q = q.text(text)
+        elif image is not None:
+            q = q.image(str(image))
+        elif time is not None:
+            q = q.time(time)
+        else:
+            xyz = parse_floats(position or "", (2, 3), "--position")
+            q = q.position(xyz[0], xyz[1], xyz[2] if len(xyz) == 3 else None)
+            if radius is not None:
+                q = q.near(xyz[0], xyz[1], radius)
+        hits = q.run()
+        rows = [hit_dict(h, i + 1, mem) for i, h in enumerate(hits)]
+    if json_out:
+        print_json({"mode": modes[0], "results": rows})
+        return
+    table = Table(title=f"{modes[0]} search: {len(rows)} result(s)")
+    metric = "dist m" if modes[0] == "position" else "score"
+    for col in ("rank", metric, "time (UTC)", "+s", "x", "y", "z", "yaw", "image"):
+        table.add_column(col, justify="right" if col not in ("time (UTC)", "image") else "left")
+    for r in rows:
+        val = r["distance"] if modes[0] == "position" else r["score"]
+        table.add_row(str(r["rank"]), "" if val is None else f"{val:.3f}", r["time"], f"{r['offset_s']:.2f}",
+                      f"{r['x']:.2f}", f"{r['y']:.2f}", f"{r['z']:.2f}", f"{r['yaw']:.2f}", str(r["image"] or ""))
+    console.print(table)
+
+
+@app.command()
+def info(memory: MemoryOpt, json_out: JsonOpt = False) -> None:
+    """Counts, time span, extent, embedder, bytes per memory and compression of a memory."""
+    import ravenmem
+
+    with ravenmem.open(memory) as mem:
+        data = mem.info()
+    if json_out:
+        print_json(data)
+        return
+    for key, val in data.items():
+        if key == "ingests":
+            continue
+        if key in ("t_min", "t_max") and isinstance(val, (int, float)):
+            val = f"{val:.3f} ({fmt_time(val)})"
+        elif isinstance(val, float):
+            val = f"{val:,.2f}"
+        console.print(f"{key:>32}: {val}")
+    for rep in data.get("ingests", []):
+        console.print(f"{'ingest':>32}: {rep.get('source')} seen {rep.get('frames_seen')} kept {rep.get('kept')} "
+                      f"skipped {rep.get('skipped')}")
+
+
+def _register_extensions() -> None:
+    """Let the agent / nav / eval areas add their commands when their modules are present."""
+    for mod in ("agent", "nav", "eval"):
+        try:
+            module = importlib.import_module(f"ravenmem.cli.{mod}")
+        except ModuleNotFoundError as e:
+            if e.name == f"ravenmem.cli.{mod}":
+                continue
+            raise
+        module.register(app)
+
+
+_register_extensions()
+
+
+def main() -> None:
+    try:
+        app(standalone_mode=False)
+    except RavenmemError as e:
+        Console(stderr=True).print(f"[red]error:[/] {e}", highlight=False)
+        sys.exit(2)
+    except typer.Exit as e:
+        sys.exit(e.exit_code)
+    except typer.Abort:
+        sys.exit(130)
+    except Exception as e:  # click usage errors
+        import click
+
+        if isinstance(e, click.ClickException):
+            e.show()
+            sys.exit(e.exit_code)
+        raise
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,40 @@
+"""Image files in and out, with errors that name the file."""
+
+from __future__ import annotations
+
+import os
+import uuid
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
+from .errors import InputError
+
+
+def read_image(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read an image file as RGB uint8 (H, W, 3)."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"image file {p} does not exist")
+    try:
+        with Image.open(p) as im:
+            return np.asarray(im.convert("RGB"), dtype=np.uint8)
+    except (UnidentifiedImageError, OSError, ValueError) as e:
+        raise InputError(f"image file {p} cannot be read: {e}") from e
+
+
+def resize_max_side(image: np.ndarray, max_side: int) -> Image.Image:
+    im = Image.fromarray(image)
+    if max_side > 0 and max(im.size) > max_side:
+        s = max_side / max(im.size)
+        im = im.resize((max(1, round(im.width * s)), max(1, round(im.height * s))), Image.Resampling.BILINEAR)
+    return im
+
+
+def write_jpeg(path: Path, image: np.ndarray, max_side: int = 0, quality: int = 85) -> None:
+    """Write a JPEG atomically (tmp + rename), shrunk so its longer side is <= max_side."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:6]}.tmp")
+    resize_max_side(image, max_side).save(tmp, format="JPEG", quality=quality)
+    os.replace(tmp, path)

@@ -1,0 +1,398 @@
+"""The `Memory` facade: one folder on disk that holds what a robot saw, where and when.
+
+A memory folder contains `memory.json` (the manifest: embedder name and dim, store URI,
+thumbnail and OCR settings, ingest history), the store's files (for the embedded store) and
+`thumbs/` (JPEG thumbnails). The facade turns user queries into vectors, fuses the OCR
+channel, resolves time expressions and hands out `Hit`s; the store does the indexing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+import uuid
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .embed.base import Embedder, create_embedder
+from .errors import EmbedderMismatchError, EmptyMemoryError, InputError
+from .imageio import read_image, write_jpeg
+from .store.base import Store, open_store
+from .timeparse import TimeContext, parse_time
+from .types import Filter, Frame, Hit, MemoryRecord, Pose, Region
+
+if TYPE_CHECKING:
+    from .query import Query
+
+MANIFEST = "memory.json"
+FORMAT_VERSION = 1
+OCR_WEIGHT = 0.35  # fused text score = cosine + OCR_WEIGHT * ocr_score (ocr_score in [0, 1])
+Near = tuple[float, float, float]
+TimeLike = float | int | str | None
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write a file so that a crash leaves either the old or the new content, never half."""
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+class Memory:
+    """A visual memory: add frames, then search by text, image, time or position.
+
+    Use `ravenmem.create(path)` for a new memory and `ravenmem.open(path)` for an existing one.
+    The embedder is loaded on first use, so time and position queries start instantly.
+    """
+
+    def __init__(self, path: Path, manifest: dict[str, Any], store: Store, embedder: Embedder | None) -> None:
+        self.path = path
+        self.manifest = manifest
+        self.store = store
+        self._embedder = embedder
+        self._lock = threading.RLock()
+        self._ocr: Any = None
+        self._span: tuple[float, float] | None = None
+
+    # ---------------------------------------------------------------- properties
+    @property
+    def embedder(self) -> Embedder:
+        with self._lock:
+            if self._embedder is None:
+                self._embedder = create_embedder(self.manifest["embedder"])
+                _check_embedder(self._embedder, self.manifest, self.path)
+            return self._embedder
+
+    @property
+    def ocr_enabled(self) -> bool:
+        return bool(self.manifest.get("ocr", False))
+
+    @property
+    def thumb_size(self) -> int:
+        return int(self.manifest.get("thumb_size", 0))
+
+    # ---------------------------------------------------------------- writing
+    def add(self, image: np.ndarray, pose: Pose, t: float, source: str = "live", frame_index: int = 0) -> int:
+        """Append one observation (thread-safe; another thread may search meanwhile)."""
+        return self.add_frames([Frame(image=image, t=t, pose=pose, source=source, index=frame_index)])[0]
+
+    def add_frames(self, frames: Sequence[Frame], embeddings: np.ndarray | None = None) -> list[int]:
+        """Embed, OCR, thumbnail and store frames; durable when this returns.
+
+        `embeddings` may be passed when the caller already computed them (the ingest pipeline
+        does, for novelty filtering), so that frames are never embedded twice.
+        """
+        if not frames:
+            return []
+        for f in frames:
+            _validate_frame(f)
+        if embeddings is None:
+            embeddings = self.embedder.embed_images([f.image for f in frames])
+        embeddings = np.asarray(embeddings, dtype=np.float32)
+        if embeddings.shape != (len(frames), self.dim):
+            raise InputError(f"embeddings have shape {embeddings.shape}, expected ({len(frames)}, {self.dim})")
+        texts = [self._read_text(f.image) for f in frames] if self.ocr_enabled else [""] * len(frames)
+        records = []
+        for f, text in zip(frames, texts):
+            assert f.pose is not None
+            records.append(
+                MemoryRecord(
+                    id=-1, t=float(f.t), pose=f.pose, source=f.source, frame_index=int(f.index),
+                    image_path=self._write_thumb(f), ocr_text=text,
+                )
+            )
+        with self._lock:
+            ids = self.store.add(records, embeddings)
+            self._span = None
+        return ids
+
+    def _read_text(self, image: np.ndarray) -> str:
+        if self._ocr is None:
+            from .embed.ocr import OcrReader
+
+            self._ocr = OcrReader()
+        return str(self._ocr.read(image))
+
+    def _write_thumb(self, f: Frame) -> str | None:
+        if self.thumb_size <= 0:
+            return str(Path(f.path).resolve()) if f.path else None
+        rel = f"thumbs/{int(f.t * 1000):015d}_{uuid.uuid4().hex[:8]}.jpg"
+        write_jpeg(self.path / rel, f.image, max_side=self.thumb_size, quality=int(self.manifest.get("thumb_quality", 85)))
+        return rel
+
+    def record_ingest(self, report: dict[str, Any]) -> None:
+        """Append an ingest run's counts to the manifest (frames seen/kept, raw bytes)."""
+        with self._lock:
+            self.manifest.setdefault("ingests", []).append(report)
+            self._save_manifest()
+
+    def _save_manifest(self) -> None:
+        atomic_write_text(self.path / MANIFEST, json.dumps(self.manifest, indent=2, sort_keys=True))
+
+    # ---------------------------------------------------------------- reading
+    @property
+    def dim(self) -> int:
+        return int(self.manifest["dim"])
+
+    def count(self) -> int:
+        return self.store.count()
+
+    def time_span(self) -> tuple[float, float]:
+        """(first, last) timestamp; raises EmptyMemoryError on an empty memory."""
+        with self._lock:
+            if self._span is None:
+                st = self.store.stats()
+                if not st.get("count"):
+                    raise EmptyMemoryError(f"memory {self.path} is empty: ingest something first")
+                self._span = (float(st["t_min"]), float(st["t_max"]))  # type: ignore[arg-type]
+            return self._span
+
+    def parse_time(self, expr: TimeLike) -> float:
+        """Resolve a time expression (see ravenmem.timeparse) against this recording."""
+        if expr is None:
+            raise InputError("no time given")
+        try:
+            ctx: TimeContext | None = TimeContext(*self.time_span())
+        except EmptyMemoryError:
+            ctx = None
+        return parse_time(expr, ctx)
+
+    def make_filter(self, after: TimeLike = None, before: TimeLike = None, near: Near | None = None) -> Filter:
+        region = None
+        if near is not None:
+            if len(near) != 3 or near[2] <= 0:
+                raise InputError(f"near must be (x, y, radius>0), got {near!r}")
+            region = Region(float(near[0]), float(near[1]), float(near[2]))
+        return Filter(
+            after=None if after is None else self.parse_time(after),
+            before=None if before is None else self.parse_time(before),
+            region=region,
+        )
+
+    def _require_nonempty(self) -> None:
+        if self.count() == 0:
+            raise EmptyMemoryError(f"memory {self.path} is empty: ingest something first")
+
+    def _hits(self, scored: Sequence[tuple[int, float]], kind: str = "score") -> list[Hit]:
+        recs = self.store.get([i for i, _ in scored])
+        if kind == "distance":
+            return [Hit(memory=r, distance=float(d)) for r, (_, d) in zip(recs, scored)]
+        return [Hit(memory=r, score=float(s)) for r, (_, s) in zip(recs, scored)]
+
+    def search_text(self, query: str, k: int = 5, after: TimeLike = None, before: TimeLike = None,
+                    near: Near | None = None) -> list[Hit]:
+        """Cosine between the text and stored images, fused with OCR matches; best first."""
+        if not query or not query.strip():
+            raise InputError("empty text query")
+        self._require_nonempty()
+        filt = self.make_filter(after, before, near)
+        q = self.embedder.embed_texts([query])[0]
+        scored = dict(self.store.search_vector(q, max(k, 1) * (3 if self.ocr_enabled else 1), filt))
+        ocr = dict(self.store.search_text(ocr_terms(query), max(k, 1) * 3, filt)) if self.ocr_enabled else {}
+        missing = [i for i in ocr if i not in scored]
+        if missing:
+            for r in self.store.get(missing, with_embeddings=True):
+                assert r.embedding is not None
+                scored[r.id] = float(np.dot(r.embedding, q))
+        fused = sorted(((s + OCR_WEIGHT * ocr.get(i, 0.0), i) for i, s in scored.items()), reverse=True)[:k]
+        hits = self._hits([(i, s) for s, i in fused])
+        for h in hits:
+            h.ocr_match = h.memory.id in ocr
+        return hits
+
+    def search_image(self, image: np.ndarray | str | os.PathLike[str], k: int = 5, after: TimeLike = None,
+                     before: TimeLike = None, near: Near | None = None) -> list[Hit]:
+        """Memories that look like a query image (cosine), best first."""
+        self._require_nonempty()
+        img = read_image(Path(image)) if isinstance(image, (str, os.PathLike)) else image
+        q = self.embedder.embed_images([img])[0]
+        return self._hits(self.store.search_vector(q, k, self.make_filter(after, before, near)))
+
+    def search_time(self, t: TimeLike, k: int = 5, after: TimeLike = None, before: TimeLike = None,
+                    near: Near | None = None) -> list[Hit]:
+        """The k memories from time t onwards, in forward chronological order (not centred)."""
+        self._require_nonempty()
+        recs = self.store.by_time(self.parse_time(t), k, self.make_filter(after, before, near))
+        return [Hit(memory=r) for r in recs]
+
+    def search_position(self, x: float, y: float, z: float | None = None, k: int = 5, radius: float | None = None,
+                        after: TimeLike = None, before: TimeLike = None) -> list[Hit]:
+        """The k memories taken nearest to (x, y[, z]), nearest first; planar when z is None."""
+        self._require_nonempty()
+        if radius is not None and radius <= 0:
+            raise InputError(f"radius must be > 0, got {radius}")
+        filt = self.make_filter(after, before)
+        return self._hits(self.store.nearest(x, y, z, k, radius, filt), kind="distance")
+
+    def query(self) -> Query:
+        from .query import Query
+
+        return Query(self)
+
+    def get(self, ids: Sequence[int]) -> list[MemoryRecord]:
+        return self.store.get(list(ids))
+
+    def all_records(self) -> list[MemoryRecord]:
+        """Every memory in chronological order (no embeddings)."""
+        if self.count() == 0:
+            return []
+        t0, _ = self.time_span()
+        return self.store.by_time(t0, self.count())
+
+    def image_file(self, rec: MemoryRecord) -> Path | None:
+        if not rec.image_path:
+            return None
+        p = Path(rec.image_path)
+        p = p if p.is_absolute() else self.path / p
+        return p if p.exists() else None
+
+    def load_image(self, rec: MemoryRecord) -> np.ndarray | None:
+        p = self.image_file(rec)
+        return read_image(p) if p is not None else None
+
+    def info(self) -> dict[str, Any]:
+        """What `ravenmem info` prints: counts, span, extent, embedder, bytes per memory, compression."""
+        st = dict(self.store.stats())
+        n = int(st.get("count") or 0)  # type: ignore[call-overload]
+        thumbs = self.path / "thumbs"
+        thumb_bytes = sum(p.stat().st_size for p in thumbs.glob("*.jpg")) if thumbs.exists() else 0
+        store_bytes = int(st.get("bytes") or 0)  # type: ignore[call-overload]
+        ingests = self.manifest.get("ingests", [])
+        seen = sum(int(r.get("frames_seen", 0)) for r in ingests)
+        raw = sum(int(r.get("raw_bytes", 0)) for r in ingests)
+        out: dict[str, Any] = {
+            "path": str(self.path),
+            "embedder": self.manifest["embedder"],
+            "dim": self.dim,
+            "store": self.manifest.get("store", "local"),
+            "ocr": self.ocr_enabled,
+            "thumb_size": self.thumb_size,
+            "memories": n,
+            "frames_seen": seen,
+            "keyframe_ratio": (seen / n) if n and seen else None,
+            "store_bytes": store_bytes,
+            "thumb_bytes": thumb_bytes,
+            "bytes_per_memory": (store_bytes / n) if n else None,
+            "bytes_per_memory_with_thumbs": ((store_bytes + thumb_bytes) / n) if n else None,
+            "raw_video_bytes": raw,
+            "compression_vs_raw": (raw / store_bytes) if raw and store_bytes else None,
+            "compression_vs_raw_with_thumbs": (raw / (store_bytes + thumb_bytes)) if raw and store_bytes else None,
+        }
+        for key in ("t_min", "t_max", "extent"):
+            if key in st:
+                out[key] = st[key]
+        if n:
+            out["duration_s"] = float(st["t_max"]) - float(st["t_min"])  # type: ignore[arg-type]
+        out["ingests"] = ingests
+        return out
+
+    # ---------------------------------------------------------------- lifecycle
+    def close(self) -> None:
+        self.store.close()
+
+    def __enter__(self) -> Memory:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Memory({str(self.path)!r}, embedder={self.manifest['embedder']!r}, memories={self.count()})"
+
+
+def ocr_terms(query: str) -> str:
+    """The words of a query worth looking for in OCR text (stopwords and filler dropped)."""
+    words = [w.strip(".,;:!?\"'()[]") for w in query.split()]
+    keep = [w for w in words if len(w) >= 2 and w.lower() not in _STOPWORDS] or words
+    return " ".join(keep)
+
+
+_STOPWORDS = set(
+    "a an the of to in on at for with by from and or is are was were be been where when what which who "
+    "how did do does i my me we our you your it its this that these those there here last first seen see "
+    "saw find show sign number room label text written says say".split()
+)
+
+
+def _validate_frame(f: Frame) -> None:
+    img = f.image
+    if not isinstance(img, np.ndarray) or img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+        shape = getattr(img, "shape", None)
+        raise InputError(f"frame {f.source}#{f.index}: image must be an RGB uint8 array (H, W, 3), got {shape}")
+    if f.pose is None:
+        raise InputError(f"frame {f.source}#{f.index}: no pose")
+    if not np.isfinite(f.t):
+        raise InputError(f"frame {f.source}#{f.index}: timestamp is not finite ({f.t})")
+
+
+def _check_embedder(emb: Embedder, manifest: dict[str, Any], path: Path) -> None:
+    if emb.name != manifest["embedder"] or emb.dim != int(manifest["dim"]):
+        raise EmbedderMismatchError(
+            f"memory {path} was built with embedder {manifest['embedder']!r} (dim {manifest['dim']}); "
+            f"it cannot be searched with {emb.name!r} (dim {emb.dim})"
+        )
+
+
+def _resolve_embedder(embedder: str | Embedder) -> Embedder:
+    return create_embedder(embedder) if isinstance(embedder, str) else embedder
+
+
+def create(path: str | os.PathLike[str], embedder: str | Embedder = "offline", store: str | None = None,
+           thumb_size: int = 320, thumb_quality: int = 85, ocr: bool = True, exist_ok: bool = False) -> Memory:
+    """Create a new memory folder (or open it when `exist_ok` and it exists with the same embedder)."""
+    p = Path(path)
+    if (p / MANIFEST).exists():
+        if not exist_ok:
+            raise InputError(f"{p} already holds a memory; open it, or choose another folder")
+        mem = open(p, embedder=embedder)
+        return mem
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{p} exists and is not a folder")
+    if thumb_size < 0:
+        raise InputError(f"thumb_size must be >= 0 (0 = off), got {thumb_size}")
+    emb = _resolve_embedder(embedder)
+    p.mkdir(parents=True, exist_ok=True)
+    uri = store or "local"
+    st = open_store(str(p) if uri == "local" else uri, dim=emb.dim)
+    manifest: dict[str, Any] = {
+        "format_version": FORMAT_VERSION, "embedder": emb.name, "dim": emb.dim, "store": uri,
+        "thumb_size": thumb_size, "thumb_quality": thumb_quality, "ocr": bool(ocr),
+        "created": time.time(), "ingests": [],
+    }  # fmt: skip
+    mem = Memory(p, manifest, st, emb)
+    mem._save_manifest()
+    return mem
+
+
+def open(path: str | os.PathLike[str], embedder: str | Embedder | None = None) -> Memory:  # noqa: A001
+    """Open an existing memory folder. Passing an embedder other than the one it was built with
+    is a clear error (its vectors would not be comparable)."""
+    p = Path(path)
+    mf = p / MANIFEST
+    if not mf.exists():
+        what = "does not exist" if not p.exists() else "is not a ravenmem memory (no memory.json)"
+        raise InputError(f"memory {p} {what}")
+    try:
+        manifest = json.loads(mf.read_text(encoding="utf-8"))
+        manifest["embedder"], manifest["dim"]  # noqa: B018 - required keys
+    except (json.JSONDecodeError, KeyError, TypeError) as e:
+        raise InputError(f"{mf}: corrupt manifest ({e})") from e
+    emb = None
+    if embedder is not None:
+        if isinstance(embedder, str) and embedder != manifest["embedder"]:
+            raise EmbedderMismatchError(
+                f"memory {p} was built with embedder {manifest['embedder']!r}; it cannot be searched with {embedder!r}"
+            )
+        emb = _resolve_embedder(embedder)
+        _check_embedder(emb, manifest, p)
+    uri = manifest.get("store", "local")
+    st = open_store(str(p) if uri == "local" else uri, dim=int(manifest["dim"]))
+    return Memory(p, manifest, st, emb)

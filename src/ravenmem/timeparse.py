@@ -1,0 +1,133 @@
+"""Turn what a user types for a time into Unix seconds (UTC).
+
+Accepted forms, tried in this order:
+- a number or `+12s` / `+1m30s` / `start+12`: seconds from the start of the recording;
+- `HH:MM:SS[.fff]`: a time of day (UTC) on the recording's first day; when that instant lies
+  outside the recording but the same clock reading fits as an offset from its start (a 27 s
+  clip asked for "00:00:12"), it is read as the offset. `+HH:MM:SS` forces the offset reading;
+- ISO 8601 dates/datetimes (`2011-05-10T12:40:30`, with or without a zone; no zone means UTC);
+- relative phrases: `10 minutes ago`, `2 h ago`, `yesterday`, `now`, `start`, `end`, relative
+  to the latest memory (a robot's "now" is its last observation; for a live robot they agree);
+- a bare large number (> 1e8) is taken as Unix seconds.
+Nothing here reads the local time zone.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
+
+from .errors import InputError
+
+_UNITS = {
+    "s": 1.0, "sec": 1.0, "secs": 1.0, "second": 1.0, "seconds": 1.0,
+    "m": 60.0, "min": 60.0, "mins": 60.0, "minute": 60.0, "minutes": 60.0,
+    "h": 3600.0, "hr": 3600.0, "hrs": 3600.0, "hour": 3600.0, "hours": 3600.0,
+    "d": 86400.0, "day": 86400.0, "days": 86400.0,
+}  # fmt: skip
+_DURATION = re.compile(r"^\s*(?:(\d+(?:\.\d+)?)\s*([a-z]+)\s*)+$")
+_PART = re.compile(r"(\d+(?:\.\d+)?)\s*([a-z]+)")
+_CLOCK = re.compile(r"^(\+)?(\d{1,2}):(\d{2})(?::(\d{2}(?:\.\d+)?))?$")
+
+
+@dataclass(frozen=True)
+class TimeContext:
+    """The recording's span, which relative forms are resolved against."""
+
+    start: float
+    end: float
+
+
+def parse_duration(text: str) -> float:
+    """`90`, `90s`, `1m30s`, `2 hours`, `00:01:30` -> seconds."""
+    s = text.strip().lower()
+    try:
+        return float(s)
+    except ValueError:
+        pass
+    m = _CLOCK.match(s)
+    if m:
+        return _clock_seconds(m)
+    if _DURATION.match(s):
+        total = 0.0
+        for num, unit in _PART.findall(s):
+            if unit not in _UNITS:
+                raise InputError(f"unknown time unit {unit!r} in {text!r}")
+            total += float(num) * _UNITS[unit]
+        return total
+    raise InputError(f"cannot read a duration from {text!r} (try 90, 90s, 1m30s or 00:01:30)")
+
+
+def _clock_seconds(m: re.Match[str]) -> float:
+    h, mi, sec = int(m.group(2)), int(m.group(3)), float(m.group(4) or 0.0)
+    if mi >= 60 or sec >= 60:
+        raise InputError(f"invalid clock time {m.group(0)!r}")
+    return h * 3600.0 + mi * 60.0 + sec
+
+
+def parse_time(expr: str | float | int, ctx: TimeContext | None) -> float:
+    """Resolve a time expression to Unix seconds; `ctx` is needed for relative forms."""
+    if isinstance(expr, (int, float)):
+        return _offset_or_epoch(float(expr), ctx, str(expr))
+    s = expr.strip().lower()
+    if not s:
+        raise InputError("empty time expression")
+    try:
+        return _offset_or_epoch(float(s), ctx, expr)
+    except ValueError:
+        pass
+    if s in ("now", "end", "latest"):
+        return _need(ctx, expr).end
+    if s in ("start", "beginning", "first"):
+        return _need(ctx, expr).start
+    if s.startswith("start+"):
+        return _need(ctx, expr).start + parse_duration(s[len("start+"):])
+    m = _CLOCK.match(s)
+    if m:
+        return _clock(m, _need(ctx, expr))
+    if s.startswith("+"):
+        return _need(ctx, expr).start + parse_duration(s[1:])
+    if s.endswith(" ago"):
+        return _need(ctx, expr).end - parse_duration(s[: -len(" ago")])
+    if s == "yesterday":
+        return _need(ctx, expr).end - 86400.0
+    try:
+        dt = datetime.fromisoformat(expr.strip().replace("Z", "+00:00"))
+    except ValueError:
+        dt = None
+    if dt is not None:
+        if dt.tzinfo is None:
+            dt = dt.replace(tzinfo=timezone.utc)
+        return dt.timestamp()
+    if _DURATION.match(s):
+        return _need(ctx, expr).start + parse_duration(s)
+    raise InputError(
+        f"cannot read a time from {expr!r}: use seconds from start (12, +12s), HH:MM:SS, "
+        "an ISO datetime, or '10 minutes ago'"
+    )
+
+
+def _need(ctx: TimeContext | None, expr: object) -> TimeContext:
+    if ctx is None:
+        raise InputError(f"time {expr!r} is relative to the recording, and the memory is empty")
+    return ctx
+
+
+def _offset_or_epoch(v: float, ctx: TimeContext | None, expr: str) -> float:
+    if v > 1e8:  # a Unix timestamp (after 1973): absolute
+        return v
+    return _need(ctx, expr).start + v
+
+
+def _clock(m: re.Match[str], ctx: TimeContext) -> float:
+    secs = _clock_seconds(m)
+    if m.group(1):  # "+HH:MM:SS": always an offset from the start
+        return ctx.start + secs
+    day = datetime.fromtimestamp(ctx.start, tz=timezone.utc).replace(hour=0, minute=0, second=0, microsecond=0)
+    as_day = (day + timedelta(seconds=secs)).timestamp()
+    if ctx.start - 1e-6 <= as_day <= ctx.end + 1e-6:
+        return as_day
+    if secs <= ctx.end - ctx.start + 1e-6:
+        return ctx.start + secs
+    return as_day

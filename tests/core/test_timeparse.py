@@ -1,0 +1,62 @@
+from datetime import datetime, timezone
+
+import pytest
+
+from ravenmem.errors import InputError
+from ravenmem.timeparse import TimeContext, parse_duration, parse_time
+
+# A 27 s recording starting 2011-05-10 12:40:29.5 UTC (the TUM desk clip's clock).
+START = datetime(2011, 5, 10, 12, 40, 29, 500000, tzinfo=timezone.utc).timestamp()
+CTX = TimeContext(START, START + 27.0)
+
+
+@pytest.mark.parametrize(
+    "expr,expected",
+    [
+        ("12", START + 12), (12, START + 12), ("+12s", START + 12), ("start+1m", START + 60),
+        ("00:00:12", START + 12),  # outside the day's span but fits as an offset
+        ("+00:00:05", START + 5),
+        ("12:40:40", datetime(2011, 5, 10, 12, 40, 40, tzinfo=timezone.utc).timestamp()),
+        ("2011-05-10T12:40:35Z", datetime(2011, 5, 10, 12, 40, 35, tzinfo=timezone.utc).timestamp()),
+        ("2011-05-10T14:40:35+02:00", datetime(2011, 5, 10, 12, 40, 35, tzinfo=timezone.utc).timestamp()),
+        ("2011-05-10 12:40:35", datetime(2011, 5, 10, 12, 40, 35, tzinfo=timezone.utc).timestamp()),
+        ("10 seconds ago", START + 17), ("1 min ago", START + 27 - 60), ("now", START + 27),
+        ("start", START), ("1305031230.5", 1305031230.5),
+    ],
+)  # fmt: skip
+def test_parse_time_forms(expr, expected):
+    assert parse_time(expr, CTX) == pytest.approx(expected, abs=1e-6)
+
+
+def test_naive_iso_is_utc_whatever_the_local_zone(monkeypatch):
+    import time
+
+    monkeypatch.setenv("TZ", "America/New_York")
+    time.tzset()
+    try:
+        assert parse_time("2011-05-10T12:40:35", CTX) == pytest.approx(
+            datetime(2011, 5, 10, 12, 40, 35, tzinfo=timezone.utc).timestamp()
+        )
+    finally:
+        monkeypatch.delenv("TZ")
+        time.tzset()
+
+
+@pytest.mark.parametrize("expr", ["", "tomorrowish", "12:75:00", "5 parsecs ago"])
+def test_bad_times_are_clear_errors(expr):
+    with pytest.raises(InputError):
+        parse_time(expr, CTX)
+
+
+def test_relative_needs_a_recording():
+    with pytest.raises(InputError, match="empty"):
+        parse_time("10 minutes ago", None)
+    assert parse_time("2011-05-10T12:40:35Z", None) > 0
+
+
+def test_durations():
+    assert parse_duration("1m30s") == 90
+    assert parse_duration("00:01:30") == 90
+    assert parse_duration("2 hours") == 7200
+    with pytest.raises(InputError):
+        parse_duration("soon")

@@ -8,6 +8,7 @@ channel, resolves time expressions and hands out `Hit`s; the store does the inde
 
 from __future__ import annotations
 
+import builtins
 import json
 import os
 import threading
@@ -39,7 +40,7 @@ TimeLike = float | int | str | None
 def atomic_write_text(path: Path, text: str) -> None:
     """Write a file so that a crash leaves either the old or the new content, never half."""
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
+    with builtins.open(tmp, "w", encoding="utf-8") as f:
         f.write(text)
         f.flush()
         os.fsync(f.fileno())

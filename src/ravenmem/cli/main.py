@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
@@ -20,8 +21,12 @@ from rich.table import Table
 from ..errors import InputError, RavenmemError
 from ..types import Hit
 
+os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # model-loading bars are noise in a CLI
+os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
+os.environ.setdefault("HF_HUB_OFFLINE", "1")  # never reach for a hub implicitly; hub names still work when cached
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="ravenmem: a long-term visual memory for robots.")
-console = Console()
+console = Console() if sys.stdout.isatty() else Console(width=200)
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
 
@@ -41,6 +46,16 @@ def hit_dict(h: Hit, rank: int, mem: Any) -> dict[str, Any]:
         "image": str(img) if img else r.image_path, "source": r.source, "frame_index": r.frame_index,
         "ocr_text": r.ocr_text, "ocr_match": h.ocr_match,
     }  # fmt: skip
+
+
+def short_path(p: str | None) -> str:
+    """Paths relative to the working directory when under it: tables stay readable."""
+    if not p:
+        return ""
+    try:
+        return os.path.relpath(p) if not os.path.relpath(p).startswith("..") else p
+    except ValueError:
+        return p
 
 
 def print_json(obj: Any) -> None:
@@ -154,7 +169,7 @@ def search(
     for r in rows:
         val = r["distance"] if modes[0] == "position" else r["score"]
         table.add_row(str(r["rank"]), "" if val is None else f"{val:.3f}", r["time"], f"{r['offset_s']:.2f}",
-                      f"{r['x']:.2f}", f"{r['y']:.2f}", f"{r['z']:.2f}", f"{r['yaw']:.2f}", str(r["image"] or ""))
+                      f"{r['x']:.2f}", f"{r['y']:.2f}", f"{r['z']:.2f}", f"{r['yaw']:.2f}", short_path(r["image"]))
     console.print(table)
 
 

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Set up ravenmem from scratch in ./.venv: torch pinned to the CPU build first (an unpinned torch
+# pulls gigabytes of CUDA packages), then the package with the extras named in $RAVENMEM_EXTRAS.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+EXTRAS=${RAVENMEM_EXTRAS:-dev,sim,clip,hf,milvus}
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+. .venv/bin/activate
+python -m pip install -q --upgrade pip
+python -m pip install -q "torch==2.13.0"
+python -m pip install -q -e ".[${EXTRAS}]"
+python -c "import torch, ravenmem; print('ravenmem', ravenmem.__version__, 'torch', torch.__version__)"

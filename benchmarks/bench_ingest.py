@@ -38,7 +38,9 @@ class Limited:
 
 def run(tum: Path, frames: int, ocr: bool, thumb: int, tmp: Path) -> dict:
     mem = ravenmem.create(tmp / f"m_{ocr}_{thumb}.mem", embedder="offline", ocr=ocr, thumb_size=thumb)
-    mem.embedder.embed_images([__import__("numpy").zeros((480, 640, 3), "uint8")])  # load weights outside the timing
+    mem.embedder.embed_images(
+        [__import__("numpy").zeros((480, 640, 3), "uint8")]
+    )  # load weights outside the timing
     if ocr:
         mem._read_text(__import__("numpy").zeros((480, 640, 3), "uint8"))
     t = time.perf_counter()
@@ -71,8 +73,12 @@ def main() -> None:
     print(f"ingest, offline embedder + OCR   : {withocr['kf_per_s']:.2f} keyframes/s (target >= 1)")
     print(f"bytes per memory, no thumbnail   : {bpm:,.0f} B (target <= 8192)")
     print(f"bytes per memory, 320px thumbnail: {bpm_t:,.0f} B")
-    print(f"raw decoded video / memory (this clip, every frame kept): {plain['info']['compression_vs_raw']:,.0f}x")
-    print(f"paper setting (VGA 30 fps raw vs 0.12 keyframes/s, no thumbnail): {paper_ratio:,.0f}x (paper: 22,315x)")
+    print(
+        f"raw decoded video / memory (this clip, every frame kept): {plain['info']['compression_vs_raw']:,.0f}x"
+    )
+    print(
+        f"paper setting (VGA 30 fps raw vs 0.12 keyframes/s, no thumbnail): {paper_ratio:,.0f}x (paper: 22,315x)"
+    )
     print(f"paper setting with 320px thumbnails: {raw_per_s / (0.12 * bpm_t):,.0f}x")
 
 

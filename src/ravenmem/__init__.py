@@ -1,8 +1,8 @@
 """ravenmem: a long-term visuo-spatio-temporal memory for robots.
 
-    import ravenmem
-    mem = ravenmem.open("./desk.mem")
-    hits = mem.search_text("a computer keyboard", k=5)
+import ravenmem
+mem = ravenmem.open("./desk.mem")
+hits = mem.search_text("a computer keyboard", k=5)
 """
 
 from __future__ import annotations

@@ -99,15 +99,22 @@ class Memory:
             embeddings = self.embedder.embed_images([f.image for f in frames])
         embeddings = np.asarray(embeddings, dtype=np.float32)
         if embeddings.shape != (len(frames), self.dim):
-            raise InputError(f"embeddings have shape {embeddings.shape}, expected ({len(frames)}, {self.dim})")
+            raise InputError(
+                f"embeddings have shape {embeddings.shape}, expected ({len(frames)}, {self.dim})"
+            )
         texts = [self._read_text(f.image) for f in frames] if self.ocr_enabled else [""] * len(frames)
         records = []
         for f, text in zip(frames, texts):
             assert f.pose is not None
             records.append(
                 MemoryRecord(
-                    id=-1, t=float(f.t), pose=f.pose, source=f.source, frame_index=int(f.index),
-                    image_path=self._write_thumb(f), ocr_text=text,
+                    id=-1,
+                    t=float(f.t),
+                    pose=f.pose,
+                    source=f.source,
+                    frame_index=int(f.index),
+                    image_path=self._write_thumb(f),
+                    ocr_text=text,
                 )
             )
         with self._lock:
@@ -126,7 +133,12 @@ class Memory:
         if self.thumb_size <= 0:
             return str(Path(f.path).resolve()) if f.path else None
         rel = f"thumbs/{int(f.t * 1000):015d}_{uuid.uuid4().hex[:8]}.jpg"
-        write_jpeg(self.path / rel, f.image, max_side=self.thumb_size, quality=int(self.manifest.get("thumb_quality", 85)))
+        write_jpeg(
+            self.path / rel,
+            f.image,
+            max_side=self.thumb_size,
+            quality=int(self.manifest.get("thumb_quality", 85)),
+        )
         return rel
 
     def record_ingest(self, report: dict[str, Any]) -> None:
@@ -166,7 +178,9 @@ class Memory:
             ctx = None
         return parse_time(expr, ctx)
 
-    def make_filter(self, after: TimeLike = None, before: TimeLike = None, near: Near | None = None) -> Filter:
+    def make_filter(
+        self, after: TimeLike = None, before: TimeLike = None, near: Near | None = None
+    ) -> Filter:
         region = None
         if near is not None:
             if len(near) != 3 or near[2] <= 0:
@@ -188,8 +202,14 @@ class Memory:
             return [Hit(memory=r, distance=float(d)) for r, (_, d) in zip(recs, scored)]
         return [Hit(memory=r, score=float(s)) for r, (_, s) in zip(recs, scored)]
 
-    def search_text(self, query: str, k: int = 5, after: TimeLike = None, before: TimeLike = None,
-                    near: Near | None = None) -> list[Hit]:
+    def search_text(
+        self,
+        query: str,
+        k: int = 5,
+        after: TimeLike = None,
+        before: TimeLike = None,
+        near: Near | None = None,
+    ) -> list[Hit]:
         """Cosine between the text and stored images, fused with OCR matches; best first."""
         if not query or not query.strip():
             raise InputError("empty text query")
@@ -209,23 +229,43 @@ class Memory:
             h.ocr_match = h.memory.id in ocr
         return hits
 
-    def search_image(self, image: np.ndarray | str | os.PathLike[str], k: int = 5, after: TimeLike = None,
-                     before: TimeLike = None, near: Near | None = None) -> list[Hit]:
+    def search_image(
+        self,
+        image: np.ndarray | str | os.PathLike[str],
+        k: int = 5,
+        after: TimeLike = None,
+        before: TimeLike = None,
+        near: Near | None = None,
+    ) -> list[Hit]:
         """Memories that look like a query image (cosine), best first."""
         self._require_nonempty()
         img = read_image(Path(image)) if isinstance(image, (str, os.PathLike)) else image
         q = self.embedder.embed_images([img])[0]
         return self._hits(self.store.search_vector(q, k, self.make_filter(after, before, near)))
 
-    def search_time(self, t: TimeLike, k: int = 5, after: TimeLike = None, before: TimeLike = None,
-                    near: Near | None = None) -> list[Hit]:
+    def search_time(
+        self,
+        t: TimeLike,
+        k: int = 5,
+        after: TimeLike = None,
+        before: TimeLike = None,
+        near: Near | None = None,
+    ) -> list[Hit]:
         """The k memories from time t onwards, in forward chronological order (not centred)."""
         self._require_nonempty()
         recs = self.store.by_time(self.parse_time(t), k, self.make_filter(after, before, near))
         return [Hit(memory=r) for r in recs]
 
-    def search_position(self, x: float, y: float, z: float | None = None, k: int = 5, radius: float | None = None,
-                        after: TimeLike = None, before: TimeLike = None) -> list[Hit]:
+    def search_position(
+        self,
+        x: float,
+        y: float,
+        z: float | None = None,
+        k: int = 5,
+        radius: float | None = None,
+        after: TimeLike = None,
+        before: TimeLike = None,
+    ) -> list[Hit]:
         """The k memories taken nearest to (x, y[, z]), nearest first; planar when z is None."""
         self._require_nonempty()
         if radius is not None and radius <= 0:
@@ -285,7 +325,9 @@ class Memory:
             "bytes_per_memory_with_thumbs": ((store_bytes + thumb_bytes) / n) if n else None,
             "raw_video_bytes": raw,
             "compression_vs_raw": (raw / store_bytes) if raw and store_bytes else None,
-            "compression_vs_raw_with_thumbs": (raw / (store_bytes + thumb_bytes)) if raw and store_bytes else None,
+            "compression_vs_raw_with_thumbs": (raw / (store_bytes + thumb_bytes))
+            if raw and store_bytes
+            else None,
         }
         for key in ("t_min", "t_max", "extent"):
             if key in st:
@@ -317,9 +359,67 @@ def ocr_terms(query: str) -> str:
 
 
 _STOPWORDS = set(
-    "a an the of to in on at for with by from and or is are was were be been where when what which who "
-    "how did do does i my me we our you your it its this that these those there here last first seen see "
-    "saw find show sign number room label text written says say".split()
+    [
+        "a",
+        "an",
+        "the",
+        "of",
+        "to",
+        "in",
+        "on",
+        "at",
+        "for",
+        "with",
+        "by",
+        "from",
+        "and",
+        "or",
+        "is",
+        "are",
+        "was",
+        "were",
+        "be",
+        "been",
+        "where",
+        "when",
+        "what",
+        "which",
+        "who",
+        "how",
+        "did",
+        "do",
+        "does",
+        "i",
+        "my",
+        "me",
+        "we",
+        "our",
+        "you",
+        "your",
+        "it",
+        "its",
+        "this",
+        "that",
+        "these",
+        "those",
+        "there",
+        "here",
+        "last",
+        "first",
+        "seen",
+        "see",
+        "saw",
+        "find",
+        "show",
+        "sign",
+        "number",
+        "room",
+        "label",
+        "text",
+        "written",
+        "says",
+        "say",
+    ]
 )
 
 
@@ -327,7 +427,9 @@ def _validate_frame(f: Frame) -> None:
     img = f.image
     if not isinstance(img, np.ndarray) or img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
         shape = getattr(img, "shape", None)
-        raise InputError(f"frame {f.source}#{f.index}: image must be an RGB uint8 array (H, W, 3), got {shape}")
+        raise InputError(
+            f"frame {f.source}#{f.index}: image must be an RGB uint8 array (H, W, 3), got {shape}"
+        )
     if f.pose is None:
         raise InputError(f"frame {f.source}#{f.index}: no pose")
     if not np.isfinite(f.t):
@@ -346,8 +448,15 @@ def _resolve_embedder(embedder: str | Embedder) -> Embedder:
     return create_embedder(embedder) if isinstance(embedder, str) else embedder
 
 
-def create(path: str | os.PathLike[str], embedder: str | Embedder = "offline", store: str | None = None,
-           thumb_size: int = 320, thumb_quality: int = 85, ocr: bool = True, exist_ok: bool = False) -> Memory:
+def create(
+    path: str | os.PathLike[str],
+    embedder: str | Embedder = "offline",
+    store: str | None = None,
+    thumb_size: int = 320,
+    thumb_quality: int = 85,
+    ocr: bool = True,
+    exist_ok: bool = False,
+) -> Memory:
     """Create a new memory folder (or open it when `exist_ok` and it exists with the same embedder)."""
     p = Path(path)
     if (p / MANIFEST).exists():

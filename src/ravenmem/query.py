@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -71,7 +71,7 @@ class Query:
             return m.search_image(arg, k, after=a, before=b, near=self._near)  # type: ignore[arg-type]
         if mode == "time":
             return m.search_time(arg, k, after=a, before=b, near=self._near)  # type: ignore[arg-type]
-        x, y, z = arg  # type: ignore[misc]
+        x, y, z = cast(tuple[float, float, "float | None"], arg)
         radius = self._near[2] if self._near else None
         hits = m.search_position(x, y, z, k, radius=radius, after=a, before=b)
         return hits

@@ -82,7 +82,7 @@ def parse_time(expr: str | float | int, ctx: TimeContext | None) -> float:
     if s in ("start", "beginning", "first"):
         return _need(ctx, expr).start
     if s.startswith("start+"):
-        return _need(ctx, expr).start + parse_duration(s[len("start+"):])
+        return _need(ctx, expr).start + parse_duration(s[len("start+") :])
     m = _CLOCK.match(s)
     if m:
         return _clock(m, _need(ctx, expr))
@@ -124,7 +124,9 @@ def _clock(m: re.Match[str], ctx: TimeContext) -> float:
     secs = _clock_seconds(m)
     if m.group(1):  # "+HH:MM:SS": always an offset from the start
         return ctx.start + secs
-    day = datetime.fromtimestamp(ctx.start, tz=timezone.utc).replace(hour=0, minute=0, second=0, microsecond=0)
+    day = datetime.fromtimestamp(ctx.start, tz=timezone.utc).replace(
+        hour=0, minute=0, second=0, microsecond=0
+    )
     as_day = (day + timedelta(seconds=secs)).timestamp()
     if ctx.start - 1e-6 <= as_day <= ctx.end + 1e-6:
         return as_day

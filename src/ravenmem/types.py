@@ -34,7 +34,9 @@ class Pose:
             raise ValueError(f"pose has a non-finite value: {self}")
 
     @classmethod
-    def from_quaternion(cls, x: float, y: float, z: float, qx: float, qy: float, qz: float, qw: float) -> Pose:
+    def from_quaternion(
+        cls, x: float, y: float, z: float, qx: float, qy: float, qz: float, qw: float
+    ) -> Pose:
         """Build a pose from a position and a quaternion; yaw is the rotation about +z."""
         n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
         if not math.isfinite(n) or n < 1e-9:

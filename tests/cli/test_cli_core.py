@@ -17,15 +17,31 @@ REPO = Path(__file__).resolve().parents[2]
 
 def rm(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
-    return subprocess.run([sys.executable, "-m", "ravenmem.cli.main", *args], capture_output=True, text=True,
-                          cwd=cwd, env=env, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "ravenmem.cli.main", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=env,
+        timeout=600,
+    )
 
 
 @pytest.fixture(scope="module")
 def desk(tmp_path_factory, tum_path_module) -> Path:
     mem = tmp_path_factory.mktemp("cli") / "desk.mem"
-    r = rm("ingest", str(tum_path_module), "--format", "tum", "--memory", str(mem), "--stride", "30", "--no-ocr",
-           "--json")
+    r = rm(
+        "ingest",
+        str(tum_path_module),
+        "--format",
+        "tum",
+        "--memory",
+        str(mem),
+        "--stride",
+        "30",
+        "--no-ocr",
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["frames_seen"] == 723 and out["kept"] == 24 == out["memories_total"]

@@ -20,8 +20,10 @@ SEQ = ["red", "green", "blue", "yellow", "red", "cyan", "magenta", "blue", "whit
 @pytest.fixture
 def mem(tmp_path, color_embedder):
     m = ravenmem.create(tmp_path / "m.mem", embedder=color_embedder, ocr=False, thumb_size=32)
-    frames = [Frame(image=solid(c), t=T0 + 10 * i, pose=Pose(float(i), 0.0, 0.0, 0.1 * i), source="test", index=i)
-              for i, c in enumerate(SEQ)]
+    frames = [
+        Frame(image=solid(c), t=T0 + 10 * i, pose=Pose(float(i), 0.0, 0.0, 0.1 * i), source="test", index=i)
+        for i, c in enumerate(SEQ)
+    ]
     m.add_frames(frames)
     yield m
     m.close()
@@ -29,7 +31,9 @@ def mem(tmp_path, color_embedder):
 
 def test_text_search_ranks_by_cosine_and_returns_scores(mem):
     hits = mem.search_text("the red one", k=3)
-    assert [h.memory.frame_index for h in hits[:2]] == sorted([0, 4]) or {h.memory.frame_index for h in hits[:2]} == {0, 4}
+    assert [h.memory.frame_index for h in hits[:2]] == sorted([0, 4]) or {
+        h.memory.frame_index for h in hits[:2]
+    } == {0, 4}
     assert hits[0].score == pytest.approx(1.0, abs=1e-5)
     assert hits[0].score >= hits[1].score >= hits[2].score
 

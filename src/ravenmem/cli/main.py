@@ -23,9 +23,13 @@ from ..types import Hit
 
 os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # model-loading bars are noise in a CLI
 os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
-os.environ.setdefault("HF_HUB_OFFLINE", "1")  # never reach for a hub implicitly; hub names still work when cached
+os.environ.setdefault(
+    "HF_HUB_OFFLINE", "1"
+)  # never reach for a hub implicitly; hub names still work when cached
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help="ravenmem: a long-term visual memory for robots.")
+app = typer.Typer(
+    add_completion=False, no_args_is_help=True, help="ravenmem: a long-term visual memory for robots."
+)
 console = Console() if sys.stdout.isatty() else Console(width=200)
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
@@ -66,7 +70,9 @@ def parse_floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
     try:
         vals = [float(v) for v in text.replace(" ", "").split(",")]
     except ValueError:
-        raise InputError(f"{what}: expected {' or '.join(map(str, n))} comma-separated numbers, got {text!r}") from None
+        raise InputError(
+            f"{what}: expected {' or '.join(map(str, n))} comma-separated numbers, got {text!r}"
+        ) from None
     if len(vals) not in n:
         raise InputError(f"{what}: expected {' or '.join(map(str, n))} comma-separated numbers, got {text!r}")
     return vals
@@ -76,13 +82,23 @@ def parse_floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
 def ingest(
     source: Annotated[str, typer.Argument(help="video file, TUM folder, image folder, ROS 1/2 bag or MCAP")],
     memory: MemoryOpt,
-    format: Annotated[str | None, typer.Option(help="tum | video | folder | rosbag (default: detect)")] = None,
-    poses: Annotated[Path | None, typer.Option(help="pose track: CSV t,x,y,z[,yaw|,qx,qy,qz,qw] or TUM")] = None,
+    format: Annotated[
+        str | None, typer.Option(help="tum | video | folder | rosbag (default: detect)")
+    ] = None,
+    poses: Annotated[
+        Path | None, typer.Option(help="pose track: CSV t,x,y,z[,yaw|,qx,qy,qz,qw] or TUM")
+    ] = None,
     image_topic: Annotated[str | None, typer.Option(help="bag image topic")] = None,
-    pose_topic: Annotated[str | None, typer.Option(help="bag pose topic (Odometry, PoseStamped or /tf)")] = None,
-    embedder: Annotated[str, typer.Option(help="offline | open_clip:MODEL/TAG | hf:NAME_OR_PATH")] = "offline",
+    pose_topic: Annotated[
+        str | None, typer.Option(help="bag pose topic (Odometry, PoseStamped or /tf)")
+    ] = None,
+    embedder: Annotated[
+        str, typer.Option(help="offline | open_clip:MODEL/TAG | hf:NAME_OR_PATH")
+    ] = "offline",
     store: Annotated[str | None, typer.Option(help="store URI for a new memory (default: embedded)")] = None,
-    keyframes: Annotated[str | None, typer.Option(help="e.g. 'stride=5,fps=2,min_translation=0.1,max_similarity=0.95'")] = None,
+    keyframes: Annotated[
+        str | None, typer.Option(help="e.g. 'stride=5,fps=2,min_translation=0.1,max_similarity=0.95'")
+    ] = None,
     stride: Annotated[int | None, typer.Option(help="keep every Nth frame")] = None,
     fps: Annotated[float | None, typer.Option(help="target keyframe rate")] = None,
     ocr: Annotated[bool, typer.Option(help="read text in keyframes (slower)")] = True,
@@ -101,9 +117,15 @@ def ingest(
         cfg.stride = stride
     if fps is not None:
         cfg.fps = fps
-    kwargs = {k: v for k, v in dict(poses=poses, image_topic=image_topic, pose_topic=pose_topic).items() if v is not None}
+    kwargs = {
+        k: v
+        for k, v in dict(poses=poses, image_topic=image_topic, pose_topic=pose_topic).items()
+        if v is not None
+    }
     src = open_source(source, format, **kwargs)
-    mem = ravenmem.create(memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True)
+    mem = ravenmem.create(
+        memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True
+    )
     with mem:
         rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size)
         total = mem.count()
@@ -111,8 +133,10 @@ def ingest(
     if json_out:
         print_json(out)
         return
-    console.print(f"[bold]{rep.source}[/]: {rep.frames_seen} frames seen, {rep.kept} kept "
-                  f"({rep.keyframes_per_s:.1f} keyframes/s, {rep.seconds:.1f} s); memory now holds {total}")
+    console.print(
+        f"[bold]{rep.source}[/]: {rep.frames_seen} frames seen, {rep.kept} kept "
+        f"({rep.keyframes_per_s:.1f} keyframes/s, {rep.seconds:.1f} s); memory now holds {total}"
+    )
     for reason, n in sorted(rep.skipped.items()):
         console.print(f"  skipped {n}: {reason}")
     if rep.kept == 0:
@@ -136,7 +160,11 @@ def search(
     """Search a memory with one of the four tools: text, --image, --time or --position."""
     import ravenmem
 
-    modes = [m for m, v in (("text", text), ("image", image), ("time", time), ("position", position)) if v is not None]
+    modes = [
+        m
+        for m, v in (("text", text), ("image", image), ("time", time), ("position", position))
+        if v is not None
+    ]
     if len(modes) != 1:
         raise InputError("give exactly one of: a text query, --image, --time or --position")
     if k < 1:
@@ -168,8 +196,17 @@ def search(
         table.add_column(col, justify="right" if col not in ("time (UTC)", "image") else "left")
     for r in rows:
         val = r["distance"] if modes[0] == "position" else r["score"]
-        table.add_row(str(r["rank"]), "" if val is None else f"{val:.3f}", r["time"], f"{r['offset_s']:.2f}",
-                      f"{r['x']:.2f}", f"{r['y']:.2f}", f"{r['z']:.2f}", f"{r['yaw']:.2f}", short_path(r["image"]))
+        table.add_row(
+            str(r["rank"]),
+            "" if val is None else f"{val:.3f}",
+            r["time"],
+            f"{r['offset_s']:.2f}",
+            f"{r['x']:.2f}",
+            f"{r['y']:.2f}",
+            f"{r['z']:.2f}",
+            f"{r['yaw']:.2f}",
+            short_path(r["image"]),
+        )
     console.print(table)
 
 
@@ -192,8 +229,10 @@ def info(memory: MemoryOpt, json_out: JsonOpt = False) -> None:
             val = f"{val:,.2f}"
         console.print(f"{key:>32}: {val}")
     for rep in data.get("ingests", []):
-        console.print(f"{'ingest':>32}: {rep.get('source')} seen {rep.get('frames_seen')} kept {rep.get('kept')} "
-                      f"skipped {rep.get('skipped')}")
+        console.print(
+            f"{'ingest':>32}: {rep.get('source')} seen {rep.get('frames_seen')} kept {rep.get('kept')} "
+            f"skipped {rep.get('skipped')}"
+        )
 
 
 def _register_extensions() -> None:

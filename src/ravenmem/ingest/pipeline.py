@@ -64,8 +64,13 @@ def _posed(frames: Iterator[Frame], report: IngestReport) -> Iterator[Frame]:
         yield f
 
 
-def ingest(source: FrameSource, mem: Memory, keyframes: KeyframeConfig | None = None, batch_size: int = 16,
-           progress: bool | None = None) -> IngestReport:
+def ingest(
+    source: FrameSource,
+    mem: Memory,
+    keyframes: KeyframeConfig | None = None,
+    batch_size: int = 16,
+    progress: bool | None = None,
+) -> IngestReport:
     """Run a source into a memory; returns counts (also appended to the memory's manifest)."""
     cfg = keyframes or KeyframeConfig()
     report = IngestReport(source=getattr(source, "name", str(source)))
@@ -81,8 +86,9 @@ def ingest(source: FrameSource, mem: Memory, keyframes: KeyframeConfig | None = 
         emb = mem.embedder.embed_images([f.image for f in batch])
         keep = [i for i in range(len(batch)) if novelty is None or novelty.keep(emb[i])]
         if novelty is not None and len(keep) < len(batch):
-            report.skipped["similar to last keyframe"] = report.skipped.get("similar to last keyframe", 0) + len(
-                batch) - len(keep)
+            report.skipped["similar to last keyframe"] = (
+                report.skipped.get("similar to last keyframe", 0) + len(batch) - len(keep)
+            )
         if keep:
             ids = mem.add_frames([batch[i] for i in keep], embeddings=emb[keep])
             report.first_id = ids[0] if report.first_id is None else report.first_id
@@ -111,8 +117,11 @@ def ingest(source: FrameSource, mem: Memory, keyframes: KeyframeConfig | None = 
         else:
             report.frames_seen = report.frames_decoded
         report.frames_seen = max(report.frames_seen, report.frames_decoded)
-        prefilter_dropped = report.frames_decoded - sum(
-            v for k, v in report.skipped.items() if k in ("no pose", "non-monotonic timestamp")) - report.candidates
+        prefilter_dropped = (
+            report.frames_decoded
+            - sum(v for k, v in report.skipped.items() if k in ("no pose", "non-monotonic timestamp"))
+            - report.candidates
+        )
         if prefilter_dropped > 0:
             report.skipped["keyframe selection (stride/rate/motion)"] = prefilter_dropped
         if report.kept or report.frames_seen:

@@ -66,6 +66,27 @@ def print_json(obj: Any) -> None:
     sys.stdout.write(json.dumps(obj, indent=2, default=str) + "\n")
 
 
+def parse_options(items: list[str], what: str) -> dict[str, Any]:
+    """`KEY=VALUE` strings -> kwargs; numbers and true/false are converted, the rest stay strings."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"{what}: expected KEY=VALUE, got {item!r}")
+        val: Any = raw
+        if raw.lower() in ("true", "false"):
+            val = raw.lower() == "true"
+        else:
+            for conv in (int, float):
+                try:
+                    val = conv(raw)
+                    break
+                except ValueError:
+                    pass
+        out[key.strip().replace("-", "_")] = val
+    return out
+
+
 def parse_floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
     try:
         vals = [float(v) for v in text.replace(" ", "").split(",")]

@@ -1,0 +1,155 @@
+"""A folder of images plus a pose file.
+
+The pose file is `poses=FILE`, or `poses.csv` / `poses.txt` inside the folder. Two schemes, chosen
+by whether the pose file has a `file` column (see poses.py for the layouts):
+
+* Per-image rows (header with `file`/`filename`): each row gives the pose of the named image
+  (name relative to the folder). Images without a row are skipped ("no pose row for image").
+* A time-stamped track (no `file` column): each image gets a time and its pose is interpolated
+  (or the nearest sample, `pose_match="nearest"`) from the track.
+
+Image time, first rule that applies: the row's `t` column (per-image rows); with `fps`,
+`start_time + i / fps` for the i-th image in name order (digit runs compared as numbers, so
+frame_2 < frame_10); otherwise the file name's stem must be a number (`1305031229.528748.jpg`,
+seconds), integers above 1e17, 1e14 or 1e11 being read as ns, us or ms (ROS exporters' names).
+Frames come out in time order.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from ..types import Frame, Pose
+from ._util import IMAGE_EXTS, build, existing, parse_start_time, read_rgb
+from .base import SOURCES, SourceStats
+from .poses import PoseTable, PoseTrack, check_match_mode, read_pose_table
+
+SKIP_NO_ROW = "no pose row for image"
+
+
+def natural_key(name: str) -> list[Any]:
+    """Sort key comparing digit runs as numbers, so frame_2 sorts before frame_10."""
+    return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", name) if p]
+
+
+def time_from_name(name: str) -> float | None:
+    """Seconds from a numeric file stem (ns/us/ms integers scaled by magnitude), else None."""
+    stem = name.rsplit(".", 1)[0] if "." in name else name
+    try:
+        v = float(stem)
+    except ValueError:
+        return None
+    if "." not in stem and "e" not in stem.lower():
+        for limit, scale in ((1e17, 1e-9), (1e14, 1e-6), (1e11, 1e-3)):
+            if v > limit:
+                return v * scale
+    return v
+
+
+class FolderSource:
+    """Images in a folder (not recursive), posed from a pose file."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        poses: str | Path | None = None,
+        fps: float | None = None,
+        start_time: float | str = 0.0,
+        pose_match: str = "interpolate",
+        max_gap: float | None = None,
+        sort_poses: bool = False,
+    ) -> None:
+        self.root = existing(path, "image folder", want_dir=True)
+        self.name = f"folder:{self.root.name}"
+        self.stats = SourceStats()
+        if fps is not None and not fps > 0:
+            raise InputError(f"folder: fps must be > 0, got {fps}")
+        self.pose_match = check_match_mode(pose_match)
+        self.max_gap = max_gap if max_gap is not None or self.pose_match != "nearest" else 0.05
+        table = read_pose_table(self._pose_file(poses))
+        names = [p.name for p in self.root.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS]
+        if not names:
+            raise InputError(f"{self.root}: no images ({', '.join(IMAGE_EXTS)})")
+        start = parse_start_time(start_time)
+        self.rows: dict[str, int] | None = None
+        self.table: PoseTable | None = None
+        self.track: PoseTrack | None = None
+        if table.files is not None:
+            self.table = table
+            self.rows = {}
+            for i, f in enumerate(table.files):
+                if f in self.rows:
+                    raise InputError(f"{table.path} line {table.lines[i]}, column 'file': {f!r} listed twice")
+                self.rows[f] = i
+        else:
+            self.track = PoseTrack.from_table(table, sort=sort_poses)
+        self.items = self._timed(names, fps, start)
+
+    def _pose_file(self, poses: str | Path | None) -> Path:
+        if poses is not None:
+            return existing(poses, "pose file", want_dir=False)
+        for cand in ("poses.csv", "poses.txt"):
+            if (self.root / cand).is_file():
+                return self.root / cand
+        raise InputError(f"{self.root}: no pose file; pass poses=FILE or put poses.csv in the folder")
+
+    def _timed(self, names: list[str], fps: float | None, start: float) -> list[tuple[str, float]]:
+        """(name, time) per image in playback order (time order; images without a pose row last)."""
+        if self.table is not None and self.table.t is not None and self.rows is not None:
+            t_col = self.table.t
+            nan = float("nan")
+            timed = [(n, float(t_col[self.rows[n]]) if n in self.rows else nan) for n in names]
+        elif fps is not None:
+            timed = [(n, start + i / fps) for i, n in enumerate(sorted(names, key=natural_key))]
+        else:
+            from_names = {n: time_from_name(n) for n in names}
+            bad = sorted(n for n, t in from_names.items() if t is None)
+            if bad:
+                raise InputError(
+                    f"{self.root / bad[0]}: cannot tell the image's time from its name; name images by "
+                    "timestamp (e.g. 1305031229.528748.jpg), pass fps=..., or give the pose file t and file columns"
+                )
+            timed = [(n, t) for n, t in from_names.items() if t is not None]
+        return sorted(
+            timed, key=lambda it: (it[1] != it[1], it[1] if it[1] == it[1] else 0.0, natural_key(it[0]))
+        )
+
+    def _pose(self, name: str, t: float) -> Pose | str:
+        if self.track is not None:
+            return self.track.match(t, self.pose_match, self.max_gap)
+        assert self.rows is not None and self.table is not None
+        i = self.rows.get(name)
+        if i is None:
+            return SKIP_NO_ROW
+        tb = self.table
+        x, y, z = (float(v) for v in tb.xyz[i])
+        if tb.quat is not None:
+            return Pose.from_quaternion(x, y, z, *(float(v) for v in tb.quat[i]))
+        return Pose(x, y, z, float(tb.yaw[i]) if tb.yaw is not None else 0.0)
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.stats = SourceStats()
+        for i, (name, t) in enumerate(self.items):
+            self.stats.frames_seen += 1
+            pose = self._pose(name, t)
+            if isinstance(pose, str):
+                self.stats.skip(pose)
+                continue
+            image = read_rgb(self.root / name)
+            if isinstance(image, str):
+                self.stats.skip(image)
+                continue
+            self.stats.raw_bytes += image.size
+            self.stats.frames_yielded += 1
+            yield Frame(
+                image=image, t=t, pose=pose, source=str(self.root), index=i, path=str(self.root / name)
+            )
+
+
+@SOURCES.register("folder")
+def _folder(spec: str, **kwargs: Any) -> FolderSource:
+    return build(FolderSource, "folder", spec, kwargs)

@@ -1,0 +1,237 @@
+"""ROS 1 bags, ROS 2 bags (sqlite3 or MCAP storage) and bare .mcap/.db3 files, via `rosbags`.
+
+Two passes, both streaming: the pose messages (small) are read first into a `PoseTrack`, then
+image messages are decoded one at a time and posed by interpolation at their timestamp.
+Images: sensor_msgs/Image (rgb8, bgr8, rgba8, bgra8, mono8, mono16) and CompressedImage (any
+format PIL decodes: jpeg, png, ...). Poses: nav_msgs/Odometry, geometry_msgs/PoseStamped,
+geometry_msgs/PoseWithCovarianceStamped, or /tf (+ /tf_static) from `tf_parent` to `tf_child`.
+Times come from header.stamp (`time_source="header"`, falling back to the bag's receive time
+when a stamp is zero) or from the bag's receive time (`time_source="bag"`).
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from ..errors import InputError
+from ..types import Frame
+from ._tf import TfTree
+from ._util import build, existing, pil_to_rgb
+from .base import SOURCES, SourceStats
+from .poses import PoseTrack, check_match_mode
+
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
+POSE_TYPES = (
+    "nav_msgs/msg/Odometry",
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+)
+TF = "tf2_msgs/msg/TFMessage"
+
+SKIP_DECODE = "undecodable message"
+SKIP_MALFORMED = "malformed image message"
+SKIP_COMPRESSED = "undecodable compressed image"
+_CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "mono16": 1}
+
+
+def decode_image(msg: Any, msgtype: str) -> np.ndarray | str:
+    """RGB uint8 from an Image/CompressedImage message, or the skip reason."""
+    if msgtype == COMPRESSED:
+        fmt = str(msg.format).lower()
+        if "compresseddepth" in fmt:
+            return "compressed depth image"
+        try:
+            with Image.open(io.BytesIO(np.asarray(msg.data, dtype=np.uint8).tobytes())) as im:
+                return pil_to_rgb(im)
+        except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
+            return SKIP_COMPRESSED
+    enc = str(msg.encoding).lower()
+    if enc not in _CHANNELS:
+        return f"unsupported encoding {msg.encoding!r}"
+    h, w, step, ch = int(msg.height), int(msg.width), int(msg.step), _CHANNELS[enc]
+    bpp = 2 if enc == "mono16" else ch
+    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
+    if h <= 0 or w <= 0 or step < w * bpp or data.size < h * step:
+        return SKIP_MALFORMED
+    rows = data[: h * step].reshape(h, step)[:, : w * bpp]
+    if enc == "mono16":
+        v = np.ascontiguousarray(rows).view(">u2" if msg.is_bigendian else "<u2").astype(np.float64)
+        g = (v * (255.0 / max(float(v.max()), 1.0))).astype(np.uint8)
+        return np.repeat(g[:, :, None], 3, axis=2)
+    img = rows.reshape(h, w, ch)
+    if ch == 1:
+        return np.repeat(img, 3, axis=2)
+    if enc.startswith("bgr"):
+        img = img[:, :, 2::-1]
+    return np.array(img[:, :, :3])  # a writable copy, independent of the message buffer
+
+
+def _stamp(msg: Any, bag_ns: int, time_source: str) -> float:
+    header = getattr(msg, "header", None)
+    if time_source == "header" and header is not None:
+        s = int(header.stamp.sec) + int(header.stamp.nanosec) * 1e-9
+        if s > 0:
+            return s
+    return bag_ns * 1e-9
+
+
+def _pick(kind: str, available: dict[str, str], wanted: str | None, option: str) -> str:
+    listing = ", ".join(f"{t} ({m})" for t, m in sorted(available.items())) or "none"
+    if wanted is not None:
+        if wanted not in available:
+            raise InputError(f"{kind} topic {wanted!r} not in the bag; {kind} topics: {listing}")
+        return wanted
+    if len(available) != 1:
+        what = "no" if not available else "several"
+        raise InputError(f"bag has {what} {kind} topics ({listing}); choose one with {option}=TOPIC")
+    return next(iter(available))
+
+
+class RosbagSource:
+    """Frames from one image topic of a bag, posed from one pose topic or the TF tree."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        image_topic: str | None = None,
+        pose_topic: str | None = None,
+        tf_parent: str | None = None,
+        tf_child: str = "base_link",
+        time_source: str = "header",
+        pose_match: str = "interpolate",
+        max_gap: float | None = None,
+    ) -> None:
+        self.path = existing(path, "ROS bag")
+        self.name = f"rosbag:{self.path.name}"
+        self.stats = SourceStats()
+        if time_source not in ("header", "bag"):
+            raise InputError(f"rosbag: time_source must be 'header' or 'bag', got {time_source!r}")
+        self.time_source = time_source
+        self.pose_match = check_match_mode(pose_match)
+        self.max_gap = max_gap if max_gap is not None or self.pose_match != "nearest" else 0.05
+        with self._reader() as reader:
+            topics = {c.topic: c.msgtype for c in reader.connections}
+            images = {t: m for t, m in topics.items() if m in (IMAGE, COMPRESSED)}
+            self.image_topic = _pick("image", images, image_topic, "image_topic")
+            tf_topics = [t for t, m in topics.items() if m == TF]
+            poses = {t: m for t, m in topics.items() if m in POSE_TYPES}
+            if pose_topic is None and not poses and tf_topics:
+                pose_topic = "/tf"
+            if pose_topic is not None and topics.get(pose_topic) == TF:
+                self.pose_topic = pose_topic
+                self.track = self._tf_track(reader, tf_topics, tf_parent, tf_child)
+            else:
+                self.pose_topic = _pick("pose", poses | {t: TF for t in tf_topics}, pose_topic, "pose_topic")
+                self.track = self._pose_track(reader, self.pose_topic)
+
+    @contextmanager
+    def _reader(self) -> Iterator[AnyReader]:
+        is2 = self.path.is_dir() or self.path.suffix != ".bag"
+        store = get_typestore(Stores.ROS2_HUMBLE if is2 else Stores.ROS1_NOETIC)
+        try:
+            reader = AnyReader([self.path], default_typestore=store)
+            reader.open()
+        except Exception as e:  # rosbags raises several unrelated types for unreadable bags
+            raise InputError(f"{self.path}: not a readable ROS bag ({e})") from None
+        try:
+            yield reader
+        finally:
+            reader.close()
+
+    def _pose_track(self, reader: AnyReader, topic: str) -> PoseTrack:
+        conns = [c for c in reader.connections if c.topic == topic]
+        t: list[float] = []
+        xyz: list[tuple[float, float, float]] = []
+        quat: list[tuple[float, float, float, float]] = []
+        for conn, ns, raw in reader.messages(connections=conns):
+            try:
+                msg: Any = reader.deserialize(raw, conn.msgtype)
+            except Exception:
+                self.stats.skip(f"undecodable pose message on {topic}")
+                continue
+            p = msg.pose if conn.msgtype == "geometry_msgs/msg/PoseStamped" else msg.pose.pose
+            q = (p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)
+            if not np.isfinite(q).all() or np.linalg.norm(q) < 1e-9:
+                self.stats.skip(f"invalid pose message on {topic}")
+                continue
+            t.append(_stamp(msg, ns, self.time_source))
+            xyz.append((p.position.x, p.position.y, p.position.z))
+            quat.append(q)
+        if not t:
+            raise InputError(f"{self.path}: pose topic {topic!r} has no usable messages")
+        return PoseTrack.from_samples(t, xyz, np.asarray(quat), name=f"{self.path}:{topic}")
+
+    def _tf_track(self, reader: AnyReader, tf_topics: list[str], parent: str | None, child: str) -> PoseTrack:
+        tree = TfTree()
+        conns = [c for c in reader.connections if c.topic in tf_topics]
+        for conn, ns, raw in reader.messages(connections=conns):
+            try:
+                msg: Any = reader.deserialize(raw, conn.msgtype)
+            except Exception:
+                self.stats.skip("undecodable tf message")
+                continue
+            for tfm in msg.transforms:
+                tr, r = tfm.transform.translation, tfm.transform.rotation
+                q = (r.x, r.y, r.z, r.w)
+                if not np.isfinite(q).all() or np.linalg.norm(q) < 1e-9:
+                    continue
+                tree.add(
+                    tfm.header.frame_id,
+                    tfm.child_frame_id,
+                    _stamp(tfm, ns, self.time_source),
+                    (tr.x, tr.y, tr.z),
+                    q,
+                    static=conn.topic.endswith("tf_static"),
+                )
+        tree.require(child, str(self.path))
+        if parent is None:
+            parent = tree.default_parent(child)
+            if parent is None:
+                raise InputError(
+                    f"{self.path}: no map/odom/world ancestor of {child!r} in /tf; set tf_parent and "
+                    f"tf_child (frames: {', '.join(tree.frames) or 'none'})"
+                )
+        self.tf_frames = (parent, child)
+        return tree.track(parent, child, name=str(self.path))
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.stats = SourceStats()
+        with self._reader() as reader:
+            conns = [c for c in reader.connections if c.topic == self.image_topic]
+            for index, (conn, ns, raw) in enumerate(reader.messages(connections=conns)):
+                self.stats.frames_seen += 1
+                try:
+                    msg: Any = reader.deserialize(raw, conn.msgtype)
+                except Exception:
+                    self.stats.skip(SKIP_DECODE)
+                    continue
+                if conn.msgtype == IMAGE:
+                    self.stats.raw_bytes += int(msg.height) * int(msg.width) * 3
+                t = _stamp(msg, ns, self.time_source)
+                pose = self.track.match(t, self.pose_match, self.max_gap)
+                if isinstance(pose, str):
+                    self.stats.skip(pose)
+                    continue
+                image = decode_image(msg, conn.msgtype)
+                if isinstance(image, str):
+                    self.stats.skip(image)
+                    continue
+                if conn.msgtype != IMAGE:
+                    self.stats.raw_bytes += image.size
+                self.stats.frames_yielded += 1
+                yield Frame(image=image, t=t, pose=pose, source=str(self.path), index=index)
+
+
+@SOURCES.register("rosbag")
+def _rosbag(spec: str, **kwargs: Any) -> RosbagSource:
+    return build(RosbagSource, "rosbag", spec, kwargs)

@@ -1,0 +1,141 @@
+"""TUM RGB-D benchmark folder: `rgb.txt` + `groundtruth.txt` (+ optional `depth.txt`).
+
+Layout (the benchmark's own): `rgb.txt` and `depth.txt` hold `timestamp filename` rows with
+paths relative to the folder; `groundtruth.txt` holds `timestamp tx ty tz qx qy qz qw` at
+~100 Hz. A frame's pose is, by default, the ground-truth row nearest in time within 0.02 s (the
+benchmark's own association rule); frames in a ground-truth gap are skipped and counted.
+`pose_match="interpolate"` slerps between the bracketing rows instead.
+Depth PNGs are 16-bit, 5000 units per metre; 0 (no measurement) becomes NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from ..errors import InputError
+from ..types import Frame
+from ._util import build, existing, pose_track_arg, read_rgb
+from .base import SOURCES, SourceStats
+from .poses import PoseTrack, check_match_mode
+
+DEPTH_SCALE = 5000.0
+
+
+def read_index(path: Path) -> list[tuple[float, str]]:
+    """Parse a TUM `timestamp filename` list; bad rows raise InputError naming file and line."""
+    out: list[tuple[float, str]] = []
+    for n, raw in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split()
+        if len(parts) < 2:
+            raise InputError(f"{path} line {n}: expected 'timestamp filename', found {line!r}")
+        try:
+            t = float(parts[0])
+        except ValueError:
+            raise InputError(f"{path} line {n}, column 'timestamp': not a number: {parts[0]!r}") from None
+        if not np.isfinite(t):
+            raise InputError(f"{path} line {n}, column 'timestamp': not finite: {parts[0]!r}")
+        out.append((t, parts[1]))
+    return out
+
+
+def read_depth(path: Path) -> np.ndarray | None:
+    """A TUM depth PNG as float32 metres (NaN where the sensor had no reading), None if unreadable."""
+    try:
+        with Image.open(path) as im:
+            a = np.asarray(im, dtype=np.float32) / DEPTH_SCALE
+    except (OSError, ValueError):
+        return None
+    a[a <= 0] = np.nan
+    return a
+
+
+class TumSource:
+    """Frames of a TUM RGB-D sequence folder, posed from its ground truth."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        groundtruth: str | Path | PoseTrack | None = None,
+        pose_match: str = "nearest",
+        max_gap: float | None = 0.02,
+        depth: bool = True,
+        depth_max_gap: float = 0.02,
+        poses: str | Path | PoseTrack | None = None,
+    ) -> None:
+        self.root = existing(path, "TUM folder", want_dir=True)
+        self.name = f"tum:{self.root.name}"
+        self.stats = SourceStats()
+        rgb = self.root / "rgb.txt"
+        if not rgb.is_file():
+            raise InputError(f"{self.root}: not a TUM RGB-D folder (no rgb.txt)")
+        self.entries = read_index(rgb)
+        if not self.entries:
+            raise InputError(f"{rgb}: lists no frames")
+        if groundtruth is None:
+            groundtruth = poses  # the name every other source uses for its pose track
+        gt = groundtruth if groundtruth is not None else self.root / "groundtruth.txt"
+        if not isinstance(gt, PoseTrack) and not Path(gt).is_file():
+            raise InputError(f"{self.root}: no groundtruth.txt (pass groundtruth=FILE with poses)")
+        self.track = pose_track_arg(gt, sort=True)
+        self.pose_match = check_match_mode(pose_match)
+        if self.pose_match == "nearest" and max_gap is None:
+            raise InputError("tum: nearest pose matching needs max_gap (seconds)")
+        self.max_gap = max_gap
+        self.depth_entries: list[tuple[float, str]] = []
+        if depth and (self.root / "depth.txt").is_file():
+            self.depth_entries = read_index(self.root / "depth.txt")
+        self.depth_max_gap = depth_max_gap
+
+    def _depth_index(self) -> np.ndarray:
+        """For each rgb entry, the index of the nearest depth entry within the gap, else -1."""
+        if not self.depth_entries:
+            return np.full(len(self.entries), -1)
+        dt = np.array([t for t, _ in self.depth_entries])
+        order = np.argsort(dt)
+        dt = dt[order]
+        ts = np.array([t for t, _ in self.entries])
+        hi = np.clip(np.searchsorted(dt, ts), 0, len(dt) - 1)
+        lo = np.clip(hi - 1, 0, len(dt) - 1)
+        pick = np.where(np.abs(dt[lo] - ts) <= np.abs(dt[hi] - ts), lo, hi)
+        return np.where(np.abs(dt[pick] - ts) <= self.depth_max_gap, order[pick], -1)
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.stats = SourceStats()
+        depth_idx = self._depth_index()
+        for i, (t, rel) in enumerate(self.entries):
+            self.stats.frames_seen += 1
+            m = self.track.match(t, self.pose_match, self.max_gap)
+            if isinstance(m, str):
+                self.stats.skip(m)
+                continue
+            image = read_rgb(self.root / rel)
+            if isinstance(image, str):
+                self.stats.skip(image)
+                continue
+            self.stats.raw_bytes += image.size
+            depth = None
+            if depth_idx[i] >= 0:
+                depth = read_depth(self.root / self.depth_entries[depth_idx[i]][1])
+            self.stats.frames_yielded += 1
+            yield Frame(
+                image=image,
+                t=t,
+                pose=m,
+                source=str(self.root),
+                index=i,
+                depth=depth,
+                path=str(self.root / rel),
+            )
+
+
+@SOURCES.register("tum")
+def _tum(spec: str, **kwargs: Any) -> TumSource:
+    return build(TumSource, "tum", spec, kwargs)

@@ -1,0 +1,158 @@
+"""Video file + pose track source (PyAV), decoded one frame at a time.
+
+Frame time is `start_time + pts seconds`: by default start_time is 0.0, so frames carry the
+video's own clock and the pose file must use the same clock (seconds from the video's start).
+Give `start_time` as epoch seconds or ISO 8601 to put both on the wall clock (the pose file then
+holds epoch seconds), or `"creation_time"` to read the container's creation_time tag. That tag
+is opt-in because cameras and muxers disagree on whether it marks the start or the end of the
+recording, or the time the file was re-encoded.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import av
+
+from ..errors import InputError
+from ..types import Frame
+from ._util import build, existing, parse_start_time, pose_track_arg
+from .base import SOURCES, SourceStats
+from .poses import PoseTrack, check_match_mode
+
+VIDEO_EXTS = (".mp4", ".mkv", ".avi", ".mov", ".webm", ".m4v")
+
+SKIP_CORRUPT = "corrupt video frame"
+SKIP_TRUNCATED = "unreadable video data (decoding stopped)"
+SKIP_FPS = "above source fps"
+
+
+def _open(path: Path) -> Any:
+    try:
+        container = av.open(str(path))
+    except av.FFmpegError as e:
+        raise InputError(f"{path}: not a readable video ({e.strerror or type(e).__name__})") from None
+    if not container.streams.video:
+        container.close()
+        raise InputError(f"{path}: has no video stream")
+    return container
+
+
+class VideoSource:
+    """Frames of a video file with poses interpolated from a pose track on the same clock."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        poses: str | Path | PoseTrack | None = None,
+        start_time: float | str = 0.0,
+        pose_match: str = "interpolate",
+        max_gap: float | None = None,
+        fps: float | None = None,
+        allow_no_pose: bool = False,
+        sort_poses: bool = False,
+    ) -> None:
+        self.path = existing(path, "video file", want_dir=False)
+        self.name = f"video:{self.path.name}"
+        self.stats = SourceStats()
+        self.pose_match = check_match_mode(pose_match)
+        self.max_gap = max_gap
+        if self.pose_match == "nearest" and max_gap is None:
+            self.max_gap = 0.05
+        if fps is not None and not fps > 0:
+            raise InputError(f"video: fps must be > 0, got {fps}")
+        self.fps = fps
+        if poses is None and not allow_no_pose:
+            raise InputError(
+                f"{self.path}: a video needs a pose track (poses=FILE, CSV or TUM); "
+                "frames without a pose cannot be placed in the map"
+            )
+        self.track = None if poses is None else pose_track_arg(poses, sort=sort_poses)
+        container = _open(self.path)
+        try:
+            if isinstance(start_time, str) and start_time.strip().lower() == "creation_time":
+                tag = container.metadata.get("creation_time") or container.streams.video[0].metadata.get(
+                    "creation_time"
+                )
+                if not tag:
+                    raise InputError(f"{self.path}: no creation_time tag; pass start_time as epoch seconds")
+                self.start_time = parse_start_time(tag)
+            else:
+                self.start_time = parse_start_time(start_time)
+        finally:
+            container.close()
+
+    def _decoded(self, container: Any) -> Iterator[Any]:
+        """Decoded av.VideoFrames; a packet that fails to decode is skipped and counted."""
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        packets = container.demux(stream)
+        while True:
+            try:
+                packet = next(packets)
+            except StopIteration:
+                return
+            except av.FFmpegError:
+                self.stats.skip(SKIP_TRUNCATED)
+                return
+            try:
+                decoded = packet.decode()
+            except av.FFmpegError:
+                self.stats.frames_seen += 1
+                self.stats.skip(SKIP_CORRUPT)
+                continue
+            yield from decoded
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.stats = SourceStats()
+        container = _open(self.path)
+        try:
+            stream = container.streams.video[0]
+            tb = stream.time_base or Fraction(1, 90000)
+            rate = float(stream.average_rate or 30)
+            index = -1
+            last_t: float | None = None
+            t_first: float | None = None
+            last_slot = -1
+            for vf in self._decoded(container):
+                index += 1
+                self.stats.frames_seen += 1
+                self.stats.raw_bytes += int(vf.width) * int(vf.height) * 3
+                if vf.pts is not None:
+                    tv = float(vf.pts * tb)
+                else:
+                    tv = (last_t - self.start_time + 1.0 / rate) if last_t is not None else 0.0
+                t = self.start_time + tv
+                last_t = t
+                pose = None
+                if self.track is not None:
+                    m = self.track.match(t, self.pose_match, self.max_gap)
+                    if isinstance(m, str):
+                        self.stats.skip(m)
+                        continue
+                    pose = m
+                if self.fps is not None:
+                    t_first = t if t_first is None else t_first
+                    slot = math.floor((t - t_first) * self.fps + 1e-6)
+                    if slot <= last_slot:
+                        self.stats.skip(SKIP_FPS)
+                        continue
+                    last_slot = slot
+                try:
+                    image = vf.to_ndarray(format="rgb24")
+                except (av.FFmpegError, ValueError):
+                    self.stats.skip(SKIP_CORRUPT)
+                    continue
+                self.stats.frames_yielded += 1
+                yield Frame(image=image, t=t, pose=pose, source=str(self.path), index=index)
+        finally:
+            container.close()
+
+
+@SOURCES.register("video")
+def _video(spec: str, **kwargs: Any) -> VideoSource:
+    return build(VideoSource, "video", spec, kwargs)

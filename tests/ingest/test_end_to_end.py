@@ -1,0 +1,49 @@
+"""Sources -> keyframes -> the real Memory through the ingest pipeline (tiny colour embedder)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import ravenmem
+from ravenmem.ingest.keyframes import parse_keyframes
+from ravenmem.ingest.pipeline import ingest
+from ravenmem.ingest.poses import SKIP_OUTSIDE
+from ravenmem.ingest.sources import open_source
+
+from .test_video import N, write_video
+
+
+def test_video_into_memory_with_keyframes(tmp_path: Path, color_embedder: object) -> None:
+    vid = tmp_path / "walk.mp4"
+    write_video(vid)
+    poses = tmp_path / "poses.csv"
+    poses.write_text("t,x,y,yaw\n0.5,0,0,0\n2.0,3,0,0\n")
+    mem = ravenmem.create(tmp_path / "mem", embedder=color_embedder, ocr=False)  # type: ignore[arg-type]
+    try:
+        src = open_source(vid, poses=poses)
+        report = ingest(src, mem, keyframes=parse_keyframes("min_translation=0.5"), progress=False)
+        # 16 posed frames 0.2 m apart (x = 2 (t - 0.5)): keep every third, from x = 0
+        assert report.frames_seen == N and report.kept == 6
+        assert report.skipped[SKIP_OUTSIDE] == 14
+        assert report.raw_bytes == src.stats.raw_bytes > 0
+        recs = mem.all_records()
+        assert [round(r.pose.x, 6) for r in recs] == pytest.approx([0.0, 0.6, 1.2, 1.8, 2.4, 3.0])
+        assert [r.frame_index for r in recs] == [5, 8, 11, 14, 17, 20]
+        hits = mem.search_position(1.2, 0.0, k=1)
+        assert hits[0].memory.frame_index == 11
+    finally:
+        mem.close()
+
+
+def test_tum_into_memory_keeps_original_paths(tmp_path: Path, tum_path: Path, color_embedder: object) -> None:
+    mem = ravenmem.create(tmp_path / "mem", embedder=color_embedder, ocr=False, thumb_size=0)  # type: ignore[arg-type]
+    try:
+        report = ingest(open_source(tum_path), mem, keyframes=parse_keyframes("fps=1"), progress=False)
+        assert report.frames_seen == 723 and report.skipped["pose gap too large"] == 3
+        assert 25 <= report.kept <= 29  # ~27.7 s of recording at 1 frame per second
+        rec = mem.all_records()[0]
+        assert rec.image_path is not None and Path(rec.image_path).is_file()
+    finally:
+        mem.close()

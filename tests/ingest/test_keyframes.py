@@ -1,0 +1,131 @@
+"""Keyframe selection: stride, target rate, motion novelty, embedding novelty, spec parsing."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pytest
+
+from ravenmem.errors import InputError
+from ravenmem.ingest.keyframes import (
+    DROP_FPS,
+    DROP_MOTION,
+    DROP_SIMILAR,
+    DROP_STRIDE,
+    KeyframeConfig,
+    KeyframeStats,
+    NoveltyFilter,
+    parse_keyframes,
+    select_frames,
+)
+from ravenmem.types import Frame, Pose
+
+IMG = np.zeros((2, 2, 3), np.uint8)
+
+
+def frames(ts: Sequence[float], poses: Sequence[Pose | None] | None = None) -> list[Frame]:
+    ps = poses if poses is not None else [Pose(0.0, 0.0)] * len(ts)
+    return [Frame(IMG, t, p, index=i) for i, (t, p) in enumerate(zip(ts, ps, strict=True))]
+
+
+def test_default_keeps_everything() -> None:
+    fs = frames([0.0, 0.0, 1.0])
+    assert list(select_frames(fs, KeyframeConfig())) == fs
+
+
+def test_stride_keeps_every_nth() -> None:
+    st = KeyframeStats()
+    kept = list(select_frames(frames([i * 0.1 for i in range(10)]), KeyframeConfig(stride=3), st))
+    assert [f.index for f in kept] == [0, 3, 6, 9]
+    assert st.kept == 4 and st.dropped == {DROP_STRIDE: 6}
+
+
+def test_fps_uses_slots_robust_to_jitter() -> None:
+    rng = np.random.default_rng(0)
+    ts = np.arange(0, 10, 1 / 30) + rng.uniform(-0.004, 0.004, 300)
+    st = KeyframeStats()
+    kept = list(select_frames(frames(list(ts)), KeyframeConfig(fps=2.0), st))
+    assert len(kept) == 20  # exactly 2 per second over 10 s despite jitter
+    assert np.diff([f.t for f in kept]).min() > 0.4
+    assert st.dropped == {DROP_FPS: 280}
+
+
+def test_motion_translation_or_rotation_since_last_kept() -> None:
+    poses = [
+        Pose(0, 0, yaw=0.0),
+        Pose(0.05, 0, yaw=0.0),  # too little
+        Pose(0.11, 0, yaw=0.0),  # moved 0.11 from the first kept
+        Pose(0.11, 0, yaw=0.1),  # turned 0.1 rad < 0.2
+        Pose(0.11, 0, yaw=0.25),  # turned 0.25 rad
+        Pose(0.11, 0, yaw=math.pi - 0.05),  # turned a lot
+        None,  # no pose: passes, does not reset
+        Pose(0.11, 0, yaw=-math.pi + 0.05),  # 0.1 rad across the wrap: too little
+    ]
+    st = KeyframeStats()
+    cfg = KeyframeConfig(min_translation=0.1, min_rotation=0.2)
+    kept = list(select_frames(frames([float(i) for i in range(8)], poses), cfg, st))
+    assert [f.index for f in kept] == [0, 2, 4, 5, 6]
+    assert st.dropped == {DROP_MOTION: 3}
+
+
+def test_motion_uses_full_3d_rotation_when_quaternions_exist() -> None:
+    tilt = Pose.from_quaternion(0, 0, 0, math.sin(0.15), 0, 0, math.cos(0.15))  # 0.3 rad roll, yaw 0
+    kept = list(
+        select_frames(
+            frames([0.0, 1.0], [Pose.from_quaternion(0, 0, 0, 0, 0, 0, 1), tilt]),
+            KeyframeConfig(min_rotation=0.25),
+        )
+    )
+    assert len(kept) == 2
+
+
+def test_rules_combine_in_order() -> None:
+    poses = [Pose(float(i) * 0.01, 0) for i in range(60)]
+    cfg = KeyframeConfig(stride=2, fps=5.0, min_translation=0.1)
+    st = KeyframeStats()
+    kept = list(select_frames(frames([i / 30 for i in range(60)], poses), cfg, st))
+    xs = [f.pose.x for f in kept if f.pose]
+    assert np.diff(xs).min() >= 0.1 - 1e-9
+    assert st.kept + sum(st.dropped.values()) == 60
+    assert st.dropped[DROP_STRIDE] == 30 and DROP_MOTION in st.dropped
+
+
+def test_novelty_filter_against_last_kept() -> None:
+    nf = NoveltyFilter(0.95)
+    a = np.array([1.0, 0.0, 0.0])
+    b = np.array([0.97, 0.243, 0.0])  # cos ~0.97 to a
+    c = np.array([0.9, 0.436, 0.0])  # cos ~0.9 to a
+    assert nf.keep(a) and not nf.keep(b) and nf.keep(c * 7.0)  # scale does not matter
+    assert not nf.keep(c) and nf.keep(a)
+    assert nf.stats.kept == 3 and nf.stats.dropped == {DROP_SIMILAR: 2}
+
+
+def test_parse_keyframes_full_spec_and_units() -> None:
+    cfg = parse_keyframes("stride=5, fps=2hz,min_translation=10cm,min_rotation=10deg,max_similarity=0.95")
+    assert cfg.stride == 5 and cfg.fps == 2.0 and cfg.min_translation == pytest.approx(0.1)
+    assert cfg.min_rotation == pytest.approx(math.radians(10)) and cfg.max_similarity == 0.95
+    assert parse_keyframes("min_rotation=0.3").min_rotation == 0.3
+    assert parse_keyframes("") == KeyframeConfig() == parse_keyframes(None) == parse_keyframes("all")
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("speed=3", "unknown key 'speed'; choose from stride, fps"),
+        ("stride", "'stride' is not key=value"),
+        ("stride=2.5", "stride='2.5' must be a whole number"),
+        ("stride=0", "stride must be an integer >= 1"),
+        ("fps=fast", "fps='fast' is not a number (units: hz)"),
+        ("fps=0", "fps must be > 0"),
+        ("min_rotation=10furlongs", "min_rotation='10furlongs' is not a number (units: rad/deg)"),
+        ("min_translation=-1", "min_translation must be >= 0"),
+        ("max_similarity=1.5", "max_similarity is a cosine in [-1, 1]"),
+        ("fps=1,fps=2", "fps is given twice"),
+    ],
+)
+def test_parse_keyframes_errors(spec: str, message: str) -> None:
+    with pytest.raises(InputError) as e:
+        parse_keyframes(spec)
+    assert message in str(e.value)

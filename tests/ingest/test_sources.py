@@ -1,0 +1,80 @@
+"""open_source: format detection from the path, explicit formats, clear errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from ravenmem.errors import InputError
+from ravenmem.ingest import SOURCES, FrameSource
+from ravenmem.ingest.folder import FolderSource
+from ravenmem.ingest.rosbag import RosbagSource
+from ravenmem.ingest.sources import detect_format, open_source
+from ravenmem.ingest.tum import TumSource
+from ravenmem.ingest.video import VideoSource
+
+from .bags import write_bag
+from .test_video import write_video
+
+
+def test_all_formats_registered() -> None:
+    import ravenmem.ingest.sources  # noqa: F401
+
+    assert {"video", "tum", "folder", "rosbag"} <= set(SOURCES.names())
+
+
+def test_detects_each_format(tmp_path: Path, tum_path: Path) -> None:
+    src = open_source(tum_path)
+    assert isinstance(src, TumSource) and isinstance(src, FrameSource)
+
+    vid = tmp_path / "clip.MP4"
+    write_video(vid)
+    poses = tmp_path / "p.csv"
+    poses.write_text("0,0,0,0\n5,1,0,0\n")
+    v = open_source(vid, poses=poses)
+    assert isinstance(v, VideoSource) and len(list(v)) == 30
+
+    imgs = tmp_path / "imgs"
+    imgs.mkdir()
+    Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(imgs / "1.5.png")
+    (imgs / "poses.csv").write_text("0,0,0,0\n2,1,0,0\n")
+    f = open_source(imgs)
+    assert isinstance(f, FolderSource) and [fr.t for fr in f] == [1.5]
+
+    bag1 = write_bag(tmp_path / "r.bag", "ros1", only={"/camera/image_raw", "/odom"})
+    ros2 = write_bag(tmp_path / "r2", "mcap", only={"/camera/image_raw", "/odom"})
+    for p in (bag1, ros2):
+        assert detect_format(p) == ("rosbag", p)
+        assert isinstance(open_source(p), RosbagSource)
+    # a bare MCAP file, alone in a folder without metadata.yaml
+    (ros2 / "metadata.yaml").unlink()
+    fmt, inner = detect_format(ros2)
+    assert fmt == "rosbag" and inner.suffix == ".mcap"
+    assert len(list(open_source(ros2))) == 7
+
+
+def test_explicit_format_and_errors(tmp_path: Path) -> None:
+    (tmp_path / "notes.txt").write_text("hi")
+    with pytest.raises(InputError, match=r"notes\.txt: unknown file type '\.txt'; expected one of \.mp4"):
+        open_source(tmp_path / "notes.txt")
+    with pytest.raises(InputError, match="no such file or folder"):
+        open_source(tmp_path / "nothing")
+    with pytest.raises(InputError, match="cannot tell the format"):
+        open_source(tmp_path)
+    with pytest.raises(InputError, match="unknown source format 'gopro'; choose one of: folder, rosbag"):
+        open_source(tmp_path, format="gopro")
+    with pytest.raises(InputError, match="not a TUM RGB-D folder"):
+        open_source(tmp_path, format="tum")
+
+
+def test_unknown_option_is_named(tmp_path: Path, tum_path: Path) -> None:
+    with pytest.raises(InputError, match="tum source has no option image_topic; options: groundtruth"):
+        open_source(tum_path, image_topic="/cam")
+    # `poses` is accepted by every file source (TUM: instead of groundtruth.txt)
+    gt = tmp_path / "gt.csv"
+    gt.write_text("t,x,y\n1305031229.0,0,0\n1305031230.0,1,0\n")
+    src = open_source(tum_path, poses=gt, pose_match="interpolate", max_gap=None)
+    assert isinstance(src, TumSource) and src.track.span == (1305031229.0, 1305031230.0)

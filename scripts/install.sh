@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
-EXTRAS=${RAVENMEM_EXTRAS:-dev,sim,clip,hf,milvus}
+EXTRAS=${RAVENMEM_EXTRAS:-dev,sim,clip,hf,milvus,eval}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 . .venv/bin/activate
 python -m pip install -q --upgrade pip

@@ -1,0 +1,246 @@
+"""RAVEN-QA: a folder per video with `frames/*.jpg` and a `questions.json`; also our export format.
+
+Layout (`raven-qa:PATH`, where PATH is a split folder, a folder of splits, or one video folder):
+
+    PATH/<split>/<video>/frames/frame_0001.jpg ...      frames, ordered by natural sort
+    PATH/<split>/<video>/questions.json
+
+`questions.json` keys (all but the question list optional):
+
+    "questions (ques, answer_in_filename, category, query_img)": [[question, answer, category, query_img], ...]
+    "questions (ques, answer_in_position)": [[question, answer], ...]      (older videos; "questions" also read)
+    "timestamp_to_filename": {"HH:MM:SS": "frame_0042.jpg", ...}
+    "timestamp_to_position": {"HH:MM:SS": [x, y, z], ...}
+    "filename_to_position": {"frame_0042.jpg": [x, y, z], ...}
+
+An answer is a filename, an [x, y, z], a `[[x, y, z], filename]` pair, or a list of those (any
+one of them is right). Categories: dominant, secondary, reasoning, information recall, spatial.
+
+Frame times: frames named in `timestamp_to_filename` get that time of day; the others are
+interpolated by frame order between them (and continue at the neighbouring rate outside);
+without any, frame i is at i / `rate` seconds (default 1 fps). Times of day are placed on
+2000-01-01 UTC. Poses: `filename_to_position`, else `timestamp_to_position` interpolated in
+time, else interpolated by frame order between known frames; a video with no position at all
+is ingested at the origin and its questions are scored by frame (file) instead of position.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...errors import InputError
+from ...types import Frame, Pose
+from ..types import Episode, EvalType, Question, Truth, horizon_of
+from .frames import (
+    BASE_DAY,
+    FrameRef,
+    RefSource,
+    interpolate_positions,
+    interpolate_times,
+    list_images,
+    natural_key,
+    parse_hms,
+)
+
+QUESTION_KEYS = (
+    "questions (ques, answer_in_filename, category, query_img)",
+    "questions (ques, answer_in_position)",
+    "questions (ques, answer_in_filename)",
+    "questions",
+)
+CATEGORIES = ("dominant", "secondary", "reasoning", "information recall", "spatial")
+# Position threshold (m) per split when the user gives none: our defaults, not the paper's values
+# (RAVEN-QA files do not carry them). Override with --pos-threshold or pos_threshold={split: m}.
+DEFAULT_POS_THRESHOLD = 2.0
+
+
+def find_videos(root: Path) -> list[tuple[str, Path]]:
+    """(split, video folder) for every folder under root that holds a questions.json."""
+    if not root.is_dir():
+        raise InputError(f"RAVEN-QA folder {root} does not exist")
+    if (root / "questions.json").exists():
+        return [(root.parent.name, root)]
+    found = [(root.name, d) for d in root.iterdir() if (d / "questions.json").exists()]
+    if not found:
+        found = [(s.name, d) for s in root.iterdir() if s.is_dir()
+                 for d in s.iterdir() if (d / "questions.json").exists()]  # fmt: skip
+    if not found:
+        raise InputError(
+            f"{root}: no <video>/questions.json found (RAVEN-QA layout: <split>/<video>/frames, questions.json)"
+        )
+    return sorted(found, key=lambda sv: (natural_key(sv[0]), natural_key(sv[1].name)))
+
+
+def _is_xyz(v: Any) -> bool:
+    return isinstance(v, list) and 2 <= len(v) <= 3 and all(isinstance(x, (int, float)) for x in v)
+
+
+def parse_answer(ans: Any, where: str) -> list[tuple[list[float] | None, str | None]]:
+    """All accepted (position, file) pairs of one RAVEN-QA answer."""
+    if isinstance(ans, str) and ans.strip():
+        return [(None, ans.strip())]
+    if _is_xyz(ans):
+        return [([float(x) for x in ans], None)]
+    if isinstance(ans, list) and len(ans) == 2 and _is_xyz(ans[0]) and isinstance(ans[1], str):
+        return [([float(x) for x in ans[0]], ans[1])]
+    if isinstance(ans, list) and ans:
+        return [item for a in ans for item in parse_answer(a, where)]
+    raise InputError(
+        f"{where}: answer {ans!r} is not a filename, an [x, y, z], [[x, y, z], file] or a list of those"
+    )
+
+
+def load_video(split: str, vdir: Path, rate: float = 1.0, pos_threshold: float | None = None) -> Episode:
+    """One RAVEN-QA video folder as an Episode."""
+    qpath = vdir / "questions.json"
+    try:
+        data = json.loads(qpath.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as e:
+        raise InputError(f"{qpath}: cannot read JSON ({e})") from e
+    if not isinstance(data, dict):
+        raise InputError(f"{qpath}: top level must be an object")
+    fdir = vdir / "frames"
+    if not fdir.is_dir():
+        raise InputError(f"{vdir}: no frames/ folder")
+    files = list_images(fdir)
+    if not files:
+        raise InputError(f"{fdir}: no image files")
+    names = [p.name for p in files]
+    index = {n: i for i, n in enumerate(names)}
+
+    def idx_of(name: str) -> int | None:
+        return index.get(Path(str(name)).name)
+
+    anchors: dict[int, float] = {}
+    for hms, fname in (data.get("timestamp_to_filename") or {}).items():
+        i = idx_of(fname)
+        if i is not None:
+            anchors[i] = parse_hms(hms, f"{qpath} timestamp_to_filename")
+    try:
+        secs = interpolate_times(len(files), anchors, rate)
+    except InputError as e:
+        raise InputError(f"{qpath}: {e}") from None
+    times = [BASE_DAY + s for s in secs]
+
+    known: dict[int, list[float]] = {}
+    for fname, pos in (data.get("filename_to_position") or {}).items():
+        i = idx_of(fname)
+        if i is not None and _is_xyz(pos):
+            known[i] = [float(v) for v in pos]
+    t2p = data.get("timestamp_to_position") or {}
+    if t2p:
+        pts = sorted(
+            (parse_hms(h, f"{qpath} timestamp_to_position"), p) for h, p in t2p.items() if _is_xyz(p)
+        )
+        if pts:
+            ts = np.asarray([BASE_DAY + s for s, _ in pts])
+            arr = np.asarray([list(p) + [0.0] * (3 - len(p)) for _, p in pts], dtype=float)
+            for i, t in enumerate(times):
+                if i not in known:
+                    known[i] = [float(np.interp(t, ts, arr[:, k])) for k in range(3)]
+    positions = interpolate_positions(len(files), known)
+    has_poses = bool(known)
+
+    refs = [FrameRef(t=t, pose=Pose(p[0], p[1], p[2]) if p else Pose(0.0, 0.0), path=f, index=i)
+            for i, (f, t, p) in enumerate(zip(files, times, positions))]  # fmt: skip
+    name = f"{split}/{vdir.name}"
+    duration = times[-1] - times[0] if len(times) > 1 else None
+    questions = _questions(data, qpath, vdir, name, positions, index, has_poses, horizon_of(duration))
+    period = float(np.median(np.diff(times))) if len(times) > 1 else 1.0 / rate
+    return Episode(
+        id=name, dataset="raven-qa", key=f"raven-qa:{vdir.resolve()}:rate={rate}",
+        frames=lambda: RefSource(name, refs), questions=questions, frame_times=times, frame_files=names,
+        trajectory=[(t, p[0], p[1]) for t, p in zip(times, positions) if p is not None],
+        has_poses=has_poses, pos_threshold=pos_threshold or DEFAULT_POS_THRESHOLD, frame_tol=1.5 * period,
+        meta={"split": split, "frames": len(files)},
+    )  # fmt: skip
+
+
+def _questions(data: dict[str, Any], qpath: Path, vdir: Path, name: str, positions: list[list[float] | None],
+               index: dict[str, int], has_poses: bool, horizon: str) -> list[Question]:  # fmt: skip
+    key = next((k for k in QUESTION_KEYS if k in data), None)
+    if key is None:
+        raise InputError(f"{qpath}: no question list (expected key {QUESTION_KEYS[0]!r})")
+    rows = data[key]
+    if not isinstance(rows, list):
+        raise InputError(f"{qpath}: {key!r} must be a list")
+    f2p = {Path(k).name: v for k, v in (data.get("filename_to_position") or {}).items() if _is_xyz(v)}
+    out: list[Question] = []
+    for n, row in enumerate(rows):
+        where = f"{qpath} question {n}"
+        if not isinstance(row, list) or len(row) < 2 or not isinstance(row[0], str):
+            raise InputError(f"{where}: expected [question, answer, (category, query_img)], got {row!r}")
+        truth = Truth()
+        for pos, fname in parse_answer(row[1], where):
+            if fname is not None:
+                base = Path(fname).name
+                truth.files.append(base)
+                if pos is None and base in f2p:
+                    pos = [float(v) for v in f2p[base]]
+                if pos is None and has_poses and base in index:
+                    pos = positions[index[base]]
+            if pos is not None:
+                truth.positions.append(list(pos) + [0.0] * (3 - len(pos)))
+        category = str(row[2]).strip().lower() if len(row) > 2 and row[2] else ""
+        image = _query_image(row[3], vdir, where) if len(row) > 3 and row[3] else None
+        qtype: EvalType = "position" if truth.positions else "frame"
+        if qtype == "frame" and not truth.files:
+            raise InputError(f"{where}: answer has neither a position nor a frame file")
+        out.append(Question(id=f"{name}#{n}", text=row[0].strip(), type=qtype, truth=truth,
+                            category=category, horizon=horizon, image=image))  # fmt: skip
+    return out
+
+
+def _query_image(ref: Any, vdir: Path, where: str) -> Path:
+    rel = str(ref)
+    for cand in (vdir / rel, vdir / "frames" / rel, vdir / "query_images" / rel, vdir / "query_imgs" / rel):
+        if cand.is_file():
+            return cand
+    hits = sorted(vdir.rglob(Path(rel).name))
+    if hits:
+        return hits[0]
+    raise InputError(f"{where}: query image {rel!r} not found under {vdir}")
+
+
+def load(path: str, rate: float = 1.0, pos_threshold: float | dict[str, float] | None = None,
+         **_: Any) -> list[Episode]:  # fmt: skip
+    """All videos under a RAVEN-QA folder (see the module docstring for the layout)."""
+    if rate <= 0:
+        raise InputError(f"rate must be > 0 frames per second, got {rate}")
+    eps = []
+    for split, vdir in find_videos(Path(path)):
+        thr = pos_threshold.get(split) if isinstance(pos_threshold, dict) else pos_threshold
+        eps.append(load_video(split, vdir, rate=rate, pos_threshold=thr))
+    return eps
+
+
+def export_episode(out_dir: str | Path, frames: list[Frame], questions: list[dict[str, Any]]) -> Path:
+    """Write frames and questions in RAVEN-QA layout (how our simulated episodes are shared).
+
+    `questions`: dicts with `question`, `answer` (a RAVEN-QA answer: filename, [x, y, z],
+    [[x, y, z], filename] or a list), optional `category` and `query_img`. Every frame gets its
+    position in `filename_to_position`, and the first frame of every whole second its time in
+    `timestamp_to_filename` (HH:MM:SS of the frame's UTC time of day).
+    """
+    out = Path(out_dir)
+    (out / "frames").mkdir(parents=True, exist_ok=True)
+    from ...imageio import write_jpeg
+
+    f2p: dict[str, list[float]] = {}
+    t2f: dict[str, str] = {}
+    for i, f in enumerate(frames):
+        name = f"frame_{i:06d}.jpg"
+        write_jpeg(out / "frames" / name, f.image, quality=92)
+        if f.pose is not None:
+            f2p[name] = [round(f.pose.x, 4), round(f.pose.y, 4), round(f.pose.z, 4)]
+        sod = int(f.t - BASE_DAY) % 86400 if f.t >= BASE_DAY else int(f.t) % 86400
+        hms = f"{sod // 3600:02d}:{sod % 3600 // 60:02d}:{sod % 60:02d}"
+        t2f.setdefault(hms, name)
+    rows = [[q["question"], q["answer"], q.get("category", ""), q.get("query_img")] for q in questions]
+    doc = {QUESTION_KEYS[0]: rows, "timestamp_to_filename": t2f, "filename_to_position": f2p}
+    (out / "questions.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    return out

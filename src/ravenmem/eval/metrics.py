@@ -1,0 +1,303 @@
+"""Scoring one answer and summarising a run, as the papers report them.
+
+Rows are plain dicts (one JSONL line each) that carry the question, the ground truth, the
+method's full answer and what was predicted; `score_row` needs nothing else, so a run folder
+can be re-scored with other thresholds without the dataset or the memory.
+
+- position: right when the predicted [x, y, z] is within the threshold of any accepted position
+  (NaVQA 15 m; per question / per split otherwise); error = distance to the nearest one.
+- time: within `time_s` (default 30 s = 0.5 min) of an accepted instant or inside the window.
+- duration: within `duration_s` (default 30 s) of the true duration.
+- frame: goal j right when the j-th predicted frame time is within the frame tolerance of an
+  accepted frame of goal j (FindingDory multi-goal answers in order; `[[-1]]` = nothing seen);
+  `relaxed` is FindingDory's per-goal precision product.
+- binary: predicted yes/no equals the truth. text: an LLM judge's verdict, or not scored.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections import defaultdict
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ..agent.schema import Answer
+from .types import Episode, Question
+
+DEFAULT_POS_M = 1.0  # when neither the question, the dataset nor the user gives a threshold
+
+
+@dataclass
+class Thresholds:
+    """Scoring criteria; None means the question's or the dataset's own value."""
+
+    position_m: float | None = None
+    time_s: float = 30.0
+    duration_s: float = 30.0
+    frame_s: float | None = None
+    planar: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> Thresholds:
+        return cls(**{k: v for k, v in (d or {}).items() if k in cls.__dataclass_fields__})
+
+
+def goal_times(q: Question, ep: Episode) -> list[list[float]]:
+    """Accepted frames per goal as times (frame indices and file names mapped through the episode)."""
+    t = q.truth
+    if t.frames and ep.frame_times:
+        return [[ep.frame_times[i] for i in g if 0 <= i < len(ep.frame_times)] for g in t.frames]
+    if t.files and ep.frame_files:
+        idx = {f: i for i, f in enumerate(ep.frame_files)}
+        times = [ep.frame_times[idx[f]] for f in t.files if f in idx]
+        if times:
+            return [times]
+    if q.type == "frame" and t.times:
+        return [list(t.times)]
+    return []
+
+
+def truth_row(q: Question, ep: Episode) -> dict[str, Any]:
+    d = q.truth.to_dict()
+    gt = goal_times(q, ep)
+    if gt:
+        d["goal_times"] = gt
+    return d
+
+
+_LISTS = re.compile(r"\[\s*\[[\d\s,\[\]-]*\]\s*\]")
+
+
+def parse_frame_lists(text: str) -> list[list[int]] | None:
+    """A FindingDory-style answer '[[12, 13], [40]]' in free text (the last one), else None."""
+    found = _LISTS.findall(text or "")
+    for cand in reversed(found):
+        try:
+            val = json.loads(cand)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(val, list) and all(
+            isinstance(g, list) and all(isinstance(i, int) for i in g) for g in val
+        ):
+            return val
+    return None
+
+
+def parse_yes(text: str) -> bool | None:
+    w = (text or "").strip().lower()
+    if re.match(r"^(yes|yeah|yep|true)\b", w):
+        return True
+    if re.match(r"^(no|nope|false|never)\b", w):
+        return False
+    return None
+
+
+def prediction(a: Answer, q: Question, ep: Episode) -> dict[str, Any]:
+    """What the answer predicts, in the units ground truth uses (frames as times)."""
+    yes = a.yes if a.yes is not None else parse_yes(a.text)
+    seq: list[float] = [] if a.time is None else [float(a.time)]
+    for e in a.evidence:
+        if all(abs(e.t - s) > 1e-6 for s in seq):
+            seq.append(float(e.t))
+    k = max(1, len(q.truth.frames))
+    lists = parse_frame_lists(a.text) if q.type == "frame" else None
+    if lists is not None and ep.frame_times:
+        goals = [[ep.frame_times[i] if 0 <= i < len(ep.frame_times) else -1.0 for i in g] for g in lists]
+        none = lists == [[-1]]
+    else:
+        goals = [[s] for s in seq[:k]]
+        none = False
+    frames = [ep.nearest_frame(s) for s in seq[:k]] if ep.frame_times else []
+    out: dict[str, Any] = {"position": a.position, "time": a.time, "duration": a.duration, "yes": yes,
+                           "found": a.found and not none, "goal_times": goals, "frames": frames}  # fmt: skip
+    if ep.frame_files and frames:
+        out["files"] = [ep.frame_files[i] for i in frames if i is not None]
+    return out
+
+
+def _dist(p: list[float], g: list[float], planar: bool) -> float:
+    p3 = (list(p) + [0.0, 0.0, 0.0])[:3]
+    g3 = (list(g) + [0.0, 0.0, 0.0])[:3]
+    dz = 0.0 if planar else p3[2] - g3[2]
+    return math.sqrt((p3[0] - g3[0]) ** 2 + (p3[1] - g3[1]) ** 2 + dz * dz)
+
+
+def _frame_score(
+    goals: list[list[float]], pred: list[list[float]], tol: float
+) -> tuple[bool, float, float | None]:
+    """(strict ordered correctness, FindingDory relaxed score, temporal error of goal 0)."""
+
+    def hit(p: float, g: list[float]) -> bool:
+        return any(abs(p - x) <= tol for x in g)
+
+    strict = len(pred) >= len(goals) and all(pred[j] and hit(pred[j][0], goals[j]) for j in range(len(goals)))
+    relaxed = 0.0
+    if len(pred) == len(goals):
+        precisions = [sum(hit(p, g) for p in ps) / len(ps) if ps else 0.0 for ps, g in zip(pred, goals)]
+        relaxed = float(np.prod(precisions))
+    err = min(abs(pred[0][0] - x) for x in goals[0]) if pred and pred[0] and goals and goals[0] else None
+    return strict, relaxed, err
+
+
+def score_row(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
+    """Score one answer row (see the module docstring). correct=None means 'not scored' with a reason."""
+    qtype = row["question"]["type"]
+    t = row["truth"]
+    p = row["pred"]
+    ans = row["answer"]
+    s: dict[str, Any] = {"correct": None}
+    if row["question"].get("meta", {}).get("unscorable"):
+        s["skipped"] = row["question"]["meta"]["unscorable"]
+        return s
+    if ans.get("failed"):
+        s["correct"] = False
+        s["failed"] = True
+    if t.get("none"):
+        s["correct"] = not p.get("found", True) and not ans.get("failed")
+        return s
+    if qtype == "position":
+        tol = t.get("pos_tol") or thr.position_m or row.get("pos_threshold") or DEFAULT_POS_M
+        s["threshold_m"] = tol
+        if p.get("position") is not None and t.get("positions"):
+            s["pos_error_m"] = min(_dist(p["position"], g, thr.planar) for g in t["positions"])
+            s["correct"] = s["pos_error_m"] <= tol and not ans.get("failed")
+        else:
+            s["correct"] = False
+        if t.get("goal_times") and p.get("goal_times"):
+            ftol = thr.frame_s if thr.frame_s is not None else row.get("frame_tol") or 0.5
+            s["frame_correct"] = _frame_score(t["goal_times"], p["goal_times"], ftol)[0]
+    elif qtype == "time":
+        tol = t.get("time_tol") or thr.time_s
+        pt = p.get("time")
+        if pt is None and p.get("goal_times"):
+            pt = p["goal_times"][0][0]
+        if pt is not None and (t.get("times") or t.get("window")):
+            errs = [abs(pt - x) for x in t.get("times", [])]
+            if t.get("window"):
+                lo, hi = t["window"]
+                errs.append(max(lo - pt, 0.0, pt - hi))
+            s["time_error_s"] = min(errs)
+            s["correct"] = s["time_error_s"] <= tol and not ans.get("failed")
+        else:
+            s["correct"] = False
+    elif qtype == "duration":
+        tol = t.get("time_tol") or thr.duration_s
+        if p.get("duration") is not None and t.get("duration") is not None:
+            s["duration_error_s"] = abs(float(p["duration"]) - float(t["duration"]))
+            s["correct"] = s["duration_error_s"] <= tol and not ans.get("failed")
+        else:
+            s["correct"] = False
+    elif qtype == "frame":
+        tol = thr.frame_s if thr.frame_s is not None else t.get("time_tol") or row.get("frame_tol") or 0.5
+        goals, pred = t.get("goal_times") or [], p.get("goal_times") or []
+        if not goals:
+            s["skipped"] = "no accepted frame could be placed in time"
+            s["correct"] = None
+            return s
+        strict, relaxed, err = _frame_score(goals, pred, tol)
+        s.update(correct=strict and not ans.get("failed"), relaxed=relaxed)
+        if err is not None:
+            s["time_error_s"] = err
+    elif qtype == "binary":
+        s["correct"] = p.get("yes") is not None and p["yes"] == t.get("yes") and not ans.get("failed")
+    elif qtype == "text":
+        verdict = row.get("judge")
+        if ans.get("failed"):
+            s["correct"] = False
+        elif verdict and verdict.get("correct") is not None:
+            s["correct"] = bool(verdict["correct"])
+        else:
+            s["skipped"] = "text answer not judged (no LLM judge configured)"
+    return s
+
+
+# ------------------------------------------------------------------------------------ summaries
+def mean_std(vals: Iterable[float | None]) -> dict[str, Any]:
+    v = np.asarray([x for x in vals if x is not None and np.isfinite(x)], dtype=float)
+    if v.size == 0:
+        return {"mean": None, "std": None, "n": 0}
+    return {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if v.size > 1 else 0.0, "n": int(v.size)}
+
+
+def _seed_accuracy(rows: list[dict[str, Any]], key: str = "correct") -> dict[str, Any]:
+    """Accuracy per seed, then mean +- std over seeds (n = scored rows over all seeds)."""
+    per_seed: dict[int, list[bool]] = defaultdict(list)
+    for r in rows:
+        c = r["score"].get(key)
+        if c is not None:
+            per_seed[int(r["seed"])].append(bool(c) if key != "relaxed" else c)
+    accs = [float(np.mean(v)) for v in per_seed.values() if v]
+    out = mean_std(accs)
+    out["n"] = sum(len(v) for v in per_seed.values())
+    out["seeds"] = len(accs)
+    return out
+
+
+def group_key(r: dict[str, Any]) -> tuple[str, str, str, str]:
+    """(method, embedder, VLM, variant): the rows one table line / one curve stands for."""
+    return (r["method"], r.get("embedder") or "-", r.get("vlm") or "-", r.get("variant") or "")
+
+
+def summarize(
+    rows: list[dict[str, Any]], thr: Thresholds | None = None, rescore: bool = True
+) -> dict[str, Any]:
+    """Per (method, embedder, VLM): accuracy overall / per type / category / horizon (mean +- std
+    over seeds), error statistics, alpha and cost per question."""
+    thr = thr or Thresholds()
+    if rescore:
+        for r in rows:
+            r["score"] = score_row(r, thr)
+    groups: dict[tuple[str, str, str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        groups[group_key(r)].append(r)
+    out = []
+    for (method, emb, vlm, variant), rs in sorted(groups.items()):
+        g: dict[str, Any] = {"method": method, "embedder": emb, "vlm": vlm, "variant": variant,
+                             "seeds": sorted({int(r["seed"]) for r in rs}), "rows": len(rs),
+                             "questions": len({r["qid"] for r in rs})}  # fmt: skip
+        g["accuracy"] = _seed_accuracy(rs)
+        for field, attr in (("by_type", "type"), ("by_category", "category"), ("by_horizon", "horizon")):
+            vals = sorted({r["question"].get(attr) or "" for r in rs} - {""})
+            g[field] = {v: _seed_accuracy([r for r in rs if r["question"].get(attr) == v]) for v in vals}
+        frames = [r for r in rs if r["question"]["type"] == "frame"]
+        if frames:
+            g["relaxed"] = _seed_accuracy(frames, "relaxed")
+        pos_frames = [r for r in rs if "frame_correct" in r["score"]]
+        if pos_frames:
+            g["frame_accuracy"] = _seed_accuracy(pos_frames, "frame_correct")
+        g["pos_error_m"] = mean_std(r["score"].get("pos_error_m") for r in rs)
+        g["pos_error_m"]["median"] = _median(r["score"].get("pos_error_m") for r in rs)
+        g["time_error_min"] = mean_std(
+            (r["score"]["time_error_s"] / 60.0) for r in rs if "time_error_s" in r["score"]
+        )
+        g["duration_error_min"] = mean_std(
+            (r["score"]["duration_error_s"] / 60.0) for r in rs if "duration_error_s" in r["score"]
+        )
+        costs = [r["answer"].get("cost", {}) for r in rs]
+        g["alpha"] = mean_std(c.get("alpha") for c in costs)
+        g["images_per_q"] = mean_std(c.get("images") for c in costs)
+        g["tokens_per_q"] = mean_std(
+            (c.get("prompt_tokens", 0) + c.get("completion_tokens", 0)) for c in costs
+        )
+        g["tool_calls_per_q"] = mean_std(c.get("tool_calls") for c in costs)
+        g["seconds_per_q"] = mean_std(r.get("wall_s") for r in rs)
+        g["not_judged"] = sum(
+            1 for r in rs if str(r["score"].get("skipped", "")).startswith("text answer not judged")
+        )
+        g["unscorable"] = sum(1 for r in rs if r["score"].get("correct") is None) - g["not_judged"]
+        g["failed"] = sum(1 for r in rs if r["answer"].get("failed"))
+        out.append(g)
+    return {"thresholds": thr.to_dict(), "groups": out, "rows": len(rows)}
+
+
+def _median(vals: Iterable[float | None]) -> float | None:
+    v = [x for x in vals if x is not None]
+    return float(np.median(v)) if v else None

@@ -1,0 +1,152 @@
+"""Small benchmark folders written by the tests in each dataset's exact layout."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from PIL import Image
+
+COLORS = {"red": (230, 20, 20), "green": (20, 200, 20), "blue": (20, 20, 230), "yellow": (230, 230, 20),
+          "cyan": (20, 230, 230), "magenta": (230, 20, 230), "white": (240, 240, 240), "black": (5, 5, 5)}  # fmt: skip
+
+
+def solid(color: str, h: int = 24, w: int = 32) -> np.ndarray:
+    img = np.zeros((h, w, 3), dtype=np.uint8)
+    img[:] = COLORS[color]
+    return img
+
+
+def save(path: Path, img: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(img).save(path, quality=95)
+
+
+class CountingColorEmbedder:
+    """Colour embedder (mean colour direction; texts -> the colour they name) that counts images."""
+
+    name = "test-color-eval"
+    dim = 4
+
+    def __init__(self) -> None:
+        self.images = 0
+
+    def embed_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        self.images += len(images)
+        out = [list(im.reshape(-1, 3).astype(np.float32).mean(0) / 255.0) + [0.1] for im in images]
+        v = np.asarray(out, dtype=np.float32).reshape(-1, 4)
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
+        out = []
+        for t in texts:
+            c = next((COLORS[w] for w in t.lower().replace("?", " ").split() if w in COLORS), (0, 0, 0))
+            out.append([c[0] / 255, c[1] / 255, c[2] / 255, 0.1])
+        v = np.asarray(out, dtype=np.float32)
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+@pytest.fixture
+def embedder() -> CountingColorEmbedder:
+    return CountingColorEmbedder()
+
+
+RAVEN_COLORS = ["red", "red", "green", "green", "blue", "blue", "yellow", "yellow", "white", "black"]
+
+
+def write_raven_video(vdir: Path, questions: list[list[Any]] | None = None, **extra: Any) -> Path:
+    """A RAVEN-QA video folder: 10 frames walking along x (1 m apart), a colour per pair of frames."""
+    for i, c in enumerate(RAVEN_COLORS):
+        save(vdir / "frames" / f"frame_{i + 1:03d}.jpg", solid(c))
+    qs = questions if questions is not None else [
+        ["Where did you see the blue wall?", "frame_005.jpg", "dominant", None],
+        ["Where is the green box?", [[2.0, 0.0, 0.0], "frame_003.jpg"], "secondary", None],
+        ["Where was something yellow?", [[6.0, 0.0, 0.0], [7.0, 0.0, 0.0]], "spatial", None],
+        ["Where was the red thing?", [[[0.0, 0.0, 0.0], "frame_001.jpg"], [[1.0, 0.0, 0.0], "frame_002.jpg"]],
+         "information recall", None],
+    ]  # fmt: skip
+    doc = {
+        "questions (ques, answer_in_filename, category, query_img)": qs,
+        "timestamp_to_filename": {"00:10:00": "frame_001.jpg", "00:10:18": "frame_010.jpg"},
+        "filename_to_position": {f"frame_{i + 1:03d}.jpg": [float(i), 0.0, 0.0] for i in range(10)},
+    } | extra
+    (vdir / "questions.json").write_text(json.dumps(doc), encoding="utf-8")
+    return vdir
+
+
+@pytest.fixture
+def raven_root(tmp_path: Path) -> Path:
+    root = tmp_path / "RAVEN_QA" / "real_world"
+    write_raven_video(root / "vid_a")
+    return root
+
+
+NAVQA_HEADER = ["UUID", "Seq ID", "Question", "Timestamp \nwith answer", "Type \n(binary, position, time, text)",
+                "Text answer", "Parsable answer", "Question\nCategory"]  # fmt: skip
+T0 = 1673884500.0  # 2023-01-16 09:55:00 America/Chicago
+
+
+def write_navqa(root: Path, with_human_qa: bool = True) -> Path:
+    """Sequence 0: 20 frames at 1 Hz moving along y (2 m/s), colours in blocks of 5."""
+    seq = root / "frames" / "0"
+    rows = []
+    colors = ["red"] * 5 + ["green"] * 5 + ["blue"] * 5 + ["yellow"] * 5
+    for i, c in enumerate(colors):
+        save(seq / f"{i:04d}.png", solid(c))
+        rows.append([f"{i:04d}.png", f"{T0 + i:.3f}", "0.0", f"{2.0 * i:.3f}", "0.0"])
+    with open(seq / "poses.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["file", "t", "x", "y", "z"])
+        w.writerows(rows)
+    table = [
+        ["SHORT_a", "0", "Where is the blue door?", "9:55:11", "position", "", "[position]", "spatial"],
+        ["SHORT_b", "0", "When did you see the green wall?", "9:55:06", "time", "", "[minutes] ago", "temporal"],
+        ["LONG_c", "0", "Did you see a yellow car?", "9:55:16", "binary", "", "yes", "environmental"],
+        ["LONG_d", "0", "How long were you near green things?", "9:55:05,9:55:09", "duration", "about 4 s", "0.0667",
+         "temporal reasoning"],
+        ["LONG_e", "0", "What colour was the wall at the start?", "9:55:01", "text", "It was red", "", "descriptive"],
+    ]  # fmt: skip
+    with open(root / "data.csv", "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(NAVQA_HEADER)
+        w.writerows(table)
+    if with_human_qa:
+        items = [
+            {"id": "SHORT_a", "length_category": "SHORT", "start_time": T0 + 5, "end_time": T0 + 15,
+             "question": "You started moving at X.\n Where is the blue door?", "type": "position",
+             "answers": {"position": [0.0, 22.0, 0.0]}},
+            {"id": "SHORT_b", "length_category": "SHORT", "start_time": T0 + 5, "end_time": T0 + 15,
+             "question": "When did you see the green wall?", "type": "time",
+             "answers": {"text": ["0.15 minutes ago"], "time": 0.15}},
+            {"id": "LONG_c", "length_category": "LONG", "start_time": T0, "end_time": T0 + 19,
+             "question": "Did you see a yellow car?", "type": "binary", "answers": {"text": ["yes", "yes"]}},
+            {"id": "LONG_d", "length_category": "LONG", "start_time": T0, "end_time": T0 + 19,
+             "question": "How long?", "type": "duration", "answers": {"text": ["0.0667 minutes"], "duration": 0.0667}},
+            {"id": "LONG_e", "length_category": "LONG", "start_time": T0, "end_time": T0 + 19,
+             "question": "What colour?", "type": "text", "answers": {"text": ["It was red"]}},
+        ]  # fmt: skip
+        qdir = root / "questions" / "0"
+        qdir.mkdir(parents=True)
+        (qdir / "human_qa.json").write_text(json.dumps({"version": 0.1, "data": items}), encoding="utf-8")
+    return root
+
+
+def write_video(path: Path, colors: list[str], fps: int = 5) -> Path:
+    import av
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with av.open(str(path), "w") as c:
+        st = c.add_stream("mpeg4", rate=fps)
+        st.width, st.height, st.pix_fmt = 32, 32, "yuv420p"
+        for col in colors:
+            fr = av.VideoFrame.from_ndarray(solid(col, 32, 32), format="rgb24")
+            for pkt in st.encode(fr):
+                c.mux(pkt)
+        for pkt in st.encode():
+            c.mux(pkt)
+    return path

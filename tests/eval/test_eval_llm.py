@@ -1,0 +1,113 @@
+"""The LLM judge and the `raven` agent through the runner, against a scripted model over real HTTP."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ravenmem.agent.schema import Answer
+from ravenmem.eval.judge import parse_verdict
+from ravenmem.eval.runner import RunConfig, Runner, read_rows, rejudge
+from tests.agent.scripted_server import ScriptedModel, answer, content, tool
+from tests.eval.eval_helpers import COLORS, CountingColorEmbedder, write_navqa
+
+
+def judge_reply(body: dict[str, Any]) -> dict[str, Any]:
+    user = next(m["content"] for m in body["messages"] if m["role"] == "user")
+    cand = user.split("Candidate answer:", 1)[1]
+    return content(json.dumps({"correct": "red" in cand.lower(), "reason": "compared colours"}))
+
+
+class Speaker:
+    """Answers text questions with a fixed sentence (and nothing else)."""
+
+    def __init__(self, name: str, memory: Any, **_: Any) -> None:
+        self.name = name
+
+    def ask(self, question: str, image: np.ndarray | None = None) -> Answer:
+        return Answer(question=question, method=self.name, question_type="text",
+                      text="The wall was red." if self.name == "good" else "It was green.")  # fmt: skip
+
+
+def navqa_cfg(tmp: Path, **kw: Any) -> RunConfig:
+    root = tmp / "navqa"
+    if not root.exists():
+        write_navqa(root)
+    return RunConfig(**({"dataset": f"navqa:{root}", "methods": ["good", "bad"], "out": str(tmp / "run"),
+                         "cache_dir": str(tmp / "cache"), "progress": False, "thumb_size": 32,
+                         "episodes": "*@1673884500.000-*"} | kw))  # fmt: skip
+
+
+def test_judge_scores_text_answers(tmp_path: Path) -> None:
+    with ScriptedModel(default=judge_reply) as srv:
+        cfg = navqa_cfg(tmp_path, judge_model="scripted-judge", judge_base_url=srv.base_url)
+        s = Runner(cfg, method_factory=lambda n, m, **o: Speaker(n, m), embedder=CountingColorEmbedder(),
+                   log=lambda _: None).run()  # fmt: skip
+        assert len(srv.requests) == 2 and srv.requests[0]["model"] == "scripted-judge"
+        assert "Reference answer(s):\n- It was red" in srv.requests[0]["messages"][1]["content"]
+    g = {x["method"]: x for x in s["groups"]}
+    assert g["good"]["by_type"]["text"]["mean"] == 1.0 and g["bad"]["by_type"]["text"]["mean"] == 0.0
+    assert g["good"]["not_judged"] == 0
+    text_rows = [r for r in read_rows(tmp_path / "run") if r["question"]["type"] == "text"]
+    assert {r["judge"]["reason"] for r in text_rows} == {"compared colours"}
+
+
+def test_without_judge_text_is_not_scored_then_rejudged(tmp_path: Path) -> None:
+    cfg = navqa_cfg(tmp_path)
+    s = Runner(cfg, method_factory=lambda n, m, **o: Speaker(n, m), embedder=CountingColorEmbedder(),
+               log=lambda _: None).run()  # fmt: skip
+    g = {x["method"]: x for x in s["groups"]}
+    assert g["good"]["not_judged"] == 1 and g["good"]["by_type"]["text"]["mean"] is None
+    from ravenmem.agent.config import VLMConfig
+    from ravenmem.eval.judge import Judge
+
+    with ScriptedModel(default=judge_reply) as srv:
+        n = rejudge(tmp_path / "run", Judge(VLMConfig(base_url=srv.base_url, model="j", backoff=0.0)))
+    assert n == 2
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    g = {x["method"]: x for x in summary["groups"]}
+    assert g["good"]["by_type"]["text"]["mean"] == 1.0 and g["good"]["not_judged"] == 0
+
+
+def test_verdict_parsing() -> None:
+    assert parse_verdict('```json\n{"correct": false, "reason": "no"}\n```').correct is False  # type: ignore[union-attr]
+    assert parse_verdict("Yes, it matches.").correct is True  # type: ignore[union-attr]
+    assert parse_verdict("I cannot tell") is None
+
+
+def vlm_reply(body: dict[str, Any]) -> dict[str, Any]:
+    """Search the colour the question names, then answer with the best-scoring memory shown."""
+    tool_msgs = [m for m in body["messages"] if m["role"] == "tool"]
+    if not tool_msgs:
+        texts = []
+        for m in body["messages"]:
+            if m["role"] == "user":
+                c = m["content"]
+                texts += (
+                    [c] if isinstance(c, str) else [p.get("text", "") for p in c if p.get("type") == "text"]
+                )
+        colour = next(w for w in re.findall(r"[a-z]+", " ".join(texts).lower()) if w in COLORS)
+        return tool("search_text", query=colour)
+    best = max(
+        re.findall(r"^\[m(\d+)\].*score ([\d.]+)", tool_msgs[-1]["content"], re.M), key=lambda x: float(x[1])
+    )
+    return answer(question_type="position", answer="there", evidence=[int(best[0])])
+
+
+def test_raven_agent_through_the_runner(raven_root: Path, tmp_path: Path) -> None:
+    with ScriptedModel(default=vlm_reply) as srv:
+        cfg = RunConfig(dataset=f"raven-qa:{raven_root}", methods=["raven"], vlm="scripted", vlm_base_url=srv.base_url,
+                        out=str(tmp_path / "run"), cache_dir=str(tmp_path / "cache"), progress=False, thumb_size=32,
+                        workers=2, method_opts={"top_k": 3, "max_tool_calls": 2})  # fmt: skip
+        s = Runner(cfg, embedder=CountingColorEmbedder(), log=lambda _: None).run()
+        assert len(srv.requests) == 8  # two requests per question
+    (g,) = s["groups"]
+    assert g["vlm"] == "scripted" and g["accuracy"]["mean"] == 1.0
+    assert g["images_per_q"]["mean"] == 3 and g["tokens_per_q"]["mean"] > 0
+    assert g["alpha"]["mean"] == 0.3  # 3 of 10 memories shown
+    rows = read_rows(tmp_path / "run")
+    assert all(r["answer"]["position_source"] == "evidence" and r["vlm"] == "scripted" for r in rows)

@@ -1,7 +1,41 @@
-"""Reasoning over the memory: the VLM agent loop, the offline reasoner and the baselines."""
+"""Reasoning over the memory: the VLM agent loop, the offline reasoner and the baselines.
+
+from ravenmem.agent import Agent, VLMConfig, create_method
+agent = Agent(mem, vlm=VLMConfig(base_url="http://localhost:8000/v1", model="Qwen/Qwen2.5-VL-7B-Instruct"))
+answer = agent.ask("Where did I leave the red backpack?")
+"""
 
 from __future__ import annotations
 
+from .base import METHODS, MemoryLike, Method
+from .baselines import EmbedderOnly, RandomBaseline, VLMOnly
+from .captions import CaptionAgent, CaptionIndex, caption_memories
+from .client import VLMClient, VLMError
+from .config import VLMConfig
+from .loop import Agent
+from .methods import create_method
+from .offline import OfflineReasoner, OfflineSettings
 from .schema import Answer, Cost, Evidence, QuestionType
 
-__all__ = ["Answer", "Cost", "Evidence", "QuestionType"]
+__all__ = [
+    "METHODS",
+    "Agent",
+    "Answer",
+    "CaptionAgent",
+    "CaptionIndex",
+    "Cost",
+    "EmbedderOnly",
+    "Evidence",
+    "MemoryLike",
+    "Method",
+    "OfflineReasoner",
+    "OfflineSettings",
+    "QuestionType",
+    "RandomBaseline",
+    "VLMClient",
+    "VLMConfig",
+    "VLMError",
+    "VLMOnly",
+    "caption_memories",
+    "create_method",
+]

@@ -275,7 +275,7 @@ def main() -> None:
     try:
         app(standalone_mode=False)
     except RavenmemError as e:
-        Console(stderr=True).print(f"[red]error:[/] {e}", highlight=False)
+        Console(stderr=True, soft_wrap=True).print(f"[red]error:[/] {e}", highlight=False)
         sys.exit(2)
     except typer.Exit as e:
         sys.exit(e.exit_code)

@@ -1,0 +1,151 @@
+"""The paper's baselines, answering in the same `Answer` schema as the agent.
+
+- `embedder-only`: the raw question through the text tool, top-1 memory's pose and time.
+- `random`: a uniformly random memory (seeded): the floor every method must beat.
+- `vlm-only`: N frames sampled uniformly over the WHOLE history in one prompt, no tools, so
+  the model's context, not retrieval, decides what it sees.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..types import Hit, MemoryRecord
+from .base import MemoryLike, all_records, record_image_url
+from .client import VLMClient
+from .config import VLMConfig
+from .loop import Agent, _Run
+from .parse import evidence_of
+from .questions import classify_question, fmt_time
+from .schema import Answer, Cost
+from .tools import Shown, describe
+
+
+def _record_answer(
+    question: str,
+    method: str,
+    rec: MemoryRecord,
+    score: float | None,
+    retrieved: int,
+    total: int,
+    t_start: float,
+) -> Answer:
+    qtype = classify_question(question)
+    p = rec.pose
+    ans = Answer(
+        question=question, method=method, question_type=qtype,
+        text=f"Memory m{rec.id}: seen at x={p.x:.2f}, y={p.y:.2f}, z={p.z:.2f} at {fmt_time(rec.t)}.",
+        position=[p.x, p.y, p.z], yaw=p.yaw, position_source="evidence", time=rec.t,
+        yes=True if qtype == "binary" else None,
+        evidence=[evidence_of(Shown(rec, score, None, method))],
+    )  # fmt: skip
+    ans.cost = Cost(
+        memories_shown=retrieved, memories_total=total, alpha=retrieved / max(1, total),
+        wall_s=round(time.perf_counter() - t_start, 4),
+    )  # fmt: skip
+    return ans
+
+
+class EmbedderOnly:
+    """Top-1 of the text (or image) tool for the question as asked: no rewriting, no threshold."""
+
+    name = "embedder-only"
+
+    def __init__(self, memory: MemoryLike, **_: Any) -> None:
+        self.memory = memory
+
+    def ask(self, question: str, image: np.ndarray | None = None) -> Answer:
+        if not question or not question.strip():
+            raise InputError("empty question")
+        t_start = time.perf_counter()
+        hits: list[Hit] = (
+            self.memory.search_image(image, k=1)
+            if image is not None
+            else self.memory.search_text(question, k=1)
+        )
+        if not hits:
+            return Answer(question=question, method=self.name, question_type=classify_question(question), found=False,
+                          text="The memory returned nothing.")  # fmt: skip
+        return _record_answer(
+            question, self.name, hits[0].memory, hits[0].score, 1, self.memory.count(), t_start
+        )
+
+
+class RandomBaseline:
+    """A random memory's pose and time (and a coin flip for yes/no), reproducible by seed."""
+
+    name = "random"
+
+    def __init__(self, memory: MemoryLike, seed: int = 0, **_: Any) -> None:
+        self.memory = memory
+        self.rng = random.Random(seed)
+        self._records: list[MemoryRecord] | None = None
+
+    def ask(self, question: str, image: np.ndarray | None = None) -> Answer:
+        if not question or not question.strip():
+            raise InputError("empty question")
+        t_start = time.perf_counter()
+        if self._records is None:
+            self._records = all_records(self.memory)
+        if not self._records:
+            raise InputError("the memory is empty")
+        rec = self.rng.choice(self._records)
+        ans = _record_answer(question, self.name, rec, None, 1, len(self._records), t_start)
+        if ans.question_type == "binary":
+            ans.yes = self.rng.random() < 0.5
+        if ans.question_type == "duration":
+            t0, t1 = rec.t, self.rng.choice(self._records).t
+            ans.duration = abs(t1 - t0)
+        return ans
+
+
+class VLMOnly(Agent):
+    """The whole history, subsampled to `frames` images, in one prompt; no tools."""
+
+    name = "vlm-only"
+    use_tools = False
+
+    def __init__(
+        self, memory: MemoryLike, vlm: VLMConfig | VLMClient | None = None, frames: int = 16, **kw: Any
+    ) -> None:
+        kw.pop("max_tool_calls", None)
+        super().__init__(memory, vlm=vlm, max_tool_calls=0, **kw)
+        if frames < 1:
+            raise InputError(f"frames must be >= 1, got {frames}")
+        self.frames = frames
+        if self.client is None:
+            raise InputError(
+                "the vlm-only baseline needs a VLM: set RAVENMEM_VLM_MODEL / RAVENMEM_VLM_BASE_URL"
+            )
+
+    def sample(self) -> list[MemoryRecord]:
+        """`frames` memories evenly spaced in time order over the whole history (all if fewer)."""
+        recs = all_records(self.memory)
+        if len(recs) <= self.frames:
+            return recs
+        idx = np.linspace(0, len(recs) - 1, self.frames).round().astype(int)
+        return [recs[i] for i in dict.fromkeys(idx.tolist())]
+
+    def _extra_opening(self, run: _Run) -> list[dict[str, Any]]:
+        recs = self.sample()
+        t0 = self.memory.time_span()[0]
+        parts: list[dict[str, Any]] = [
+            {
+                "type": "text",
+                "text": f"{len(recs)} memories sampled uniformly over the whole recording, in time order:",
+            }
+        ]
+        for rec in recs:
+            run.wm.add(Hit(memory=rec), "history")
+            parts.append({"type": "text", "text": describe(rec, t0)})
+            url = record_image_url(self.memory, rec)
+            if url is not None:
+                parts.append({"type": "image_url", "image_url": {"url": url}})
+                run.images += 1
+        run.shown_ids.update(run.wm.items)
+        return parts

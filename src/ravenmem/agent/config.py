@@ -1,0 +1,146 @@
+"""Where the VLM lives: base URL, model and key from flags > environment > config file.
+
+One config shape for every OpenAI-compatible endpoint (vLLM, Ollama, OpenAI, Gemini's
+OpenAI-compatible URL). The config file is `~/.config/ravenmem/config.toml` (or
+`$XDG_CONFIG_HOME/ravenmem/config.toml`, or the file named by `$RAVENMEM_CONFIG`), section `[vlm]`
+with the same keys as `VLMConfig`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any, Literal
+
+from ..errors import InputError
+
+ToolMode = Literal["auto", "native", "json"]
+TOOL_MODES = ("auto", "native", "json")
+
+ENV_KEYS = {
+    "base_url": "RAVENMEM_VLM_BASE_URL",
+    "model": "RAVENMEM_VLM_MODEL",
+    "api_key": "RAVENMEM_VLM_API_KEY",
+    "timeout": "RAVENMEM_VLM_TIMEOUT",
+    "max_retries": "RAVENMEM_VLM_MAX_RETRIES",
+    "tool_mode": "RAVENMEM_VLM_TOOL_MODE",
+}
+
+
+@dataclass
+class VLMConfig:
+    """Connection and retry settings for one OpenAI-compatible chat endpoint.
+
+    `max_retries` counts retries after the first attempt (on 429, 5xx, timeouts and dropped
+    connections); waits grow as `backoff * 2**attempt`, capped at `backoff_max`, and honour a
+    server's Retry-After when it is shorter than the cap. `tool_mode` picks native function
+    calling, a JSON-in-prompt protocol, or `auto` (native, switching to JSON when the endpoint
+    rejects the `tools` field).
+    """
+
+    base_url: str | None = None
+    model: str | None = None
+    api_key: str | None = None
+    timeout: float = 60.0
+    max_retries: int = 3
+    backoff: float = 1.0
+    backoff_max: float = 20.0
+    tool_mode: ToolMode = "auto"
+    temperature: float = 0.0
+    max_tokens: int = 1024
+    image_detail: str | None = None  # OpenAI's "low" | "high" | "auto"; None = not sent
+
+    def __post_init__(self) -> None:
+        if self.tool_mode not in TOOL_MODES:
+            raise InputError(f"vlm tool_mode must be one of {', '.join(TOOL_MODES)}, got {self.tool_mode!r}")
+        if self.timeout <= 0:
+            raise InputError(f"vlm timeout must be > 0 seconds, got {self.timeout}")
+        if self.max_retries < 0:
+            raise InputError(f"vlm max_retries must be >= 0, got {self.max_retries}")
+        if self.backoff < 0 or self.backoff_max < 0:
+            raise InputError("vlm backoff values must be >= 0")
+
+    @property
+    def configured(self) -> bool:
+        """A model name is the one thing we cannot guess; without it there is no VLM."""
+        return bool(self.model)
+
+    def public(self) -> dict[str, Any]:
+        """The settings without the key (for traces and reports)."""
+        d = asdict(self)
+        d["api_key"] = "***" if self.api_key else None
+        return d
+
+    @classmethod
+    def resolve(
+        cls,
+        config_path: str | os.PathLike[str] | None = None,
+        env: Mapping[str, str] | None = None,
+        **flags: Any,
+    ) -> VLMConfig:
+        """Merge flags (non-None values win) over environment over the config file."""
+        env = os.environ if env is None else env
+        merged: dict[str, Any] = dict(_read_file(_config_file(config_path, env)))
+        for key, var in ENV_KEYS.items():
+            if env.get(var):
+                merged[key] = env[var]
+        if not merged.get("api_key") and env.get("OPENAI_API_KEY"):
+            merged["api_key"] = env["OPENAI_API_KEY"]
+        merged.update({k: v for k, v in flags.items() if v is not None})
+        return cls(**_coerce(merged, "vlm settings"))
+
+
+def _config_file(path: str | os.PathLike[str] | None, env: Mapping[str, str]) -> Path | None:
+    if path is not None:
+        p = Path(path)
+        if not p.exists():
+            raise InputError(f"config file {p} does not exist")
+        return p
+    if env.get("RAVENMEM_CONFIG"):
+        return Path(env["RAVENMEM_CONFIG"])
+    base = Path(env["XDG_CONFIG_HOME"]) if env.get("XDG_CONFIG_HOME") else Path.home() / ".config"
+    return base / "ravenmem" / "config.toml"
+
+
+def _read_file(path: Path | None) -> dict[str, Any]:
+    if path is None or not path.exists():
+        return {}
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+        import tomli as tomllib  # type: ignore[no-redef]
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not valid TOML ({e})") from e
+    section = data.get("vlm", {})
+    if not isinstance(section, dict):
+        raise InputError(f"{path}: [vlm] must be a table")
+    unknown = set(section) - {f.name for f in fields(VLMConfig)}
+    if unknown:
+        raise InputError(f"{path}: unknown key(s) in [vlm]: {', '.join(sorted(unknown))}")
+    return _coerce(section, f"{path} [vlm]")
+
+
+def _coerce(values: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """Turn strings from env/files into the field types, naming the field that is wrong."""
+    types = {f.name: f.type for f in fields(VLMConfig)}
+    out: dict[str, Any] = {}
+    for key, val in values.items():
+        if key not in types:
+            raise InputError(f"{where}: unknown setting {key!r}")
+        kind = str(types[key])
+        try:
+            if val is None:
+                out[key] = None
+            elif kind.startswith("float"):
+                out[key] = float(val)
+            elif kind.startswith("int"):
+                out[key] = int(val)
+            else:
+                out[key] = str(val)
+        except (TypeError, ValueError) as e:
+            raise InputError(f"{where}: {key} = {val!r} is not a valid {kind}") from e
+    return out

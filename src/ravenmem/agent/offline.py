@@ -1,0 +1,433 @@
+"""The offline reasoner: answers from the embedder alone, made smarter by rules instead of a model.
+
+1. Query rewriting: the thing asked about is cut out of the question ("Where did I leave the red
+   backpack?" -> "red backpack"), paraphrased in the caption style embedders are trained on,
+   reduced to its head noun, mapped through a few synonyms, and needs are turned into objects
+   ("where can I sit" -> chair, sofa, bench). Paraphrases are averaged, alternatives maxed.
+2. Text and OCR channels are fused: a memory whose OCR text contains the question's words
+   gets a bonus (plus the memory's own OCR retrieval when it has OCR).
+3. Temporal support: a real sighting persists over neighbouring memories while embedder noise
+   is an isolated spike, so each hit's score is capped by the mean of the best scores in its
+   time window.
+4. "Found" needs that support above a threshold calibrated on this memory: the same pipeline
+   run on decoy concepts (animals, vehicles, ...) gives the scores of things that are not
+   there. Below it the answer is an honest "not found", never the least bad memory.
+5. Temporal words: good hits in time order are split into episodes; "last" / "first" pick the
+   latest / earliest sighting, "how long" sums the episodes.
+6. Spatial consensus: good hits are clustered in the plane and the cluster with the most summed
+   evidence wins over a single high-scoring outlier; its best memory gives the pose.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import json
+import re
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..types import MemoryRecord
+from .base import MemoryLike
+from .questions import Order, classify_question, fmt_duration, fmt_time, subject_phrase, temporal_order
+from .schema import Answer, Cost, Evidence
+
+AFFORDANCES: dict[str, list[str]] = {
+    r"\bsit\b|\bseat\b|\bsitting\b": ["chair", "sofa", "bench", "stool"],
+    r"\bsleep\b|\blie down\b|\bnap\b": ["bed", "sofa"],
+    r"\bdrink\b|\bthirsty\b": ["water bottle", "cup", "water fountain", "tap"],
+    r"\beat\b|\bhungry\b|\bfood\b|\bsnack\b": ["dining table", "refrigerator", "plate of food"],
+    r"\bwash\b|\bclean my hands\b": ["sink", "washbasin", "tap"],
+    r"\bcook\b|\bheat\b": ["stove", "microwave oven"],
+    r"\btype\b|\bwork\b|\bemail\b": ["desk", "computer keyboard", "computer monitor", "laptop"],
+    r"\bcharge\b|\bplug\b|\bpower\b": ["power outlet", "charger cable"],
+    r"\bthrow\b|\btrash\b|\brubbish\b|\bgarbage\b": ["trash can", "garbage bin"],
+    r"\bprint\b": ["printer"],
+    r"\bread\b": ["book", "bookshelf"],
+    r"\bexit\b|\bleave the building\b|\bget out\b": ["door", "exit sign"],
+    r"\bupstairs\b|\bdownstairs\b|\bgo up\b|\bgo down\b": ["stairs", "elevator"],
+    r"\bcall\b": ["telephone", "cellular telephone"],
+    r"\bcoffee\b": ["coffee mug", "coffee maker"],
+    r"\bwrite\b|\bnote\b": ["pen", "whiteboard", "notebook"],
+    r"\bplay\b|\bgame\b": ["game controller", "joystick"],
+}
+SYNONYMS: dict[str, str] = {
+    "tv": "television", "couch": "sofa", "fridge": "refrigerator", "bin": "trash can", "mug": "coffee mug",
+    "monitor": "computer monitor", "screen": "computer screen", "keyboard": "computer keyboard",
+    "mouse": "computer mouse", "plant": "potted plant", "laptop": "laptop computer", "phone": "telephone",
+    "cellphone": "cellular telephone", "gamepad": "game controller", "controller": "game controller",
+    "bottle": "water bottle", "people": "person",
+}  # fmt: skip
+# Things a robot's memory rarely holds all at once; their scores calibrate "not found".
+DECOYS = (
+    "shark", "elephant", "zebra", "giraffe", "jellyfish", "goldfish", "flamingo", "snail", "tiger", "horse",
+    "cow", "spider", "butterfly", "eagle", "penguin", "volcano", "sailboat", "tractor", "airliner",
+    "fire truck", "lighthouse", "bridge", "beach", "mountain", "train", "banana", "pineapple", "pizza",
+    "bathtub", "umbrella", "guitar", "violin", "toilet", "washing machine", "bed", "vase", "wine bottle",
+    "candle", "basketball", "tennis racket",
+)  # fmt: skip
+_DEICTIC = re.compile(
+    r"^(this|that|it|these|those|this thing|this object|this place|here|there)$", re.IGNORECASE
+)
+_STOP = {"the", "a", "an", "of", "to", "in", "on", "at", "for", "with", "by", "and", "or", "my", "our", "your",
+         "this", "that", "is", "are", "was", "were", "some", "any"}  # fmt: skip
+CALIBRATION_FILE = "offline_calibration.json"
+OCR_BONUS = 0.35  # same scale as the memory's own OCR fusion: a full word match adds this to a cosine
+
+
+@dataclass
+class OfflineSettings:
+    """Defaults were chosen on the TUM fr1_rpy question set of benchmarks/bench_reasoner.py."""
+
+    pool: int = 200  # memories scored per rewritten query
+    support_n: int = 3  # a hit's support = mean of the best n scores in its time window
+    window_s: float | None = None  # half-width of that window; None = max(10 x keyframe spacing, 1 s)
+    decoy_quantile: float = 0.9  # "found" threshold = this quantile of the decoys' support ...
+    min_score: float | None = None  # ... or this fixed score when given (skips the decoys)
+    rel_margin: float = 0.5  # good hits: support >= best - rel_margin * (best - threshold) ...
+    temporal_margin: float = 0.75  # ... and this looser margin for first / last / how long
+    cluster_radius: float = 1.0  # metres: good hits this close vote for the same place
+    max_good: int = 200  # at most this many good hits (best first) take part in votes and episodes
+
+
+@dataclass
+class Cand:
+    rec: MemoryRecord
+    score: float
+    support: float = 0.0
+    ocr: float = 0.0
+
+
+def rewrite(question: str, subject: str) -> list[list[str]]:
+    """Groups of queries: each group is paraphrases of one alternative (averaged), groups are maxed."""
+    groups: list[list[str]] = []
+    low = question.lower()
+    if subject and not _DEICTIC.match(subject):
+        groups.append(_paraphrases(subject))
+        words = [w for w in re.findall(r"[a-z0-9]+", subject.lower()) if w not in _STOP]
+        head = words[-1] if words else ""
+        if len(words) > 1 and head:
+            groups.append(_paraphrases(head))
+        for key in dict.fromkeys((subject.lower(), head)):
+            if key in SYNONYMS:
+                groups.append(_paraphrases(SYNONYMS[key]))
+    for pattern, objects in AFFORDANCES.items():
+        if re.search(pattern, low):
+            groups += [_paraphrases(o) for o in objects]
+    out, seen = [], set()
+    for g in groups:
+        if g[0] not in seen:
+            seen.add(g[0])
+            out.append(g)
+    return out
+
+
+def _paraphrases(phrase: str) -> list[str]:
+    if phrase.lower().startswith(("a ", "an ", "the ")):
+        return [phrase, f"a photo of {phrase}."]
+    art = "an" if phrase[:1].lower() in "aeiou" else "a"
+    return [phrase, f"a photo of {art} {phrase}."]
+
+
+def ocr_overlap(words: Sequence[str], text: str) -> float:
+    """Fraction of the words found (fuzzily) among the OCR tokens."""
+    if not words or not text:
+        return 0.0
+    tokens = re.findall(r"[a-z0-9]+", text.lower())
+    if not tokens:
+        return 0.0
+    hit = sum(1 for w in words if w in tokens or difflib.get_close_matches(w, tokens, n=1, cutoff=0.75))
+    return hit / len(words)
+
+
+class OfflineReasoner:
+    """Answers position / time / duration / binary / text questions without any model."""
+
+    name = "offline"
+
+    def __init__(self, memory: MemoryLike, top_k: int = 5, settings: OfflineSettings | None = None) -> None:
+        self.memory = memory
+        self.top_k = top_k
+        self.s = settings or OfflineSettings()
+        self._decoy_support: dict[str, float] | None = None
+
+    # ------------------------------------------------------------------ scoring
+    def _search_many(self, texts: list[str], k: int) -> list[list[tuple[MemoryRecord, float]]]:
+        """(record, cosine) lists per text. Embeds all texts in one batch when the memory exposes
+        its embedder and store (the real Memory); otherwise one `search_text` call per text."""
+        mem: object = self.memory
+        emb, store = getattr(mem, "embedder", None), getattr(mem, "store", None)
+        if (
+            emb is not None
+            and store is not None
+            and hasattr(store, "search_vector")
+            and hasattr(store, "get")
+        ):
+            vecs = emb.embed_texts(texts)
+            out = []
+            for v in vecs:
+                scored = store.search_vector(np.asarray(v, dtype=np.float32), k)
+                recs = store.get([i for i, _ in scored])
+                out.append([(r, float(s)) for r, (_, s) in zip(recs, scored, strict=True)])
+            return out
+        return [[(h.memory, float(h.score or 0.0)) for h in self.memory.search_text(t, k=k)] for t in texts]
+
+    def _fuse(self, groups: list[list[str]], k: int, image: np.ndarray | None = None) -> dict[int, Cand]:
+        """Per memory: max over groups of the mean over paraphrases (a missing one counts its floor)."""
+        flat = [q for g in groups for q in g]
+        results = iter(self._search_many(flat, k)) if flat else iter([])
+        tables = [[{r.id: (r, sc) for r, sc in next(results)} for _ in g] for g in groups]
+        if image is not None:
+            hits = self.memory.search_image(image, k=k)
+            tables.append([{h.memory.id: (h.memory, float(h.score or 0.0)) for h in hits}])
+        cands: dict[int, Cand] = {}
+        for paraphrases in tables:
+            for mid, (rec, score) in _group_scores(paraphrases).items():
+                c = cands.get(mid)
+                if c is None:
+                    cands[mid] = Cand(rec, score)
+                elif score > c.score:
+                    c.score = score
+        return cands
+
+    def _add_ocr(self, cands: dict[int, Cand], subject: str, k: int) -> None:
+        words = [w for w in re.findall(r"[a-z0-9]+", subject.lower()) if w not in _STOP and len(w) >= 2]
+        if not words:
+            return
+        if getattr(self.memory, "ocr_enabled", False):  # OCR-only matches the vectors missed
+            for h in self.memory.search_text(" ".join(words), k=min(k, 20)):
+                if h.ocr_match and h.memory.id not in cands:
+                    cands[h.memory.id] = Cand(h.memory, float(h.score or 0.0) - OCR_BONUS)
+        for c in cands.values():
+            c.ocr = ocr_overlap(words, c.rec.ocr_text)
+            c.score += OCR_BONUS * c.ocr
+
+    def _window(self) -> float:
+        if self.s.window_s is not None:
+            return self.s.window_s
+        t0, t1 = self.memory.time_span()
+        spacing = (t1 - t0) / max(1, self.memory.count() - 1)
+        return max(10.0 * spacing, 1.0)
+
+    def _support(self, cands: dict[int, Cand]) -> None:
+        """Each hit's support: its score, capped by the mean of the best n scores in its time window
+        (an isolated spike is pulled down; a weak hit never borrows its neighbours' strength)."""
+        if not cands:
+            return
+        w, n = self._window(), self.s.support_n
+        cs = sorted(cands.values(), key=lambda c: c.rec.t)
+        ts = np.array([c.rec.t for c in cs])
+        sc = np.array([c.score for c in cs])
+        lo, hi = np.searchsorted(ts, ts - w, "left"), np.searchsorted(ts, ts + w, "right")
+        for i, c in enumerate(cs):
+            c.support = min(c.score, float(np.sort(sc[lo[i] : hi[i]])[::-1][:n].mean()))
+
+    def threshold(self, subject: str = "") -> float:
+        """The "found" threshold: fixed, or calibrated once per memory on the decoys (a decoy that
+        is the very thing asked about is left out)."""
+        if self.s.min_score is not None:
+            return self.s.min_score
+        if self._decoy_support is None:
+            self._decoy_support = self._load_calibration() or self._calibrate()
+        low = subject.lower()
+        vals = [v for name, v in self._decoy_support.items() if not re.search(rf"\b{re.escape(name)}\b", low)]
+        return float(np.quantile(vals, self.s.decoy_quantile))
+
+    def _calibration_key(self) -> str:
+        emb = getattr(getattr(self.memory, "embedder", None), "name", "?")
+        t0, t1 = self.memory.time_span()
+        parts = [
+            emb,
+            self.memory.count(),
+            round(t0, 3),
+            round(t1, 3),
+            self.s.pool,
+            self.s.support_n,
+            self.s.window_s,
+        ]
+        return hashlib.sha1(json.dumps([parts, DECOYS], default=str).encode()).hexdigest()[:16]
+
+    def _load_calibration(self) -> dict[str, float] | None:
+        """Decoy scores cached in the memory folder, valid while the memory and settings are unchanged."""
+        try:
+            data = json.loads((Path(self.memory.path) / CALIBRATION_FILE).read_text(encoding="utf-8"))
+            if data.get("key") == self._calibration_key():
+                return {str(k): float(v) for k, v in data["decoys"].items()}
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            pass
+        return None
+
+    def _calibrate(self) -> dict[str, float]:
+        pool = max(1, min(self.memory.count(), self.s.pool))
+        groups = [_paraphrases(d) for d in DECOYS]
+        results = iter(self._search_many([q for g in groups for q in g], pool))
+        out: dict[str, float] = {}
+        for name, g in zip(DECOYS, groups, strict=True):
+            table = [{r.id: (r, sc) for r, sc in next(results)} for _ in g]
+            cands = {mid: Cand(rec, sc) for mid, (rec, sc) in _group_scores(table).items()}
+            self._support(cands)
+            out[name] = max((c.support for c in cands.values()), default=0.0)
+        try:
+            from ..memory import atomic_write_text
+
+            text = json.dumps({"key": self._calibration_key(), "decoys": out}, indent=1)
+            atomic_write_text(Path(self.memory.path) / CALIBRATION_FILE, text)
+        except OSError:  # a read-only memory still answers; it just calibrates again next time
+            pass
+        return out
+
+    # ------------------------------------------------------------------ answering
+    def ask(self, question: str, image: np.ndarray | None = None) -> Answer:
+        if not question or not question.strip():
+            raise InputError("empty question")
+        t_start = time.perf_counter()
+        mem, s = self.memory, self.s
+        qtype, order = classify_question(question), temporal_order(question)
+        subject = subject_phrase(question)
+        groups = rewrite(question, subject)
+        if not groups and image is None:
+            raise InputError(f"cannot tell what to look for in {question!r}")
+        n = mem.count()
+        pool = max(1, min(n, s.pool))
+        cands = self._fuse(groups, pool, image)
+        self._add_ocr(cands, subject, pool)
+        self._support(cands)
+        thr = self.threshold(subject)
+        ranked = sorted(cands.values(), key=lambda c: -c.support)
+        best = ranked[0] if ranked else None
+        found = best is not None and best.support > thr
+        ans = Answer(question=question, method=self.name, question_type=qtype, found=found)
+        notes = [f"queries: {[g[0] for g in groups] + (['<image>'] if image is not None else [])}"]
+        if best is not None:
+            notes.append(f"best support {best.support:.3f} vs threshold {thr:.3f}")
+        if found and best is not None:
+            # "first"/"last"/"how long" need every sighting; "where"/"is there" only the strongest
+            temporal = order != "best" or qtype == "duration"
+            margin = s.temporal_margin if temporal else s.rel_margin
+            cut = max(thr, best.support - margin * (best.support - thr))
+            good = [c for c in ranked if c.support >= cut and c.score >= thr][: s.max_good] or [best]
+            self._answer(ans, qtype, order, subject or "it", good, thr, notes)
+        else:
+            self._not_found(ans, subject or "it", qtype, best)
+        ans.reasoning = "; ".join(notes)
+        ans.cost = Cost(
+            memories_shown=len(cands), memories_total=n, alpha=len(cands) / max(1, n),
+            wall_s=round(time.perf_counter() - t_start, 4),
+        )  # fmt: skip
+        return ans
+
+    def _episodes(self, good: list[Cand]) -> list[list[Cand]]:
+        """Good hits in time order, split where sightings are further apart than the window."""
+        gap = self._window()
+        chrono = sorted(good, key=lambda c: c.rec.t)
+        eps = [[chrono[0]]]
+        for c in chrono[1:]:
+            if c.rec.t - eps[-1][-1].rec.t > gap:
+                eps.append([c])
+            else:
+                eps[-1].append(c)
+        return eps
+
+    def _consensus(self, good: list[Cand], thr: float) -> list[Cand]:
+        """The winning place: clusters of nearby good hits vote with their summed evidence."""
+        clusters: list[list[Cand]] = []
+        r2 = self.s.cluster_radius**2
+        for c in sorted(good, key=lambda c: -c.support):
+            p = c.rec.pose
+            home = next(
+                (
+                    cl
+                    for cl in clusters
+                    if (cl[0].rec.pose.x - p.x) ** 2 + (cl[0].rec.pose.y - p.y) ** 2 <= r2
+                ),
+                None,
+            )
+            if home is None:
+                clusters.append([c])
+            else:
+                home.append(c)
+        return max(clusters, key=lambda cl: sum(max(c.support - thr, 0.0) + 1e-6 for c in cl))
+
+    def _answer(
+        self,
+        ans: Answer,
+        qtype: str,
+        order: Order,
+        subject: str,
+        good: list[Cand],
+        thr: float,
+        notes: list[str],
+    ) -> None:
+        eps = self._episodes(good)
+        scope = {"last": eps[-1], "first": eps[0]}.get(order) or good
+        notes.append(
+            f"{len(good)} good hits in {len(eps)} episode(s)"
+            + (f"; using the {order}" if order != "best" else "")
+        )
+        by_support = sorted(scope, key=lambda c: -c.support)
+        if qtype == "position":
+            place = self._consensus(scope, thr)
+            notes.append(f"spatial vote: {len(place)} of {len(scope)} hits agree")
+            chosen = max(place, key=lambda c: c.support)
+            evidence = [chosen] + [c for c in sorted(place, key=lambda c: -c.support) if c is not chosen]
+        elif qtype == "time" and order != "best":
+            chosen = scope[-1] if order == "last" else scope[0]
+            evidence = [chosen] + [c for c in by_support if c is not chosen]
+        else:
+            chosen = by_support[0]
+            evidence = [chosen] + [c for c in sorted(good, key=lambda c: -c.support) if c is not chosen]
+        p = chosen.rec.pose
+        ans.position, ans.yaw, ans.position_source = [p.x, p.y, p.z], p.yaw, "evidence"
+        ans.time = chosen.rec.t
+        ans.evidence = [_ev(c) for c in evidence[: self.top_k]]
+        where, when = f"at x={p.x:.2f}, y={p.y:.2f}, z={p.z:.2f}", fmt_time(chosen.rec.t)
+        if qtype == "duration":
+            t0, t1 = self.memory.time_span()
+            spacing = (t1 - t0) / max(1, self.memory.count() - 1)
+            ans.duration = sum(ep[-1].rec.t - ep[0].rec.t + spacing for ep in eps)
+            ans.text = f"About {fmt_duration(ans.duration)}, in {len(eps)} sighting(s) of {subject}."
+        elif qtype == "binary":
+            ans.yes = True
+            ans.text = f"Yes: {subject} was seen {where} at {when}."
+        elif qtype == "time":
+            label = {"last": "Last", "first": "First"}.get(order, "Best")
+            ans.text = f"{label} sighting of {subject}: {when}, {where}."
+        elif qtype == "text" and chosen.rec.ocr_text:
+            ans.text = f"Text seen there: {chosen.rec.ocr_text!r} ({when}, {where})."
+        else:
+            ans.text = f"{subject[:1].upper() + subject[1:]}: seen {where} at {when}."
+        if qtype == "text":
+            notes.append("the offline reasoner cannot describe images; it reports where and when")
+
+    def _not_found(self, ans: Answer, subject: str, qtype: str, best: Cand | None) -> None:
+        ans.text = f"I don't remember seeing {subject}."
+        if qtype == "binary":
+            ans.yes = False
+            ans.text = f"No: I don't remember seeing {subject}."
+        if best is not None:
+            ans.evidence = [_ev(best)]  # the closest miss, for the curious; no pose is claimed
+
+
+def _ev(c: Cand) -> Evidence:
+    p = c.rec.pose
+    return Evidence(
+        id=c.rec.id, t=c.rec.t, x=p.x, y=p.y, z=p.z, yaw=p.yaw, score=c.score, image_path=c.rec.image_path
+    )
+
+
+def _group_scores(
+    paraphrases: list[dict[int, tuple[MemoryRecord, float]]],
+) -> dict[int, tuple[MemoryRecord, float]]:
+    """Mean score over paraphrases per memory; a memory one paraphrase missed gets that one's floor."""
+    floors = [min((sc for _, sc in t.values()), default=0.0) for t in paraphrases]
+    out = {}
+    for mid in set().union(*paraphrases):
+        rec = next(t[mid][0] for t in paraphrases if mid in t)
+        total = sum(t[mid][1] if mid in t else f for t, f in zip(paraphrases, floors, strict=True))
+        out[mid] = (rec, total / len(paraphrases))
+    return out

@@ -1,0 +1,61 @@
+"""The words the models get: role, what the memory holds, the tools, and the answer format."""
+
+from __future__ import annotations
+
+from .questions import fmt_duration, fmt_time
+
+ANSWER_FORMAT = """When you answer, reply with ONLY this JSON object (no other text):
+{"question_type": "position" | "time" | "binary" | "text" | "duration",
+ "answer": "one or two sentences for the user",
+ "evidence": [memory ids that support the answer, the most relevant first, e.g. 12],
+ "position": null or [x, y, z] in metres (leave null to use the pose of the first evidence memory),
+ "time": null or the time as written in the memory listings (null = time of the first evidence memory),
+ "duration_s": null or seconds (for "how long" questions),
+ "yes": null or true or false (for yes/no questions),
+ "found": true or false (false when the memories do not show what was asked),
+ "reasoning": "a short explanation"}
+For "where" questions put the memory whose camera saw the thing best first in evidence; for
+"when did I last" questions, the latest memory that shows it; for "first", the earliest."""
+
+JSON_TOOL_PROTOCOL = """You cannot call functions directly. To use a tool, reply with ONLY:
+{"tool": "<tool name>", "arguments": {...}}
+and wait for the results. Tools:
+"""
+
+
+def system_prompt(
+    count: int,
+    span: tuple[float, float],
+    tools_listing: str | None,
+    max_tool_calls: int,
+    images: bool = True,
+) -> str:
+    """The system message; `tools_listing` is set in the JSON-in-prompt protocol only."""
+    t0, t1 = span
+    seen = "camera images" if images else "text captions of camera images"
+    lines = [
+        "You are the memory of a mobile robot. You answer questions about what the robot saw, "
+        "where (map coordinates in metres, yaw in degrees) and when (UTC).",
+        f"The memory holds {count} observations ({seen} with time and camera pose) from "
+        f"{fmt_time(t0)} to {fmt_time(t1)} ({fmt_duration(t1 - t0)}). 'Now' is {fmt_time(t1)}.",
+    ]
+    if max_tool_calls > 0:
+        lines.append(
+            f"Search the memory with the tools (at most {max_tool_calls} tool calls in total), "
+            "look at the retrieved memories, then answer. Scores are similarities: higher is a better match."
+        )
+    if tools_listing:
+        lines.append(JSON_TOOL_PROTOCOL + tools_listing)
+    lines.append(ANSWER_FORMAT)
+    return "\n\n".join(lines)
+
+
+def budget_spent(max_tool_calls: int) -> str:
+    return (
+        f"You have used all {max_tool_calls} tool calls. Do not call tools any more: answer now "
+        "from the memories shown, with only the JSON answer object."
+    )
+
+
+def reask(reason: str) -> str:
+    return f"Your last reply could not be used: {reason}. Reply again with ONLY the JSON answer object described above."

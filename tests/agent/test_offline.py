@@ -1,0 +1,138 @@
+"""The offline reasoner's rules on a synthetic memory whose right answers are known exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import ravenmem
+from ravenmem.agent import EmbedderOnly, OfflineReasoner, OfflineSettings
+from ravenmem.agent.offline import CALIBRATION_FILE, Cand, ocr_overlap, rewrite
+from ravenmem.agent.questions import classify_question, subject_phrase, temporal_order
+from ravenmem.types import Frame, MemoryRecord, Pose
+from tests.conftest import COLORS, ColorEmbedder
+
+T0 = 1_600_000_000.0
+
+
+def img(rgb: tuple[int, int, int]) -> np.ndarray:
+    a = np.zeros((24, 32, 3), np.uint8)
+    a[:] = rgb
+    return a
+
+
+@pytest.fixture
+def world(tmp_path):
+    """60 memories 1 s apart walking along x. Red: one pure-red outlier at x=0 (t=5) and a
+    slightly darker red cluster near (20, 5) (t=20..22). Blue: t=3, t=30..34, t=50."""
+    frames = []
+    fill = ["green", "yellow"]  # far from blue and (but yellow) from red for the colour embedder
+    for i in range(60):
+        rgb, x, y = COLORS[fill[i % len(fill)]], float(i), 0.0
+        if i == 5:
+            rgb, x, y = (255, 0, 0), 0.0, 0.0
+        elif i in (20, 21, 22):
+            rgb, x, y = (235, 25, 25), 20.0 + 0.2 * (i - 20), 5.0
+        elif i in (3, 30, 31, 32, 33, 34, 50):
+            rgb = COLORS["blue"]
+        frames.append(Frame(image=img(rgb), t=T0 + i, pose=Pose(x, y, 0.0, 0.01 * i), source="w", index=i))
+    m = ravenmem.create(tmp_path / "w.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    m.add_frames(frames)
+    yield m
+    m.close()
+
+
+def test_question_rules():
+    assert classify_question("Where did I leave the red backpack?") == "position"
+    assert classify_question("When did I last pass the water fountain?") == "time"
+    assert classify_question("How long was I in the kitchen?") == "duration"
+    assert classify_question("Is there a fridge?") == "binary"
+    assert classify_question("What is written on the door?") == "text"
+    assert subject_phrase("Where did I leave the red backpack?") == "red backpack"
+    assert subject_phrase("When did I last pass the water fountain?") == "water fountain"
+    assert subject_phrase("Did I see a laptop?") == "laptop"
+    assert temporal_order("When did I last see it?") == "last"
+    assert temporal_order("When did I first see it?") == "first"
+    assert temporal_order("Where is it?") == "best"
+
+
+def test_rewrites_paraphrase_reduce_and_map_needs():
+    g = rewrite("Where did I leave the red backpack?", "red backpack")
+    assert (
+        g[0] == ["red backpack", "a photo of a red backpack."] and ["backpack", "a photo of a backpack."] in g
+    )
+    sit = [x[0] for x in rewrite("Where can I sit down?", subject_phrase("Where can I sit down?"))]
+    assert {"chair", "sofa", "bench"} <= set(sit)
+    assert [x[0] for x in rewrite("Where is the fridge?", "fridge")] == ["fridge", "refrigerator"]
+    assert rewrite("Where did I see this?", "this") == []
+
+
+def test_spatial_consensus_beats_a_single_outlier(world):
+    r = OfflineReasoner(world, settings=OfflineSettings(support_n=1))
+    ans = r.ask("Where did I leave the red ball?")
+    assert ans.found and ans.question_type == "position" and ans.position_source == "evidence"
+    assert ans.position[0] == pytest.approx(20.0, abs=0.5) and ans.position[1] == pytest.approx(5.0)
+    assert "spatial vote: 3 of" in ans.reasoning and ans.evidence[0].y == pytest.approx(5.0)
+    # the plain baseline takes the single best hit: the outlier at the origin
+    base = EmbedderOnly(world).ask("Where did I leave the red ball?")
+    assert base.position == pytest.approx([0.0, 0.0, 0.0])
+
+
+def test_temporal_words_pick_last_and_first_sightings(world):
+    r = OfflineReasoner(world)
+    last = r.ask("When did I last see the blue box?")
+    first = r.ask("When did I first see the blue box?")
+    assert last.question_type == first.question_type == "time"
+    assert last.time == pytest.approx(T0 + 50) and first.time == pytest.approx(T0 + 3)
+    assert last.evidence[0].t == pytest.approx(T0 + 50)
+
+
+def test_duration_sums_episodes(world):
+    ans = OfflineReasoner(world).ask("How long did I see the blue box?")
+    # episodes: t=3 (1 memory), t=30..34 (5), t=50 (1); each memory covers one 1 s spacing
+    assert ans.question_type == "duration" and ans.duration == pytest.approx(1 + 5 + 1)
+
+
+def test_honest_not_found_and_binary(world):
+    r = OfflineReasoner(world)
+    miss = r.ask("Did I see a purple elephant?")
+    assert not miss.found and miss.yes is False and miss.position is None and miss.time is None
+    assert miss.text.startswith("No: I don't remember seeing")
+    hit = r.ask("Did I see a blue box?")
+    assert hit.found and hit.yes is True
+    where = r.ask("Where is the purple elephant?")
+    assert not where.found and where.position is None and where.position_source == "none"
+
+
+def test_decoy_threshold_is_cached_in_the_memory_folder(world):
+    r = OfflineReasoner(world)
+    thr = r.threshold()
+    assert (world.path / CALIBRATION_FILE).exists()
+    r2 = OfflineReasoner(world)
+    assert r2._load_calibration() is not None and r2.threshold() == pytest.approx(thr)
+    assert OfflineReasoner(world, settings=OfflineSettings(min_score=0.5)).threshold() == 0.5
+
+
+def test_query_image(world):
+    ans = OfflineReasoner(world).ask("Where did I see this?", image=img(COLORS["blue"]))
+    assert ans.found and ans.evidence[0].t - T0 in (3, 30, 31, 32, 33, 34, 50)
+
+
+def test_ocr_words_add_to_the_score(world):
+    r = OfflineReasoner(world)
+    rec = MemoryRecord(id=999, t=T0, pose=Pose(0, 0), ocr_text="ROOM 3.14 - EXIT")
+    other = MemoryRecord(id=998, t=T0, pose=Pose(0, 0), ocr_text="")
+    cands = {999: Cand(rec, 0.1), 998: Cand(other, 0.1)}
+    r._add_ocr(cands, "exit sign", k=5)
+    assert cands[999].score > cands[998].score and cands[999].ocr == pytest.approx(0.5)
+    assert ocr_overlap(["exlt"], "EXIT here") == 1.0  # fuzzy: OCR misreads a letter
+    assert ocr_overlap(["kitchen"], "EXIT") == 0.0
+
+
+def test_cost_and_empty_question(world):
+    ans = OfflineReasoner(world).ask("Where is the red ball?")
+    assert ans.cost.memories_total == 60 and 0 < ans.cost.alpha <= 1 and ans.cost.images == 0
+    from ravenmem.errors import InputError
+
+    with pytest.raises(InputError):
+        OfflineReasoner(world).ask(" ")

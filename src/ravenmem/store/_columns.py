@@ -1,0 +1,156 @@
+"""In-RAM columns (id, t, x, y, z) of every memory, for filters and the position tool.
+
+Why RAM and not SQL: a filter must be resolved on every filtered search, and a numpy pass over
+1M float64 values takes about a millisecond, where SQLite needs tens of milliseconds to visit
+that many rows. The columns cost 40 bytes per memory (40 MB at 1M) and are rebuilt from SQLite
+on open, so they need no persistence of their own.
+
+Why a k-d tree (scipy cKDTree) for `nearest`, not an SQLite R*Tree: the tree answers exact
+k-nearest queries in O(log N), in 2-D (planar) or 3-D, with an optional radius, where an R*Tree
+only answers box queries and would need a grow-the-box loop. The tree is rebuilt lazily, and
+memories added since the last build (at most 1/16 of them) are scanned by brute force.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..types import Filter
+
+_BRUTE_MAX = 50_000  # below this many candidates a numpy scan beats a tree query with a mask
+
+
+class Columns:
+    def __init__(self) -> None:
+        self._cap = 0
+        self.n = 0
+        self._ids = np.empty(0, np.int64)
+        self._xyzt = np.empty((4, 0), np.float64)
+        self.t_sorted = True
+        self._trees: dict[bool, tuple[cKDTree, int]] = {}
+
+    # --- columns -------------------------------------------------------------------------------
+    @property
+    def ids(self) -> np.ndarray:
+        return self._ids[: self.n]
+
+    def col(self, name: str) -> np.ndarray:
+        return self._xyzt["xyzt".index(name), : self.n]
+
+    def append(self, ids: np.ndarray, t: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> None:
+        m = len(ids)
+        if m == 0:
+            return
+        if self.n + m > self._cap:
+            cap = max(1024, 2 * self._cap, self.n + m)
+            ids_new = np.empty(cap, np.int64)
+            ids_new[: self.n] = self._ids[: self.n]
+            cols_new = np.empty((4, cap), np.float64)
+            cols_new[:, : self.n] = self._xyzt[:, : self.n]
+            self._ids, self._xyzt, self._cap = ids_new, cols_new, cap
+        t = np.asarray(t, np.float64)
+        if self.t_sorted and (np.any(np.diff(t) < 0) or (self.n and t[0] < self._xyzt[3, self.n - 1])):
+            self.t_sorted = False
+        sl = slice(self.n, self.n + m)
+        self._ids[sl] = ids
+        self._xyzt[0, sl], self._xyzt[1, sl], self._xyzt[2, sl], self._xyzt[3, sl] = x, y, z, t
+        self.n += m
+
+    def extent(self) -> dict[str, float | None]:
+        out: dict[str, float | None] = {}
+        for c in "xyz":
+            v = self.col(c)
+            out[f"{c}_min"] = float(v.min()) if self.n else None
+            out[f"{c}_max"] = float(v.max()) if self.n else None
+        return out
+
+    # --- filters -------------------------------------------------------------------------------
+    def select(self, filt: Filter) -> np.ndarray:
+        """Positions (indexes into the columns) of memories the filter accepts, ascending."""
+        lo, hi = 0, self.n
+        mask: np.ndarray | None = None
+        t = self.col("t")
+        if filt.after is not None or filt.before is not None:
+            after = -np.inf if filt.after is None else filt.after
+            before = np.inf if filt.before is None else filt.before
+            if self.t_sorted:
+                lo = int(np.searchsorted(t, after, "left"))
+                hi = max(lo, int(np.searchsorted(t, before, "right")))
+            else:
+                mask = (t >= after) & (t <= before)
+        if filt.region is not None:
+            reg = filt.region
+            dx = self.col("x")[lo:hi] - reg.x
+            dy = self.col("y")[lo:hi] - reg.y
+            inside = dx * dx + dy * dy <= reg.r * reg.r
+            mask = inside if mask is None else mask[lo:hi] & inside
+        if mask is None:
+            return np.arange(lo, hi, dtype=np.int64)
+        return np.flatnonzero(mask).astype(np.int64) + (lo if filt.region is not None else 0)
+
+    # --- position tool ---------------------------------------------------------------------------
+    def nearest(
+        self, x: float, y: float, z: float | None, k: int, radius: float | None, allowed: np.ndarray | None
+    ) -> list[tuple[int, float]]:
+        """k nearest (position, distance), nearest first; `allowed` = positions a filter accepts."""
+        if k == 0 or self.n == 0:
+            return []
+        planar = z is None
+        q = np.array([x, y] if planar else [x, y, z], np.float64)
+        if allowed is not None and len(allowed) <= _BRUTE_MAX:
+            return self._brute(q, allowed, k, radius)
+        tree, m = self._tree(planar)
+        ok = None
+        if allowed is not None:
+            ok = np.zeros(self.n, bool)
+            ok[allowed] = True
+        cand = self._brute(q, np.arange(m, self.n), k, radius, ok)
+        bound = np.inf if radius is None else radius
+        kk = min(m, max(2 * k, 16))
+        while kk > 0:
+            d, i = tree.query(q, k=kk, distance_upper_bound=bound)
+            d, i = np.atleast_1d(d), np.atleast_1d(i)
+            keep = i < m
+            d, i = d[keep], i[keep]
+            if ok is not None:
+                sel = ok[i]
+                d, i = d[sel], i[sel]
+            exhausted = kk >= m or keep.sum() < kk
+            if len(i) >= k or exhausted:
+                break
+            kk = min(m, kk * 4)
+        else:
+            d, i = np.empty(0), np.empty(0, np.int64)
+        merged = cand + [(int(p), float(dist)) for p, dist in zip(i, d, strict=True)]
+        merged.sort(key=lambda p: (p[1], p[0]))
+        return merged[:k]
+
+    def _points(self, planar: bool, pos: np.ndarray | slice) -> np.ndarray:
+        rows = self._xyzt[:2] if planar else self._xyzt[:3]
+        return rows[:, pos].T
+
+    def _brute(
+        self, q: np.ndarray, pos: np.ndarray, k: int, radius: float | None, ok: np.ndarray | None = None
+    ) -> list[tuple[int, float]]:
+        if ok is not None:
+            pos = pos[ok[pos]]
+        if len(pos) == 0:
+            return []
+        d = np.sqrt(((self._points(len(q) == 2, pos) - q) ** 2).sum(axis=1))
+        if radius is not None:
+            keep = d <= radius
+            pos, d = pos[keep], d[keep]
+        if len(d) > k:
+            part = np.argpartition(d, k - 1)[:k]
+            pos, d = pos[part], d[part]
+        out = [(int(p), float(v)) for p, v in zip(pos, d, strict=True)]
+        out.sort(key=lambda p: (p[1], p[0]))
+        return out
+
+    def _tree(self, planar: bool) -> tuple[cKDTree, int]:
+        built = self._trees.get(planar)
+        if built is None or self.n - built[1] > max(4096, built[1] // 16):
+            built = (cKDTree(self._points(planar, slice(0, self.n)).copy()), self.n)
+            self._trees[planar] = built
+        return built

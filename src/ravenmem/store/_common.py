@@ -1,0 +1,117 @@
+"""Input checks and OCR-text scoring shared by the store backends.
+
+Both backends must answer the same test suite, so everything that defines *behaviour* (what
+counts as bad input, how an OCR match is scored) lives here, and the backends only differ in
+how they fetch candidates.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import unicodedata
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..errors import EmbedderMismatchError, InputError
+from ..types import Filter, MemoryRecord
+
+DIM_KEY = "store.dim"
+_WORD = re.compile(r"[^\W_]+")
+
+
+def check_dim(where: str, stored: str | None, dim: int) -> None:
+    """Refuse to open a store built with embeddings of another size (another embedder)."""
+    if stored is not None and int(stored) != dim:
+        raise EmbedderMismatchError(
+            f"{where}: the store holds {stored}-dim embeddings but the embedder gives {dim}-dim ones; "
+            "open it with the embedder that built it"
+        )
+
+
+def check_k(k: int) -> int:
+    if not isinstance(k, (int, np.integer)) or isinstance(k, bool) or k < 0:
+        raise InputError(f"k: expected a non-negative integer, got {k!r}")
+    return int(k)
+
+
+def check_add(records: Sequence[MemoryRecord], embeddings: np.ndarray, dim: int) -> np.ndarray:
+    """Validate a batch for `add`; return the embeddings as L2-normalised float32 (N, dim)."""
+    emb = np.asarray(embeddings, dtype=np.float32)
+    if emb.ndim != 2 or emb.shape[1] != dim:
+        raise InputError(f"embeddings: expected shape (N, {dim}), got {tuple(emb.shape)}")
+    if emb.shape[0] != len(records):
+        raise InputError(f"embeddings: {emb.shape[0]} rows for {len(records)} records")
+    for i, rec in enumerate(records):
+        if not isinstance(rec, MemoryRecord):
+            raise InputError(f"records[{i}]: expected a MemoryRecord, got {type(rec).__name__}")
+        if not math.isfinite(rec.t):
+            raise InputError(f"records[{i}].t: timestamp is not finite ({rec.t!r})")
+    return normalise(emb, "embeddings")
+
+
+def normalise(emb: np.ndarray, field: str) -> np.ndarray:
+    """L2-normalise rows so inner product is cosine; zero or non-finite rows are input errors."""
+    if not np.all(np.isfinite(emb)):
+        raise InputError(f"{field}: contains NaN or infinite values")
+    norms = np.linalg.norm(emb, axis=1, keepdims=True)
+    if np.any(norms < 1e-12):
+        raise InputError(f"{field}: contains an all-zero vector (no direction to compare)")
+    return np.ascontiguousarray(emb / norms, dtype=np.float32)
+
+
+def check_query(query: np.ndarray, dim: int) -> np.ndarray:
+    q = np.asarray(query, dtype=np.float32).reshape(-1)
+    if q.shape[0] != dim:
+        raise InputError(f"query: expected a ({dim},) vector, got shape {tuple(np.shape(query))}")
+    return normalise(q[None, :], "query")
+
+
+def check_filter(filt: Filter | None) -> Filter | None:
+    """None for 'no filter'; an error for a region with a negative radius."""
+    if filt is None or filt.empty:
+        return None
+    if filt.region is not None and not filt.region.r >= 0:
+        raise InputError(f"filter.region.r: radius must be >= 0, got {filt.region.r!r}")
+    return filt
+
+
+def norm_text(text: str) -> str:
+    """Case- and accent-folded text with single spaces: what OCR matching compares.
+
+    Accents are dropped because OCR engines often miss them ("CAFE" read off a "Café" sign).
+    """
+    decomposed = unicodedata.normalize("NFKD", text.casefold())
+    return " ".join("".join(c for c in decomposed if not unicodedata.combining(c)).split())
+
+
+def query_words(query: str) -> list[str]:
+    """The letter/digit runs of a query; punctuation and underscores never have to match."""
+    return _WORD.findall(norm_text(query))
+
+
+def ocr_score(query: str, text: str) -> float:
+    """Score in [0, 1] of how well stored OCR `text` matches `query`.
+
+    0.9 x the fraction of query characters in words found in the text (so a partial match of a
+    multi-word query ranks below a full one), plus 0.1 when the whole query appears verbatim.
+    """
+    words = query_words(query)
+    if not words:
+        return 0.0
+    hay = " ".join(query_words(text))
+    total = sum(len(w) for w in words)
+    found = sum(len(w) for w in words if w in hay)
+    if found == 0:
+        return 0.0
+    phrase = 0.1 if " ".join(words) in hay else 0.0
+    return 0.9 * found / total + phrase
+
+
+def rank_text(query: str, candidates: Sequence[tuple[int, str]], k: int) -> list[tuple[int, float]]:
+    """Score candidates, drop non-matches, best first (older memory first on ties)."""
+    scored = [(i, ocr_score(query, text)) for i, text in candidates]
+    scored = [(i, s) for i, s in scored if s > 0.0]
+    scored.sort(key=lambda p: (-p[1], p[0]))
+    return scored[:k]

@@ -1,0 +1,153 @@
+"""SQLite schema and row mapping of the local store (the source of truth).
+
+Metadata and vectors live in separate tables so that scans over metadata (time queries, the
+columns loaded at open) never page through 2 KB vector blobs. OCR text is indexed, case- and
+accent-folded, by a contentless FTS5 table (the text itself is stored once, in `memories`).
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+
+from ..types import Filter, MemoryRecord, Pose
+from ._common import norm_text
+
+COLS = "id, t, x, y, z, yaw, qx, qy, qz, qw, source, frame_index, image_path, ocr_text"
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS memories (
+    id INTEGER PRIMARY KEY,
+    t REAL NOT NULL,
+    x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL, yaw REAL NOT NULL,
+    qx REAL, qy REAL, qz REAL, qw REAL,
+    source TEXT NOT NULL DEFAULT '',
+    frame_index INTEGER NOT NULL DEFAULT 0,
+    image_path TEXT,
+    ocr_text TEXT NOT NULL DEFAULT ''
+);
+CREATE INDEX IF NOT EXISTS memories_t ON memories (t, id);
+CREATE TABLE IF NOT EXISTS vectors (id INTEGER PRIMARY KEY, v BLOB NOT NULL);
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+"""
+
+
+def connect(path: str, synchronous: str = "FULL") -> sqlite3.Connection:
+    """A WAL connection usable from any thread (the store serialises access with a lock)."""
+    conn = sqlite3.connect(path, check_same_thread=False, isolation_level=None, timeout=30.0)
+    # 16 KB pages hold seven 2 KB vectors where 4 KB pages hold one (a no-op on an existing file)
+    conn.execute("PRAGMA page_size=16384")
+    conn.execute("PRAGMA journal_mode=WAL")
+    conn.execute(f"PRAGMA synchronous={synchronous}")
+    return conn
+
+
+def create_schema(conn: sqlite3.Connection) -> str:
+    """Create the tables once; returns the FTS5 tokenizer in use (trigram when SQLite has it)."""
+    conn.executescript(SCHEMA)
+    row = conn.execute("SELECT value FROM meta WHERE key = 'store.fts_tokenizer'").fetchone()
+    if row:
+        return str(row[0])
+    tokenizer = "trigram"
+    ddl = "CREATE VIRTUAL TABLE IF NOT EXISTS ocr USING fts5(folded, content='', tokenize='{}')"
+    try:
+        conn.execute(ddl.format(tokenizer))
+    except sqlite3.OperationalError:
+        tokenizer = "unicode61 remove_diacritics 2"
+        conn.execute(ddl.format(tokenizer))
+    conn.execute("INSERT OR REPLACE INTO meta VALUES ('store.fts_tokenizer', ?)", (tokenizer,))
+    return tokenizer
+
+
+def record_row(rid: int, r: MemoryRecord) -> tuple[object, ...]:
+    p = r.pose
+    q = p.quat or (None, None, None, None)
+    return (
+        rid,
+        float(r.t),
+        p.x,
+        p.y,
+        p.z,
+        p.yaw,
+        *q,
+        r.source,
+        int(r.frame_index),
+        r.image_path,
+        r.ocr_text or "",
+    )
+
+
+def insert(
+    conn: sqlite3.Connection, ids: Sequence[int], records: Sequence[MemoryRecord], emb: np.ndarray
+) -> None:
+    """Insert a batch in one transaction: all of it is durable on return, or none of it."""
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        conn.executemany(
+            f"INSERT INTO memories ({COLS}) VALUES ({', '.join('?' * 14)})",
+            [record_row(i, r) for i, r in zip(ids, records, strict=True)],
+        )
+        conn.executemany(
+            "INSERT INTO vectors VALUES (?, ?)", [(i, e.tobytes()) for i, e in zip(ids, emb, strict=True)]
+        )
+        conn.executemany(
+            "INSERT INTO ocr (rowid, folded) VALUES (?, ?)",
+            [(i, norm_text(r.ocr_text)) for i, r in zip(ids, records, strict=True) if r.ocr_text],
+        )
+        conn.execute("COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+
+
+def to_record(row: Sequence[Any], emb: bytes | None = None) -> MemoryRecord:
+    rid, t, x, y, z, yaw, qx, qy, qz, qw, source, frame_index, image_path, ocr_text = row
+    quat = None if qx is None else (float(qx), float(qy), float(qz), float(qw))
+    return MemoryRecord(
+        id=int(rid),
+        t=float(t),
+        pose=Pose(float(x), float(y), float(z), float(yaw), quat),
+        source=str(source),
+        frame_index=int(frame_index),
+        image_path=None if image_path is None else str(image_path),
+        ocr_text=str(ocr_text),
+        embedding=None if emb is None else np.frombuffer(emb, np.float32).copy(),
+    )
+
+
+def where(filt: Filter | None, alias: str = "") -> tuple[str, list[float]]:
+    """SQL conditions (joined by AND, '' when none) and parameters for a filter, applied exactly."""
+    conds: list[str] = []
+    args: list[float] = []
+    if filt is not None:
+        if filt.after is not None:
+            conds.append(f"{alias}t >= ?")
+            args.append(filt.after)
+        if filt.before is not None:
+            conds.append(f"{alias}t <= ?")
+            args.append(filt.before)
+        if filt.region is not None:
+            r = filt.region
+            conds.append(f"({alias}x - ?) * ({alias}x - ?) + ({alias}y - ?) * ({alias}y - ?) <= ?")
+            args += [r.x, r.x, r.y, r.y, r.r * r.r]
+    return " AND ".join(conds), args
+
+
+def read_vectors(
+    conn: sqlite3.Connection, after_id: int, upto_id: int, chunk: int = 50_000
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Yield (ids, float32 vectors) in id order for after_id < id <= upto_id, chunk by chunk."""
+    last = after_id
+    while True:
+        rows = conn.execute(
+            "SELECT id, v FROM vectors WHERE id > ? AND id <= ? ORDER BY id LIMIT ?", (last, upto_id, chunk)
+        ).fetchall()
+        if not rows:
+            return
+        ids = np.fromiter((r[0] for r in rows), np.int64, len(rows))
+        vecs = np.frombuffer(b"".join(r[1] for r in rows), np.float32).reshape(len(rows), -1)
+        yield ids, vecs
+        last = int(ids[-1])

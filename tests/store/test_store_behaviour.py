@@ -1,0 +1,209 @@
+"""Behaviour every store backend must share, checked against numpy brute force."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from ravenmem.errors import EmbedderMismatchError, InputError
+from ravenmem.store import Store
+from ravenmem.types import Filter, MemoryRecord, Region
+from tests.store.store_helpers import BACKENDS, StoreOpener, make_records, opener, robot_stream
+
+N, DIM = 400, 16
+Data = tuple[Store, list[MemoryRecord], np.ndarray]
+
+
+@pytest.fixture(scope="module", params=BACKENDS)
+def filled(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Data]:
+    """A store with N memories inserted out of chronological order, in two batches."""
+    store = opener(request.param, tmp_path_factory.mktemp("filled"), request)(dim=DIM)
+    recs = make_records(N, shuffle=True)
+    raw = robot_stream(N, DIM, seed=1, jump_every=40) * np.random.default_rng(2).uniform(0.5, 3, (N, 1))
+    ids = store.add(recs[:150], raw[:150]) + store.add(recs[150:], raw[150:].astype(np.float64))
+    assert ids == sorted(ids) and len(set(ids)) == N, "ids must be unique and increasing"
+    recs = [r.with_id(i) for r, i in zip(recs, ids, strict=True)]
+    unit = raw / np.linalg.norm(raw, axis=1, keepdims=True)
+    yield store, recs, unit.astype(np.float32)
+    store.close()
+
+
+def brute_vector(recs: list[MemoryRecord], emb: np.ndarray, q: np.ndarray, k: int, filt: Filter | None):
+    ok = np.array([filt is None or filt.accepts(r) for r in recs])
+    scores = emb @ (q / np.linalg.norm(q))
+    order = sorted(np.flatnonzero(ok), key=lambda i: (-scores[i], recs[i].id))[:k]
+    return [recs[i].id for i in order], [float(scores[i]) for i in order]
+
+
+FILTERS = [
+    Filter(after=1_700_000_000.0 + 40, before=1_700_000_000.0 + 90),
+    Filter(region=Region(10.0, 0.0, 3.0)),
+    Filter(after=1_700_000_000.0 + 100, region=Region(-10.0, 0.0, 5.0)),
+    Filter(before=1_700_000_000.0 + 12.0),
+    Filter(after=1_800_000_000.0),  # accepts nothing
+]
+
+
+def test_get_round_trip(filled: Data) -> None:
+    store, recs, emb = filled
+    pick = [recs[7].id, recs[3].id, recs[7].id, recs[250].id]
+    got = store.get(pick, with_embeddings=True)
+    assert [g.id for g in got] == pick
+    for g, i in zip(got, [7, 3, 7, 250], strict=True):
+        want = recs[i]
+        assert (g.t, g.pose, g.source, g.frame_index, g.image_path, g.ocr_text) == (
+            want.t, want.pose, want.source, want.frame_index, want.image_path, want.ocr_text,
+        )  # fmt: skip
+        assert g.embedding is not None and np.allclose(g.embedding, emb[i], atol=1e-6)
+    assert store.get([recs[1].id])[0].embedding is None
+    assert store.count() == N
+    with pytest.raises(KeyError):
+        store.get([recs[0].id, 10**9])
+
+
+def test_vector_scores_match_numpy(filled: Data) -> None:
+    store, recs, emb = filled
+    rng = np.random.default_rng(5)
+    for qi in rng.choice(N, 5, replace=False):
+        q = emb[qi] + 0.05 * rng.normal(size=DIM)
+        hits = store.search_vector(q.astype(np.float32), 8)
+        ids, scores = brute_vector(recs, emb, q, 8, None)
+        assert [h[0] for h in hits] == ids
+        assert np.allclose([h[1] for h in hits], scores, atol=1e-5)
+    assert store.search_vector(emb[0], 0) == []
+
+
+@pytest.mark.parametrize("fi", range(len(FILTERS)))
+def test_vector_filters_exact(filled: Data, fi: int) -> None:
+    store, recs, emb = filled
+    filt = FILTERS[fi]
+    q = emb[123] + 0.1 * np.random.default_rng(fi).normal(size=DIM)
+    hits = store.search_vector(q.astype(np.float32), 6, filt)
+    ids, scores = brute_vector(recs, emb, q, 6, filt)
+    assert [h[0] for h in hits] == ids
+    assert np.allclose([h[1] for h in hits], scores, atol=1e-5)
+    assert all(filt.accepts(r) for r in store.get([h[0] for h in hits]))
+
+
+def test_by_time_starts_at_t_in_order(filled: Data) -> None:
+    store, recs, _ = filled
+    chrono = sorted(recs, key=lambda r: (r.t, r.id))
+    start = chrono[100]
+    got = store.by_time(start.t, 5)
+    assert [g.id for g in got] == [r.id for r in chrono[100:105]]  # starts at t, not centred on it
+    got = store.by_time(start.t + 0.25, 3)
+    assert [g.id for g in got] == [r.id for r in chrono[101:104]]
+    assert [g.id for g in store.by_time(chrono[-2].t, 10)] == [r.id for r in chrono[-2:]]
+    assert store.by_time(chrono[-1].t + 1, 5) == []
+    filt = Filter(region=Region(-10.0, 0.0, 4.0), before=chrono[300].t)
+    want = [r.id for r in chrono if r.t >= start.t and filt.accepts(r)][:4]
+    assert [g.id for g in store.by_time(start.t, 4, filt)] == want
+
+
+@pytest.mark.parametrize(
+    "x,y,z,radius,filt",
+    [
+        (3.0, 5.0, None, None, None),
+        (3.0, 5.0, 1.5, None, None),
+        (-9.0, 1.0, None, 1.2, None),
+        (0.0, 0.0, None, 0.5, None),  # the loop's centre: nothing within 0.5 m
+        (9.5, 0.5, 0.2, None, Filter(after=1_700_000_000.0 + 100)),
+    ],
+)
+def test_nearest_matches_brute_force(filled: Data, x, y, z, radius, filt) -> None:
+    store, recs, _ = filled
+    k = 7
+    d = [
+        float(
+            np.sqrt((r.pose.x - x) ** 2 + (r.pose.y - y) ** 2 + (0.0 if z is None else (r.pose.z - z) ** 2))
+        )
+        for r in recs
+    ]
+    cand = [(recs[i].id, d[i]) for i in range(N) if (radius is None or d[i] <= radius)]
+    cand = [c for c in cand if filt is None or filt.accepts(recs[[r.id for r in recs].index(c[0])])]
+    want = sorted(cand, key=lambda c: (c[1], c[0]))[:k]
+    got = store.nearest(x, y, z, k, radius=radius, filt=filt)
+    assert [g[0] for g in got] == [w[0] for w in want]
+    assert np.allclose([g[1] for g in got], [w[1] for w in want])
+
+
+def test_search_text(filled: Data) -> None:
+    store, recs, _ = filled
+    hits = store.search_text("fire exit", 50)
+    assert hits and all(0.0 < s <= 1.0 for _, s in hits)
+    assert [s for _, s in hits] == sorted((s for _, s in hits), reverse=True)
+    texts = {r.id: r.ocr_text for r in recs}
+    full = [i for i, s in hits if s == pytest.approx(1.0)]
+    assert full and all(texts[i] == "Fire Exit ->" for i in full)
+    assert all("exit" in texts[i].lower() for i, _ in hits)
+    n_exit = sum("exit" in t.lower() for t in texts.values())
+    assert len(store.search_text("EXIT", 1000)) == n_exit
+    cafe = store.search_text("CAFE OLE", 3)  # OCR often drops accents: folded away on both sides
+    assert len(cafe) == 3 and all(texts[i] == "Café Olé" and s == pytest.approx(1.0) for i, s in cafe)
+    assert all("ro" in texts[i].lower() for i, _ in store.search_text("ro", 5))  # shorter than a trigram
+    assert store.search_text("", 5) == [] and store.search_text("  !? ", 5) == []
+    assert store.search_text("zebra", 5) == []
+    filt = Filter(after=recs[0].t)
+    assert all(filt.accepts(r) for r in store.get([i for i, _ in store.search_text("exit", 20, filt)]))
+
+
+def test_stats(filled: Data) -> None:
+    store, recs, _ = filled
+    st = store.stats()
+    assert st["count"] == N
+    assert st["t_min"] == min(r.t for r in recs) and st["t_max"] == max(r.t for r in recs)
+    assert st["x_min"] == pytest.approx(min(r.pose.x for r in recs))
+    assert st["y_max"] == pytest.approx(max(r.pose.y for r in recs))
+
+
+def test_reopen_meta_ids_and_dim_check(open_fn: StoreOpener) -> None:
+    store = open_fn(dim=DIM)
+    assert isinstance(store, Store)  # the runtime-checkable protocol
+    recs = make_records(30)
+    emb = robot_stream(30, DIM, seed=3)
+    first = store.add(recs[:20], emb[:20])
+    store.set_meta("embedder", "test-embedder")
+    store.close()
+    store = open_fn(dim=DIM)
+    try:
+        assert store.count() == 20 and store.get_meta("embedder") == "test-embedder"
+        assert store.get_meta("missing") is None
+        assert store.search_vector(emb[5], 1)[0][0] == first[5]
+        more = store.add(recs[20:], emb[20:])
+        assert min(more) > max(first)
+        assert store.search_vector(emb[25], 1)[0][0] == more[5]
+    finally:
+        store.close()
+    with pytest.raises(EmbedderMismatchError):
+        open_fn(dim=DIM * 2)
+
+
+def test_empty_store_and_bad_input(open_fn: StoreOpener) -> None:
+    store = open_fn(dim=8)
+    try:
+        q = np.ones(8, np.float32)
+        assert store.search_vector(q, 5) == [] and store.search_text("exit", 5) == []
+        assert store.by_time(0.0, 5) == [] and store.nearest(0.0, 0.0, None, 5) == []
+        assert store.add([], np.zeros((0, 8), np.float32)) == []
+        recs = make_records(3)
+        with pytest.raises(InputError, match="shape"):
+            store.add(recs, np.ones((3, 4), np.float32))
+        with pytest.raises(InputError, match="rows"):
+            store.add(recs, np.ones((2, 8), np.float32))
+        bad = np.ones((3, 8), np.float32)
+        bad[1, 2] = np.nan
+        with pytest.raises(InputError, match="NaN"):
+            store.add(recs, bad)
+        with pytest.raises(InputError, match="zero"):
+            store.add(recs, np.zeros((3, 8), np.float32))
+        with pytest.raises(InputError, match="query"):
+            store.search_vector(np.ones(5), 3)
+        with pytest.raises(InputError, match="k"):
+            store.search_vector(q, -1)
+        with pytest.raises(InputError, match="radius"):
+            store.nearest(0.0, 0.0, None, 3, radius=-1.0)
+        assert store.count() == 0
+    finally:
+        store.close()

@@ -42,7 +42,13 @@ class Store(Protocol):
         ...
 
     def nearest(
-        self, x: float, y: float, z: float | None, k: int, radius: float | None = None, filt: Filter | None = None
+        self,
+        x: float,
+        y: float,
+        z: float | None,
+        k: int,
+        radius: float | None = None,
+        filt: Filter | None = None,
     ) -> list[tuple[int, float]]:
         """The k spatially nearest (id, distance in metres), nearest first; planar when z is None."""
         ...
@@ -77,7 +83,7 @@ def open_store(uri: str, dim: int, **kwargs: object) -> Store:
 
     _load_backends()
     if uri.startswith("milvus://"):
-        return STORES.create("milvus:" + uri[len("milvus://"):], dim=dim, **kwargs)
+        return STORES.create("milvus:" + uri[len("milvus://") :], dim=dim, **kwargs)
     if uri.startswith("local:"):
-        uri = uri[len("local:"):]
+        uri = uri[len("local:") :]
     return STORES.create("local:" + uri, dim=dim, **kwargs)

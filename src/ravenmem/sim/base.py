@@ -1,0 +1,106 @@
+"""The simulator axis: an environment a robot can look around in and drive through.
+
+An environment gives observations (RGB, metric depth, pose, time, and which ground-truth
+objects are in view) and takes low-level commands (`step(forward, turn)`); waypoint following
+is a controller on top (`ravenmem.sim.control`), the same for every backend. Backends also
+publish the scene's ground-truth objects, used only to generate queries and score answers,
+never by the robot's memory or planner.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from ..nav.base import Intrinsics
+from ..nav.grid import MapConfig
+from ..registry import Registry
+from ..types import Pose
+
+
+@dataclass
+class Observation:
+    """What the robot senses at one instant. `depth` is metres along the optical axis (0 = no
+    reading), same size as `rgb`; `pose.z` is the camera's height; `t` is epoch seconds (the
+    episode's start plus simulated time); `visible` holds ids of ground-truth objects in view
+    (empty where unknown)."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    pose: Pose
+    t: float
+    step: int = 0
+    visible: tuple[int, ...] = ()
+    floor_z: float | None = None  # height of the floor under the robot (m), when known
+
+    @property
+    def camera_height(self) -> float | None:
+        """The camera's height above the robot's floor right now (it dips on stairs in Doom)."""
+        return None if self.floor_z is None else self.pose.z - self.floor_z
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """A ground-truth object: backend id, class name (e.g. 'GreenArmor') and position (m)."""
+
+    id: int
+    kind: str
+    x: float
+    y: float
+    z: float = 0.0
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """Body of the simulated robot, in metres (and metres per second)."""
+
+    radius: float
+    height: float
+    step_height: float
+    camera_height: float
+    max_speed: float
+
+    def map_config(self, resolution: float = 0.25, max_range: float = 10.0) -> MapConfig:
+        """Obstacles are what the robot can neither step over nor pass under."""
+        return MapConfig(
+            resolution=resolution,
+            step_height=self.step_height + 0.05,
+            obstacle_max=self.height,
+            max_range=max_range,
+        )
+
+
+@runtime_checkable
+class Environment(Protocol):
+    name: str
+    intrinsics: Intrinsics
+    robot: RobotSpec
+
+    def reset(self) -> Observation:
+        """Start a new episode at the map's start position."""
+        ...
+
+    def observe(self) -> Observation: ...
+
+    def step(self, forward: float, turn: float) -> Observation:
+        """One control tick: `forward` in [-1, 1] (fraction of max speed), `turn` radians
+        (positive = left, counter-clockwise seen from above)."""
+        ...
+
+    def objects(self) -> list[SceneObject]:
+        """Ground-truth objects for queries and scoring."""
+        ...
+
+    def close(self) -> None: ...
+
+
+ENVIRONMENTS: Registry[Environment] = Registry("environment")
+
+
+def create_env(spec: str = "vizdoom:freedoom2/MAP01", **kwargs: object) -> Environment:
+    """Create an environment by spec, e.g. `vizdoom:freedoom2/MAP01` or `synthetic:rooms`."""
+    from . import synthetic, vizdoom  # noqa: F401  (register the built-in backends)
+
+    return ENVIRONMENTS.create(spec, **kwargs)

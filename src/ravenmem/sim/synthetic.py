@@ -1,0 +1,216 @@
+"""A tiny built-in world: walls and boxes on a plane, rendered by ray casting in numpy.
+
+It needs no simulator package, so the whole explore -> remember -> navigate loop can be tested
+anywhere; its pictures are flat-shaded, so do not expect an image embedder to recognise much.
+Walls are vertical segments `wall_height` tall, objects are square boxes with a class name.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from ..nav.base import Intrinsics
+from ..types import Pose
+from .base import ENVIRONMENTS, Observation, RobotSpec, SceneObject
+
+
+@dataclass(frozen=True)
+class Box:
+    kind: str
+    x: float
+    y: float
+    half: float = 0.3
+    height: float = 0.8
+    color: tuple[int, int, int] = (200, 40, 40)
+
+
+@dataclass
+class World:
+    walls: np.ndarray  # (n, 4) x1, y1, x2, y2 metres
+    boxes: list[Box] = field(default_factory=list)
+    start: tuple[float, float, float] = (0.0, 0.0, 0.0)  # x, y, yaw
+    wall_height: float = 2.5
+
+
+def _rect(x0: float, y0: float, x1: float, y1: float) -> list[tuple[float, float, float, float]]:
+    return [(x0, y0, x1, y0), (x1, y0, x1, y1), (x1, y1, x0, y1), (x0, y1, x0, y0)]
+
+
+def rooms_world() -> World:
+    """Two 8 x 6 m rooms joined by a 1.5 m doorway, with three coloured boxes."""
+    walls = [(0, 0, 16, 0), (16, 0, 16, 6), (16, 6, 0, 6), (0, 6, 0, 0), (8, 0, 8, 2.25), (8, 3.75, 8, 6)]
+    boxes = [
+        Box("RedBox", 3.0, 4.5, color=(210, 40, 40)),
+        Box("BlueBox", 12.5, 1.5, color=(40, 60, 210)),
+        Box("GreenBox", 14.0, 4.8, half=0.4, height=1.0, color=(40, 170, 60)),
+    ]
+    return World(np.asarray(walls, np.float64), boxes, start=(2.0, 1.5, 0.5))
+
+
+WORLDS = {"rooms": rooms_world}
+
+
+class SyntheticEnv:
+    """A unicycle robot in a `World`; `step` advances `dt` seconds."""
+
+    def __init__(
+        self,
+        world: World | None = None,
+        name: str = "synthetic:rooms",
+        width: int = 160,
+        height: int = 120,
+        hfov_deg: float = 90.0,
+        dt: float = 0.2,
+        max_speed: float = 1.0,
+        start_time: float | None = None,
+        max_depth: float = 20.0,
+    ) -> None:
+        self.world = world or rooms_world()
+        self.name = name
+        self.intrinsics = Intrinsics.from_fov(width, height, hfov_deg)
+        self.robot = RobotSpec(
+            radius=0.25, height=1.2, step_height=0.1, camera_height=0.8, max_speed=max_speed
+        )
+        self.dt = float(dt)
+        self.max_depth = float(max_depth)
+        self._start_time = start_time
+        segs, tops, cols, owner = [], [], [], []
+        for i, w in enumerate(self.world.walls):
+            segs.append(w)
+            tops.append(self.world.wall_height)
+            shade = 150 + (i * 37) % 90
+            cols.append((shade, shade - 20, shade - 50))
+            owner.append(-1)
+        for j, b in enumerate(self.world.boxes):
+            for s in _rect(b.x - b.half, b.y - b.half, b.x + b.half, b.y + b.half):
+                segs.append(s)
+                tops.append(b.height)
+                cols.append(b.color)
+                owner.append(j)
+        self._segs = np.asarray(segs, np.float64).reshape(-1, 4)
+        self._tops = np.asarray(tops, np.float64)
+        self._cols = np.asarray(cols, np.float64)
+        self._owner = np.asarray(owner, np.int64)
+        self._x, self._y, self._yaw = self.world.start
+        self._steps = 0
+        self._t0 = 0.0
+
+    # --- protocol -------------------------------------------------------------------------
+    def reset(self) -> Observation:
+        self._x, self._y, self._yaw = self.world.start
+        self._steps = 0
+        self._t0 = time.time() if self._start_time is None else float(self._start_time)
+        return self.observe()
+
+    def observe(self) -> Observation:
+        rgb, depth, visible = self.render(self._x, self._y, self._yaw)
+        pose = Pose(self._x, self._y, self.robot.camera_height, self._yaw)
+        return Observation(
+            floor_z=0.0,
+            rgb=rgb,
+            depth=depth,
+            pose=pose,
+            t=self._t0 + self._steps * self.dt,
+            step=self._steps,
+            visible=visible,
+        )
+
+    def step(self, forward: float, turn: float) -> Observation:
+        self._yaw = math.atan2(math.sin(self._yaw + turn), math.cos(self._yaw + turn))
+        dist = max(-1.0, min(1.0, float(forward))) * self.robot.max_speed * self.dt
+        nx, ny = self._x + dist * math.cos(self._yaw), self._y + dist * math.sin(self._yaw)
+        if self._clearance(nx, ny) > self.robot.radius:  # a bump stops the robot
+            self._x, self._y = nx, ny
+        self._steps += 1
+        return self.observe()
+
+    def objects(self) -> list[SceneObject]:
+        return [SceneObject(i, b.kind, b.x, b.y, 0.0) for i, b in enumerate(self.world.boxes)]
+
+    def close(self) -> None:
+        return None
+
+    def wall_segments(self, solid_only: bool = True) -> np.ndarray:
+        """Every segment the robot cannot cross (walls and box sides), metres."""
+        return self._segs.copy()
+
+    # --- geometry -------------------------------------------------------------------------
+    def _clearance(self, x: float, y: float) -> float:
+        s = self._segs
+        ex, ey = s[:, 2] - s[:, 0], s[:, 3] - s[:, 1]
+        t = np.clip(
+            ((x - s[:, 0]) * ex + (y - s[:, 1]) * ey) / np.maximum(ex * ex + ey * ey, 1e-12), 0.0, 1.0
+        )
+        return float(np.min(np.hypot(x - s[:, 0] - t * ex, y - s[:, 1] - t * ey)))
+
+    def render(
+        self, x: float, y: float, yaw: float, k_hits: int = 4
+    ) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
+        """RGB, z-depth (metres, 0 = nothing within `max_depth`) and visible box ids from a pose."""
+        intr = self.intrinsics
+        h_cam = self.robot.camera_height
+        u = np.arange(intr.width) + 0.5
+        ru = (u - intr.cx) / intr.fx
+        fx_, fy_ = math.cos(yaw), math.sin(yaw)
+        dx = fx_ + ru * fy_  # forward + ru * right, right = (sin, -cos)
+        dy = fy_ - ru * fx_
+        s = self._segs
+        ex, ey = s[:, 2] - s[:, 0], s[:, 3] - s[:, 1]
+        px, py = s[:, 0] - x, s[:, 1] - y
+        den = dx[:, None] * ey[None, :] - dy[:, None] * ex[None, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sd = (px[None, :] * ey[None, :] - py[None, :] * ex[None, :]) / den
+            td = (px[None, :] * dy[:, None] - py[None, :] * dx[:, None]) / den
+        ok = (np.abs(den) > 1e-12) & (sd > 1e-6) & (td >= 0.0) & (td <= 1.0) & (sd <= self.max_depth)
+        sd = np.where(ok, sd, np.inf)
+        k = min(k_hits, s.shape[0])
+        order = np.argsort(sd, axis=1)[:, :k]  # (W, k) nearest segments per column
+        hs = np.take_along_axis(sd, order, axis=1)
+        v = np.arange(intr.height) + 0.5
+        down = (v - intr.cy) / intr.fy
+        with np.errstate(divide="ignore"):
+            s_floor = np.where(down > 0, h_cam / down, np.inf)
+        s_floor = np.where(s_floor <= self.max_depth, s_floor, np.inf)
+        depth = np.zeros((intr.height, intr.width))
+        seg = np.full((intr.height, intr.width), -1, np.int64)
+        done = np.zeros((intr.height, intr.width), bool)
+        for j in range(k):
+            sj = hs[:, j][None, :]
+            hj = h_cam - sj * down[:, None]
+            top = self._tops[order[:, j]][None, :]
+            hit = ~done & np.isfinite(sj) & (sj < s_floor[:, None]) & (hj >= 0.0) & (hj <= top)
+            depth = np.where(hit, sj, depth)
+            seg = np.where(hit, order[:, j][None, :], seg)
+            done |= hit
+        floor = ~done & np.isfinite(s_floor)[:, None]
+        depth = np.where(floor, s_floor[:, None], depth)
+        rgb = np.empty((intr.height, intr.width, 3))
+        rgb[:] = (215, 225, 235)  # sky / ceiling
+        shade = 1.0 / (1.0 + 0.08 * depth)
+        wall_px = seg >= 0
+        rgb[wall_px] = self._cols[seg[wall_px]] * (0.4 + 0.6 * shade[wall_px, None])
+        if floor.any():
+            sf = np.broadcast_to(s_floor[:, None], floor.shape)[floor]
+            uu = np.broadcast_to(ru[None, :], floor.shape)[floor]
+            wx = x + sf * fx_ + sf * uu * fy_
+            wy = y + sf * fy_ - sf * uu * fx_
+            checker = (np.floor(wx) + np.floor(wy)) % 2 == 0
+            base = np.where(checker, 120.0, 95.0)
+            rgb[floor] = (base * (0.5 + 0.5 * shade[floor]))[:, None] * np.array([1.0, 0.95, 0.9])
+        owners = self._owner[seg[wall_px]]
+        ids, counts = np.unique(owners[owners >= 0], return_counts=True)
+        visible = tuple(int(i) for i, c in zip(ids, counts) if c >= 4)
+        return np.clip(rgb, 0, 255).astype(np.uint8), depth.astype(np.float32), visible
+
+
+@ENVIRONMENTS.register("synthetic")
+def _make_synthetic(spec: str = "", **kwargs: object) -> SyntheticEnv:
+    name = spec or "rooms"
+    if name not in WORLDS:
+        raise InputError(f"synthetic:{name}: unknown world; choose one of: {', '.join(sorted(WORLDS))}")
+    return SyntheticEnv(WORLDS[name](), name=f"synthetic:{name}", **kwargs)  # type: ignore[arg-type]

@@ -1,0 +1,96 @@
+import json
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from ravenmem.cli.nav import register
+from ravenmem.errors import InputError
+
+
+def _app() -> typer.Typer:
+    app = typer.Typer()
+    register(app)
+
+    @app.command("version")
+    def _version() -> None:  # a second command keeps typer in multi-command mode
+        typer.echo("x")
+
+    return app
+
+
+def test_explore_then_navigate_by_text_and_by_position(tmp_path) -> None:
+    app, runner = _app(), CliRunner()
+    mem = tmp_path / "rooms.mem"
+    png = tmp_path / "map.png"
+    r = runner.invoke(
+        app,
+        [
+            "explore",
+            "--env",
+            "synthetic:rooms",
+            "--memory",
+            str(mem),
+            "--steps",
+            "500",
+            "--embedder",
+            "test-colour",
+            "--keyframe-dist",
+            "1.0",
+            "--png",
+            str(png),
+            "--json",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["memories"] > 5 and out["coverage"] > 0.8 and png.stat().st_size > 10_000
+    assert (mem / "map.npz").is_file() and (mem / "map.json").is_file() and (mem / "explore.json").is_file()
+
+    r = runner.invoke(
+        app, ["navigate", "--memory", str(mem), "--to", "blue box", "--method", "embedder-only", "--json"]
+    )
+    assert r.exit_code == 0, r.output
+    nav = json.loads(r.stdout)
+    assert nav["found"] and nav["planned"] and nav["reached"] and nav["true_kind"] == "BlueBox"
+    assert nav["final_to_true_m"] < 3.0 and nav["path_m"] > 5.0
+
+    r = runner.invoke(app, ["navigate", "--memory", str(mem), "--x", "6.0", "--y", "3.0"])
+    assert r.exit_code == 0, r.output
+    assert "A* path" in r.stdout and "reached" in r.stdout
+
+
+def test_navigate_needs_an_explored_memory(tmp_path) -> None:
+    app, runner = _app(), CliRunner()
+    r = runner.invoke(app, ["navigate", "--memory", str(tmp_path), "--to", "red box"])
+    assert r.exit_code != 0
+    assert "explore" in str(r.exception)
+    r = runner.invoke(app, ["navigate", "--memory", str(tmp_path)])
+    assert "--to" in str(r.exception)
+
+
+def test_demo_on_the_synthetic_world(tmp_path, colour_embedder) -> None:
+    from ravenmem.demo import DemoConfig, run_demo
+
+    cfg = DemoConfig(
+        env="synthetic:rooms",
+        out=str(tmp_path / "d.mem"),
+        png=str(tmp_path / "d.png"),
+        steps=600,
+        embedder=colour_embedder,
+        method="embedder-only",
+        keyframe_dist=1.0,
+        keyframe_turn=0.5,
+        start_time=1.7e9,
+    )
+    rep = run_demo(cfg)
+    assert [r.kind for r in rep.results] == ["RedBox", "BlueBox", "GreenBox"]
+    assert rep.sr == 1.0 and all(r.final_dist <= 3.0 and r.path_m > 0 for r in rep.results)
+    assert rep.baselines["random memory (expected)"] < 0.5
+    table = rep.table()
+    assert "Where did you see the red box?" in table and "SR (embedder-only" in table
+    saved = json.loads((tmp_path / "d.mem" / "demo.json").read_text())
+    assert saved["sr"] == 1.0 and len(saved["results"]) == 3
+    # an existing folder is never silently replaced
+    with pytest.raises(InputError, match="already exists"):
+        run_demo(cfg)

@@ -211,13 +211,30 @@ class Memory:
         near: Near | None = None,
     ) -> list[Hit]:
         """Cosine between the text and stored images, fused with OCR matches; best first."""
-        if not query or not query.strip():
+        return self.search_texts([query], k, after, before, near)[0]
+
+    def search_texts(
+        self,
+        queries: Sequence[str],
+        k: int = 5,
+        after: TimeLike = None,
+        before: TimeLike = None,
+        near: Near | None = None,
+        ocr: bool = True,
+    ) -> list[list[Hit]]:
+        """`search_text` for many queries with one batched text encoding (reasoners that try
+        several phrasings of a question use this). `ocr=False` leaves out the OCR channel."""
+        if not queries or any(not q or not q.strip() for q in queries):
             raise InputError("empty text query")
         self._require_nonempty()
         filt = self.make_filter(after, before, near)
-        q = self.embedder.embed_texts([query])[0]
-        scored = dict(self.store.search_vector(q, max(k, 1) * (3 if self.ocr_enabled else 1), filt))
-        ocr = dict(self.store.search_text(ocr_terms(query), max(k, 1) * 3, filt)) if self.ocr_enabled else {}
+        use_ocr = ocr and self.ocr_enabled
+        vecs = self.embedder.embed_texts(list(queries))
+        return [self._text_hits(query, q, k, filt, use_ocr) for query, q in zip(queries, vecs)]
+
+    def _text_hits(self, query: str, q: np.ndarray, k: int, filt: Filter, use_ocr: bool) -> list[Hit]:
+        scored = dict(self.store.search_vector(q, max(k, 1) * (3 if use_ocr else 1), filt))
+        ocr = dict(self.store.search_text(ocr_terms(query), max(k, 1) * 3, filt)) if use_ocr else {}
         missing = [i for i in ocr if i not in scored]
         if missing:
             for r in self.store.get(missing, with_embeddings=True):

@@ -158,24 +158,15 @@ class OfflineReasoner:
 
     # ------------------------------------------------------------------ scoring
     def _search_many(self, texts: list[str], k: int) -> list[list[tuple[MemoryRecord, float]]]:
-        """(record, cosine) lists per text. Embeds all texts in one batch when the memory exposes
-        its embedder and store (the real Memory); otherwise one `search_text` call per text."""
-        mem: object = self.memory
-        emb, store = getattr(mem, "embedder", None), getattr(mem, "store", None)
-        if (
-            emb is not None
-            and store is not None
-            and hasattr(store, "search_vector")
-            and hasattr(store, "get")
-        ):
-            vecs = emb.embed_texts(texts)
-            out = []
-            for v in vecs:
-                scored = store.search_vector(np.asarray(v, dtype=np.float32), k)
-                recs = store.get([i for i, _ in scored])
-                out.append([(r, float(s)) for r, (_, s) in zip(recs, scored, strict=True)])
-            return out
-        return [[(h.memory, float(h.score or 0.0)) for h in self.memory.search_text(t, k=k)] for t in texts]
+        """(record, cosine) lists per text, all texts embedded in one batch when the memory offers
+        `search_texts` (the real Memory); otherwise one `search_text` call per text. OCR is fused
+        separately (`_add_ocr`), so the image channel alone is asked for here."""
+        batched = getattr(self.memory, "search_texts", None)
+        if batched is not None:
+            groups = batched(texts, k=k, ocr=False)
+        else:
+            groups = [self.memory.search_text(t, k=k) for t in texts]
+        return [[(h.memory, float(h.score or 0.0)) for h in hits] for hits in groups]
 
     def _fuse(self, groups: list[list[str]], k: int, image: np.ndarray | None = None) -> dict[int, Cand]:
         """Per memory: max over groups of the mean over paraphrases (a missing one counts its floor)."""

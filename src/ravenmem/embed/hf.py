@@ -1,0 +1,137 @@
+"""Hugging Face transformers backend (extra `hf`): CLIP, SigLIP, SigLIP 2 and other dual encoders.
+
+Spec: `hf:NAME_OR_LOCAL_FOLDER`, e.g. `hf:/models/siglip2-base-patch16-224` (offline: a folder
+written by `save_pretrained` holding the model and its processor) or `hf:google/siglip-base-patch16-224`
+(resolved by the hub cache; set HF_HUB_OFFLINE=1 to forbid downloads). The model must offer
+`get_image_features` and `get_text_features`; transformers >= 5 returns an output object whose
+`pooler_output` holds the projected embedding, older versions a tensor: both are handled.
+Keyword `device` picks where it runs; it does not change the name.
+"""
+
+from __future__ import annotations
+
+import inspect
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError, require
+from .base import EMBEDDERS, l2_normalize
+from .tiles import check_image
+
+# SigLIP families were trained on texts padded to the full context; CLIP pads to the longest
+PAD_TO_MAX = ("siglip", "siglip2")
+
+
+def _features(out: Any) -> Any:
+    """The embedding tensor from whatever get_*_features returned."""
+    if hasattr(out, "pooler_output") and out.pooler_output is not None:
+        return out.pooler_output
+    if isinstance(out, (tuple, list)):
+        return out[1] if len(out) > 1 else out[0]
+    return out
+
+
+def _accepted(fn: Any, inputs: dict[str, Any]) -> dict[str, Any]:
+    """Keep the processor outputs that `fn` takes (e.g. SigLIP 2's spatial_shapes, pixel masks)."""
+    params = inspect.signature(fn).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()) and not any(
+        k in params for k in inputs
+    ):
+        return dict(inputs)
+    return {k: v for k, v in inputs.items() if k in params}
+
+
+class HFEmbedder:
+    """Loads lazily on first use; runs in fp32 on `device` (default: cuda if available)."""
+
+    def __init__(self, spec: str, device: str | None = None) -> None:
+        spec = spec.strip()
+        if not spec:
+            raise InputError("hf embedder: give a model folder or hub name, e.g. hf:/models/siglip2-base")
+        path = Path(spec).expanduser()
+        looks_local = spec.startswith((".", "/", "~")) or path.exists()
+        if looks_local and not path.is_dir():
+            raise InputError(f"hf embedder: model folder {path} not found")
+        self.source = str(path.resolve()) if looks_local else spec
+        self.device = device
+        self._lock = threading.Lock()
+        self._model: Any = None
+        self._processor: Any = None
+        self._dim: int | None = None
+
+    @property
+    def name(self) -> str:
+        return f"hf:{self.source}"
+
+    @property
+    def dim(self) -> int:
+        self._load()
+        assert self._dim is not None
+        return self._dim
+
+    def _load(self) -> None:
+        with self._lock:
+            if self._model is not None:
+                return
+            tf: Any = require("transformers", "hf")
+            import torch
+
+            device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
+            model = tf.AutoModel.from_pretrained(self.source)
+            if not (hasattr(model, "get_image_features") and hasattr(model, "get_text_features")):
+                raise InputError(
+                    f"hf embedder: {self.source} ({type(model).__name__}) is not an image-text dual encoder"
+                )
+            self._processor = tf.AutoProcessor.from_pretrained(self.source)
+            self._model = model.to(device).eval()
+            self.device = device
+            self._dim = int(self._encode_texts(["a"]).shape[-1])
+
+    def _encode_texts(self, texts: list[str]) -> np.ndarray:
+        import torch
+
+        model_type = getattr(self._model.config, "model_type", "")
+        if model_type in PAD_TO_MAX:
+            max_len = getattr(getattr(self._model.config, "text_config", None), "max_position_embeddings", 64)
+            pad: dict[str, Any] = {"padding": "max_length", "max_length": max_len}
+        else:
+            pad = {"padding": True}
+        inputs = self._processor(text=texts, return_tensors="pt", truncation=True, **pad)
+        inputs = {
+            k: v.to(self.device) for k, v in _accepted(self._model.get_text_features, dict(inputs)).items()
+        }
+        with torch.inference_mode():
+            feats = _features(self._model.get_text_features(**inputs))
+        return l2_normalize(feats.float().cpu().numpy())
+
+    def embed_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        self._load()
+        if len(images) == 0:
+            return np.zeros((0, self.dim), dtype=np.float32)
+        import torch
+
+        arrays = [check_image(im, i) for i, im in enumerate(images)]
+        inputs = self._processor(images=arrays, return_tensors="pt")
+        inputs = {
+            k: v.to(self.device) for k, v in _accepted(self._model.get_image_features, dict(inputs)).items()
+        }
+        with torch.inference_mode():
+            feats = _features(self._model.get_image_features(**inputs))
+        return l2_normalize(feats.float().cpu().numpy())
+
+    def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
+        if isinstance(texts, str) or not all(isinstance(t, str) for t in texts):
+            raise InputError("embed_texts: expected a list of strings")
+        self._load()
+        if len(texts) == 0:
+            return np.zeros((0, self.dim), dtype=np.float32)
+        return self._encode_texts(list(texts))
+
+
+@EMBEDDERS.register("hf")
+def _factory(spec: str, device: str | None = None) -> HFEmbedder:
+    return HFEmbedder(spec, device=device)

@@ -362,3 +362,21 @@ def test_agent_is_exported_from_the_package():
     import ravenmem.agent
 
     assert ravenmem.Agent is ravenmem.agent.Agent is Agent
+
+
+def test_top_k_per_tool(mem, server):
+    """FindingDory-style budgets: many memories from the time tool, few from the text tool."""
+    server.push(
+        tool("search_time", time="+0"),
+        tool("search_text", query="red"),
+        answer(question_type="text", answer="done", evidence=[]),
+    )
+    agent = Agent(mem, vlm=config_for(server), top_k={"time": 9, "text": 2}, max_tool_calls=2)
+    agent.ask("What happened first?")
+    specs = {t["function"]["name"]: t["function"]["description"] for t in server.requests[0]["tools"]}
+    assert "up to 9 memories" in specs["search_time"] and "up to 2 memories" in specs["search_text"]
+    assert "up to 5 memories" in specs["search_position"]  # not named: the default
+    tool_texts = [m["content"] for m in server.requests[2]["messages"] if m["role"] == "tool"]
+    assert [len(re.findall(r"^\[m\d+\]", t, re.M)) for t in tool_texts] == [9, 2]
+    with pytest.raises(Exception, match="unknown tool 'colour'"):
+        Agent(mem, vlm=config_for(server), top_k={"colour": 3})

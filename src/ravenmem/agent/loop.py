@@ -33,7 +33,7 @@ from .parse import ModelAnswer, build_answer, evidence_of, extract_json
 from .prompts import budget_spent, reask, system_prompt
 from .questions import classify_question
 from .schema import Answer, Cost
-from .tools import ToolRunner, WorkingMemory, image_parts
+from .tools import ToolRunner, WorkingMemory, image_parts, per_tool_k
 
 
 class Step(Enum):
@@ -87,19 +87,21 @@ class Agent:
         self,
         memory: MemoryLike,
         vlm: VLMConfig | VLMClient | None = None,
-        top_k: int = 5,
+        top_k: int | dict[str, int] = 5,
         max_tool_calls: int = 3,
         trace_path: str | Path | None = None,
         max_reasks: int = 2,
         max_position_offset: float = 3.0,
         image_max_side: int = 0,
     ) -> None:
-        if top_k < 1 or max_tool_calls < 0 or max_reasks < 0:
+        ks = per_tool_k(top_k)  # one k for every tool, or {"time": 200, "text": 30, ...}
+        if max_tool_calls < 0 or max_reasks < 0:
             raise InputError(
-                f"need top_k >= 1, max_tool_calls >= 0, max_reasks >= 0 (got {top_k}, {max_tool_calls}, {max_reasks})"
+                f"need max_tool_calls >= 0, max_reasks >= 0 (got {max_tool_calls}, {max_reasks})"
             )
         self.memory = memory
         self.top_k = top_k
+        self.evidence_k = ks["search_text"]
         self.max_tool_calls = max_tool_calls if self.use_tools else 0
         self.max_reasks = max_reasks
         self.max_position_offset = max_position_offset
@@ -118,7 +120,7 @@ class Agent:
         if self.client is None:
             from .offline import OfflineReasoner
 
-            self.fallback = OfflineReasoner(memory, top_k=top_k)
+            self.fallback = OfflineReasoner(memory, top_k=self.evidence_k)
             self.note = "no VLM configured (set RAVENMEM_VLM_MODEL and RAVENMEM_VLM_BASE_URL): used the offline reasoner"
             self.mode = "offline"
         else:
@@ -329,7 +331,7 @@ class Agent:
         return Answer(
             question=run.question, method=self.name, question_type=classify_question(run.question),
             text=f"I could not answer: {run.error}", found=False, failed=True, error=run.error,
-            evidence=[evidence_of(s) for s in run.wm.ranked()[: self.top_k]], reasoning="; ".join(run.notes),
+            evidence=[evidence_of(s) for s in run.wm.ranked()[: self.evidence_k]], reasoning="; ".join(run.notes),
         )  # fmt: skip
 
     def _trace(self, run: _Run, answer: Answer, events: list[dict[str, Any]]) -> None:

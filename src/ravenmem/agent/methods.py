@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from .base import METHODS, MemoryLike, Method
+from .tools import per_tool_k
 
 _AGENT_OPTS = (
     "vlm",
@@ -22,15 +23,20 @@ _AGENT_OPTS = (
 )
 
 
-def _pick(opts: dict[str, Any], names: tuple[str, ...]) -> dict[str, Any]:
-    return {k: v for k, v in opts.items() if k in names and v is not None}
+def _pick(opts: dict[str, Any], names: tuple[str, ...], per_tool: bool = False) -> dict[str, Any]:
+    """The options a method takes. Only the VLM agent has one k per tool: the others get the
+    text tool's k when a {tool: k} mapping is given."""
+    out = {k: v for k, v in opts.items() if k in names and v is not None}
+    if not per_tool and isinstance(out.get("top_k"), dict):
+        out["top_k"] = per_tool_k(out["top_k"])["search_text"]
+    return out
 
 
 @METHODS.register("raven")
 def _raven(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .loop import Agent
 
-    return Agent(memory, **_pick(opts, _AGENT_OPTS))
+    return Agent(memory, **_pick(opts, _AGENT_OPTS, per_tool=True))
 
 
 @METHODS.register("offline")

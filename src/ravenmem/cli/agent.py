@@ -14,6 +14,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ._console import out_console
+
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 BaseUrlOpt = Annotated[
     str | None, typer.Option("--base-url", help="OpenAI-compatible endpoint, e.g. http://localhost:8000/v1")
@@ -97,7 +99,7 @@ def ask(
 
 
 def _render(a: dict[str, Any], note: str) -> None:
-    con = Console()
+    con = out_console()
     if note:
         con.print(f"[yellow]note:[/] {note}", highlight=False)
     status = "[red]FAILED[/]" if a["failed"] else ("found" if a["found"] else "[yellow]not found[/]")

@@ -20,6 +20,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ..errors import InputError
+from ._console import out_console
 
 eval_app = typer.Typer(help="Benchmarks (RAVEN-QA, NaVQA, FindingDory, your own questions), reports and studies.",
                        no_args_is_help=False)  # fmt: skip
@@ -163,7 +164,7 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
         table.add_row(g["method"] + (f" [{g['variant']}]" if g.get("variant") else ""), g["embedder"], g["vlm"],
                       str(g["questions"]), _pct(g["accuracy"]), _num(g["pos_error_m"]), _num(g["time_error_min"]),
                       _num(g["alpha"], 3), _num(g["seconds_per_q"], 2))  # fmt: skip
-    Console().print(table)
+    out_console().print(table)
     for g in summary["groups"]:
         if g["not_judged"]:
             console.print(

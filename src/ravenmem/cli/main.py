@@ -20,6 +20,7 @@ from rich.table import Table
 
 from ..errors import InputError, RavenmemError
 from ..types import Hit
+from ._console import out_console
 
 os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # model-loading bars are noise in a CLI
 os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
@@ -30,7 +31,7 @@ os.environ.setdefault(
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="ravenmem: a long-term visual memory for robots."
 )
-console = Console() if sys.stdout.isatty() else Console(width=200)
+console = out_console()
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
 

@@ -11,16 +11,14 @@ Keyword `device` picks where it runs; it does not change the name.
 from __future__ import annotations
 
 import inspect
-import threading
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import InputError, require
+from ._lazy import LazyTorchEmbedder
 from .base import EMBEDDERS, l2_normalize
-from .tiles import check_image
 
 # SigLIP families were trained on texts padded to the full context; CLIP pads to the longest
 PAD_TO_MAX = ("siglip", "siglip2")
@@ -45,10 +43,11 @@ def _accepted(fn: Any, inputs: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in inputs.items() if k in params}
 
 
-class HFEmbedder:
+class HFEmbedder(LazyTorchEmbedder):
     """Loads lazily on first use; runs in fp32 on `device` (default: cuda if available)."""
 
     def __init__(self, spec: str, device: str | None = None) -> None:
+        super().__init__(device)
         spec = spec.strip()
         if not spec:
             raise InputError("hf embedder: give a model folder or hub name, e.g. hf:/models/siglip2-base")
@@ -57,39 +56,27 @@ class HFEmbedder:
         if looks_local and not path.is_dir():
             raise InputError(f"hf embedder: model folder {path} not found")
         self.source = str(path.resolve()) if looks_local else spec
-        self.device = device
-        self._lock = threading.Lock()
         self._model: Any = None
         self._processor: Any = None
-        self._dim: int | None = None
 
     @property
     def name(self) -> str:
         return f"hf:{self.source}"
 
-    @property
-    def dim(self) -> int:
-        self._load()
-        assert self._dim is not None
-        return self._dim
+    def _load_model(self) -> int:
+        tf: Any = require("transformers", "hf")
+        import torch
 
-    def _load(self) -> None:
-        with self._lock:
-            if self._model is not None:
-                return
-            tf: Any = require("transformers", "hf")
-            import torch
-
-            device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
-            model = tf.AutoModel.from_pretrained(self.source)
-            if not (hasattr(model, "get_image_features") and hasattr(model, "get_text_features")):
-                raise InputError(
-                    f"hf embedder: {self.source} ({type(model).__name__}) is not an image-text dual encoder"
-                )
-            self._processor = tf.AutoProcessor.from_pretrained(self.source)
-            self._model = model.to(device).eval()
-            self.device = device
-            self._dim = int(self._encode_texts(["a"]).shape[-1])
+        device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
+        model = tf.AutoModel.from_pretrained(self.source)
+        if not (hasattr(model, "get_image_features") and hasattr(model, "get_text_features")):
+            raise InputError(
+                f"hf embedder: {self.source} ({type(model).__name__}) is not an image-text dual encoder"
+            )
+        self._processor = tf.AutoProcessor.from_pretrained(self.source)
+        self._model = model.to(device).eval()
+        self.device = device
+        return int(self._encode_texts(["a"]).shape[-1])
 
     def _encode_texts(self, texts: list[str]) -> np.ndarray:
         import torch
@@ -108,28 +95,16 @@ class HFEmbedder:
             feats = _features(self._model.get_text_features(**inputs))
         return l2_normalize(feats.float().cpu().numpy())
 
-    def embed_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
-        self._load()
-        if len(images) == 0:
-            return np.zeros((0, self.dim), dtype=np.float32)
+    def _encode_images(self, images: list[np.ndarray]) -> np.ndarray:
         import torch
 
-        arrays = [check_image(im, i) for i, im in enumerate(images)]
-        inputs = self._processor(images=arrays, return_tensors="pt")
+        inputs = self._processor(images=images, return_tensors="pt")
         inputs = {
             k: v.to(self.device) for k, v in _accepted(self._model.get_image_features, dict(inputs)).items()
         }
         with torch.inference_mode():
             feats = _features(self._model.get_image_features(**inputs))
         return l2_normalize(feats.float().cpu().numpy())
-
-    def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
-        if isinstance(texts, str) or not all(isinstance(t, str) for t in texts):
-            raise InputError("embed_texts: expected a list of strings")
-        self._load()
-        if len(texts) == 0:
-            return np.zeros((0, self.dim), dtype=np.float32)
-        return self._encode_texts(list(texts))
 
 
 @EMBEDDERS.register("hf")

@@ -13,16 +13,14 @@ Keyword `device` ("cpu", "cuda", ...) picks where it runs; it does not change th
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import InputError, require
+from ._lazy import LazyTorchEmbedder
 from .base import EMBEDDERS, l2_normalize
-from .tiles import check_image
 
 
 def parse_spec(spec: str) -> tuple[str, str | None, Path | None, Path | None]:
@@ -51,17 +49,15 @@ def parse_spec(spec: str) -> tuple[str, str | None, Path | None, Path | None]:
     return model, pretrained, ckpt, config
 
 
-class OpenClipEmbedder:
+class OpenClipEmbedder(LazyTorchEmbedder):
     """Loads lazily (the first embed or `dim` access) and runs in fp32 on `device`."""
 
     def __init__(self, spec: str, device: str | None = None) -> None:
+        super().__init__(device)
         self.model_name, self.pretrained, self.checkpoint, self.config_path = parse_spec(spec)
-        self.device = device
-        self._lock = threading.Lock()
         self._model: Any = None
         self._preprocess: Any = None
         self._tokenizer: Any = None
-        self._dim: int | None = None
 
     @property
     def name(self) -> str:
@@ -72,63 +68,44 @@ class OpenClipEmbedder:
             return f"open_clip:{model}/{self.pretrained}"
         return f"open_clip:{model}"
 
-    @property
-    def dim(self) -> int:
-        self._load()
-        assert self._dim is not None
-        return self._dim
+    def _load_model(self) -> int:
+        oc: Any = require("open_clip", "clip")
+        import torch
 
-    def _load(self) -> None:
-        with self._lock:
-            if self._model is not None:
-                return
-            oc: Any = require("open_clip", "clip")
-            import torch
-
-            if self.config_path is not None:
-                oc.add_model_config(self.config_path)
-            if self.model_name not in oc.list_models() and not self.model_name.startswith("hf-hub:"):
-                raise InputError(
-                    f"open_clip embedder: unknown model {self.model_name!r} (see open_clip.list_models())"
-                )
-            device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
-            weights = str(self.checkpoint) if self.checkpoint is not None else self.pretrained
-            model, _, preprocess = oc.create_model_and_transforms(
-                self.model_name, pretrained=weights, device=device
+        if self.config_path is not None:
+            oc.add_model_config(self.config_path)
+        if self.model_name not in oc.list_models() and not self.model_name.startswith("hf-hub:"):
+            raise InputError(
+                f"open_clip embedder: unknown model {self.model_name!r} (see open_clip.list_models())"
             )
-            model.eval()
-            self._tokenizer = oc.get_tokenizer(self.model_name)
-            self._preprocess = preprocess
-            self.device = device
-            with torch.inference_mode():
-                probe = model.encode_text(self._tokenizer(["a"]).to(device))
-            self._dim = int(probe.shape[-1])
-            self._model = model
+        device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
+        weights = str(self.checkpoint) if self.checkpoint is not None else self.pretrained
+        model, _, preprocess = oc.create_model_and_transforms(
+            self.model_name, pretrained=weights, device=device
+        )
+        model.eval()
+        self._tokenizer = oc.get_tokenizer(self.model_name)
+        self._preprocess = preprocess
+        self.device = device
+        with torch.inference_mode():
+            probe = model.encode_text(self._tokenizer(["a"]).to(device))
+        self._model = model
+        return int(probe.shape[-1])
 
-    def embed_images(self, images: Sequence[np.ndarray]) -> np.ndarray:
-        self._load()
-        if len(images) == 0:
-            return np.zeros((0, self.dim), dtype=np.float32)
+    def _encode_images(self, images: list[np.ndarray]) -> np.ndarray:
         import torch
         from PIL import Image
 
-        batch = torch.stack(
-            [self._preprocess(Image.fromarray(check_image(im, i))) for i, im in enumerate(images)]
-        )
+        batch = torch.stack([self._preprocess(Image.fromarray(im)) for im in images])
         with torch.inference_mode():
             feats = self._model.encode_image(batch.to(self.device))
         return l2_normalize(feats.float().cpu().numpy())
 
-    def embed_texts(self, texts: Sequence[str]) -> np.ndarray:
-        if isinstance(texts, str) or not all(isinstance(t, str) for t in texts):
-            raise InputError("embed_texts: expected a list of strings")
-        self._load()
-        if len(texts) == 0:
-            return np.zeros((0, self.dim), dtype=np.float32)
+    def _encode_texts(self, texts: list[str]) -> np.ndarray:
         import torch
 
         with torch.inference_mode():
-            feats = self._model.encode_text(self._tokenizer(list(texts)).to(self.device))
+            feats = self._model.encode_text(self._tokenizer(texts).to(self.device))
         return l2_normalize(feats.float().cpu().numpy())
 
 

@@ -36,6 +36,15 @@ def check_k(k: int) -> int:
     return int(k)
 
 
+def check_point(x: float, y: float, z: float | None, radius: float | None) -> None:
+    """The arguments of `nearest`: finite numbers, and a radius that is not negative."""
+    vals = [x, y] + ([] if z is None else [z]) + ([] if radius is None else [radius])
+    if not all(isinstance(v, (int, float, np.integer, np.floating)) and math.isfinite(v) for v in vals):
+        raise InputError(f"nearest: x, y, z and radius must be finite numbers, got {vals}")
+    if radius is not None and radius < 0:
+        raise InputError(f"radius: must be >= 0, got {radius}")
+
+
 def check_add(records: Sequence[MemoryRecord], embeddings: np.ndarray, dim: int) -> np.ndarray:
     """Validate a batch for `add`; return the embeddings as L2-normalised float32 (N, dim)."""
     emb = np.asarray(embeddings, dtype=np.float32)

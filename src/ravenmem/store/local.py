@@ -33,6 +33,7 @@ from ._common import (
     check_dim,
     check_filter,
     check_k,
+    check_point,
     check_query,
     query_words,
     rank_text,
@@ -343,11 +344,7 @@ class LocalStore:
     ) -> list[tuple[int, float]]:
         """The k spatially nearest (id, metres), nearest first; planar when z is None."""
         k, filt = check_k(k), check_filter(filt)
-        vals = [x, y] + ([] if z is None else [z]) + ([] if radius is None else [radius])
-        if not all(_finite(v) for v in vals):
-            raise InputError(f"nearest: x, y, z and radius must be finite numbers, got {vals}")
-        if radius is not None and radius < 0:
-            raise InputError(f"radius: must be >= 0, got {radius}")
+        check_point(x, y, z, radius)
         with self._lock:
             self._check_open()
             cols = self._columns()

@@ -30,6 +30,7 @@ from ._common import (
     check_dim,
     check_filter,
     check_k,
+    check_point,
     check_query,
     norm_text,
     query_words,
@@ -320,11 +321,7 @@ class MilvusStore:
     ) -> list[tuple[int, float]]:
         """The k nearest (id, metres): query a growing box, exact distances in Python."""
         k, filt = check_k(k), check_filter(filt)
-        vals = [x, y] + ([] if z is None else [z]) + ([] if radius is None else [radius])
-        if not all(isinstance(v, (int, float, np.floating)) and math.isfinite(v) for v in vals):
-            raise InputError(f"nearest: x, y, z and radius must be finite numbers, got {vals}")
-        if radius is not None and radius < 0:
-            raise InputError(f"radius: must be >= 0, got {radius}")
+        check_point(x, y, z, radius)
         with self._lock:
             self._check_open()
             st = self._state

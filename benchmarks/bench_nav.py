@@ -1,7 +1,7 @@
 """Navigation speed: depth integration, A*, Dijkstra field, frontier search, exploration steps/s.
 
     PYTHONPATH=src python benchmarks/bench_nav.py [--vizdoom]
-Prints one line per measurement (median of repeats); numbers go into the README (Explore, remember, navigate: Measured).
+Prints one line per measurement (median of repeats); numbers go into docs/measured.md and docs/navigation.md.
 """
 
 from __future__ import annotations

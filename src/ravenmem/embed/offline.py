@@ -21,7 +21,7 @@ by the same vocabulary. Frames are tiled (`tiles.py`); `pool=fmax` keeps, per cl
 of the full-frame probability and half the best tile probability, so small objects count without
 letting tile-level noise dominate; one vector per frame results.
 `benchmarks/bench_embedders.py` measures the designs on hand-labelled TUM frames; the default is
-the `mix` design with tiles: best overall mAP there within the 8 KB-per-memory budget (README: "The offline design and why").
+the `mix` design with tiles: best overall mAP there within the 8 KB-per-memory budget (docs/embedders.md: "The offline design and why").
 
 Spec: `offline[:TOKEN]...`, tokens `key=value` (design, t, temp, w, a, tiles, pool, res,
 threads) or the canonical tokens of `name`

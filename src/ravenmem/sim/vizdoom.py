@@ -4,7 +4,7 @@ Scale: 1 Doom map unit = 1/32 m (the player is 56 units = 1.75 m tall, 16 units 
 radius, and sees from 41 units = 1.28 m). World frame: Doom's x (east) and y (north) in metres,
 yaw from Doom's ANGLE (0 = east, counter-clockwise). Depth: ViZDoom's 8-bit depth buffer is
 linear in distance along the optical axis; its scale was measured against the map's own wall
-segments (README: ViZDoom conventions) and one level is about 0.23 m. Monsters are off (`-nomonsters`)
+segments (docs/navigation.md: ViZDoom conventions) and one level is about 0.23 m. Monsters are off (`-nomonsters`)
 and the player is invulnerable (`god`), so the robot only explores.
 """
 
@@ -29,7 +29,7 @@ TICRATE = 35.0
 DEPTH_SCALE = 7.15
 DEPTH_OFFSET = 8.5
 # The renderer's vertical focal length is this much longer than the horizontal one (pixels are
-# not square in Doom's projection); fitted on floor pixels of freedoom2 MAP02 (README: ViZDoom conventions).
+# not square in Doom's projection); fitted on floor pixels of freedoom2 MAP02 (docs/navigation.md: ViZDoom conventions).
 PIXEL_ASPECT = 1.15
 SPEED_PER_DELTA = 0.32  # map units per tic of steady speed per unit of MOVE_FORWARD_BACKWARD_DELTA
 STEP_UNITS, HEIGHT_UNITS, RADIUS_UNITS, VIEW_UNITS = 24.0, 56.0, 16.0, 41.0

@@ -158,7 +158,7 @@ def parse_question(
               "binary": tr.yes is not None, "text": tr.text, "duration": tr.duration is not None}[qtype]  # fmt: skip
     if not needed and not tr.none:
         raise InputError(
-            f"{where}: a {qtype} question needs an answer of its kind (see the README, 'Datasets and their exact layouts')"
+            f"{where}: a {qtype} question needs an answer of its kind (see docs/evaluation.md, 'Datasets and their exact layouts')"
         )
     image = None
     if q.get("image"):
@@ -175,7 +175,7 @@ def load(path: str, fmt: str, queries: str | None = None, source_opts: dict[str,
     qfile = Path(queries) if queries else (Path(path) if fmt == "queries" else None)
     if qfile is None:
         raise InputError(
-            f"--dataset {fmt}:{path} needs --queries QUESTIONS.json (see the README, 'Datasets and their exact layouts')"
+            f"--dataset {fmt}:{path} needs --queries QUESTIONS.json (see docs/evaluation.md, 'Datasets and their exact layouts')"
         )
     try:
         doc = json.loads(qfile.read_text(encoding="utf-8"))

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
 import time
 from collections.abc import Callable
@@ -20,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import InputError
+from .fsio import atomic_write_json
 from .nav.explore import ExploreConfig, ExploreReport
 from .nav.mission import explore_into, navigate_to
 from .nav.render import MapLayers, draw_map
@@ -267,9 +267,7 @@ def run_demo(cfg: DemoConfig | None = None, progress: Callable[[str], None] | No
             )
             draw_map(grid, layers, cfg.png)
         report.wall_seconds = time.perf_counter() - t0
-        tmp = out / "demo.json.tmp"
-        tmp.write_text(json.dumps(report.as_dict(), indent=1))
-        os.replace(tmp, out / "demo.json")
+        atomic_write_json(out / "demo.json", report.as_dict(), indent=1)
         mem.close()
         return report
     finally:

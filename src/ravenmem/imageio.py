@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import os
-import uuid
 from pathlib import Path
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from .errors import InputError
+from .fsio import atomic_open
 
 
 def read_image(path: str | os.PathLike[str]) -> np.ndarray:
@@ -33,8 +33,6 @@ def resize_max_side(image: np.ndarray, max_side: int) -> Image.Image:
 
 
 def write_jpeg(path: Path, image: np.ndarray, max_side: int = 0, quality: int = 85) -> None:
-    """Write a JPEG atomically (tmp + rename), shrunk so its longer side is <= max_side."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{uuid.uuid4().hex[:6]}.tmp")
-    resize_max_side(image, max_side).save(tmp, format="JPEG", quality=quality)
-    os.replace(tmp, path)
+    """Write a JPEG crash-safely (`fsio.atomic_open`), shrunk so its longer side is <= max_side."""
+    with atomic_open(path) as f:
+        resize_max_side(image, max_side).save(f, format="JPEG", quality=quality)

@@ -8,7 +8,6 @@ channel, resolves time expressions and hands out `Hit`s; the store does the inde
 
 from __future__ import annotations
 
-import builtins
 import json
 import os
 import threading
@@ -21,7 +20,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .embed.base import Embedder, create_embedder
+from .embed.ocr import OCR_WEIGHT, ocr_terms
 from .errors import EmbedderMismatchError, EmptyMemoryError, InputError
+from .fsio import atomic_write
 from .imageio import read_image, write_jpeg
 from .store.base import Store, open_store
 from .timeparse import TimeContext, parse_time
@@ -32,19 +33,8 @@ if TYPE_CHECKING:
 
 MANIFEST = "memory.json"
 FORMAT_VERSION = 1
-OCR_WEIGHT = 0.35  # fused text score = cosine + OCR_WEIGHT * ocr_score (ocr_score in [0, 1])
 Near = tuple[float, float, float]
 TimeLike = float | int | str | None
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write a file so that a crash leaves either the old or the new content, never half."""
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    with builtins.open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 class Memory:
@@ -148,7 +138,7 @@ class Memory:
             self._save_manifest()
 
     def _save_manifest(self) -> None:
-        atomic_write_text(self.path / MANIFEST, json.dumps(self.manifest, indent=2, sort_keys=True))
+        atomic_write(self.path / MANIFEST, json.dumps(self.manifest, indent=2, sort_keys=True))
 
     # ---------------------------------------------------------------- reading
     @property
@@ -366,78 +356,6 @@ class Memory:
 
     def __repr__(self) -> str:
         return f"Memory({str(self.path)!r}, embedder={self.manifest['embedder']!r}, memories={self.count()})"
-
-
-def ocr_terms(query: str) -> str:
-    """The words of a query worth looking for in OCR text (stopwords and filler dropped)."""
-    words = [w.strip(".,;:!?\"'()[]") for w in query.split()]
-    keep = [w for w in words if len(w) >= 2 and w.lower() not in _STOPWORDS] or words
-    return " ".join(keep)
-
-
-_STOPWORDS = set(
-    [
-        "a",
-        "an",
-        "the",
-        "of",
-        "to",
-        "in",
-        "on",
-        "at",
-        "for",
-        "with",
-        "by",
-        "from",
-        "and",
-        "or",
-        "is",
-        "are",
-        "was",
-        "were",
-        "be",
-        "been",
-        "where",
-        "when",
-        "what",
-        "which",
-        "who",
-        "how",
-        "did",
-        "do",
-        "does",
-        "i",
-        "my",
-        "me",
-        "we",
-        "our",
-        "you",
-        "your",
-        "it",
-        "its",
-        "this",
-        "that",
-        "these",
-        "those",
-        "there",
-        "here",
-        "last",
-        "first",
-        "seen",
-        "see",
-        "saw",
-        "find",
-        "show",
-        "sign",
-        "number",
-        "room",
-        "label",
-        "text",
-        "written",
-        "says",
-        "say",
-    ]
-)
 
 
 def _validate_frame(f: Frame) -> None:

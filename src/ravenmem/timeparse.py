@@ -31,6 +31,16 @@ _PART = re.compile(r"(\d+(?:\.\d+)?)\s*([a-z]+)")
 _CLOCK = re.compile(r"^(\+)?(\d{1,2}):(\d{2})(?::(\d{2}(?:\.\d+)?))?$")
 
 
+def fmt_time(t: float) -> str:
+    """The one way ravenmem writes a time: ISO 8601 in UTC with milliseconds and a `Z`.
+
+    Tables, JSON, the agent's listings and the models' answers all use it, and `parse_time`
+    reads it back exactly (to the millisecond).
+    """
+    dt = datetime.fromtimestamp(t, tz=timezone.utc)
+    return dt.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
 @dataclass(frozen=True)
 class TimeContext:
     """The recording's span, which relative forms are resolved against."""

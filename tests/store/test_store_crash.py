@@ -73,7 +73,7 @@ def test_sigkill_keeps_acknowledged_batches(case: str, tmp_path: Path) -> None:
                 top = store.search_vector(emb[j], 1)
                 assert top[0][0] == first + j and top[0][1] == pytest.approx(1.0, abs=1e-5)
         if case != "milvus":
-            assert not list((tmp_path / "mem").glob("index.faiss.tmp-*")), "stale temporary index file"
+            assert not list((tmp_path / "mem").glob(".index.faiss.*.tmp")), "stale temporary index file"
             if case == "local-ivf":  # killed before or after the IVF was saved: IVF once rebuilt
                 store.wait_for_index()  # type: ignore[attr-defined]
                 assert store.stats()["index"] == "ivf"

@@ -83,7 +83,13 @@ class Method(Protocol):
     def ask(self, question: str, image: np.ndarray | None = None) -> Answer: ...
 
 
-METHODS: Registry[Method] = Registry("method")
+METHODS: Registry[Method] = Registry(
+    "method",
+    "ravenmem.methods",
+    dict.fromkeys(
+        ("raven", "offline", "embedder-only", "random", "vlm-only", "caption"), "ravenmem.agent.methods"
+    ),
+)
 
 
 def image_file(mem: Any, rec: MemoryRecord) -> Path | None:

@@ -15,13 +15,14 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..timeparse import fmt_time
 from ..types import Hit, MemoryRecord
 from .base import MemoryLike, all_records, record_image_url
 from .client import VLMClient
 from .config import VLMConfig
 from .loop import Agent, _Run
 from .parse import evidence_of
-from .questions import classify_question, fmt_time
+from .questions import classify_question
 from .schema import Answer, Cost
 from .tools import Shown, describe
 

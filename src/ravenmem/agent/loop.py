@@ -24,8 +24,8 @@ import numpy as np
 from pydantic import ValidationError
 
 from ..errors import InputError
+from ..fsio import atomic_write
 from ..imageio import read_image
-from ..memory import atomic_write_text
 from .base import MemoryLike
 from .client import ChatReply, ToolsRejectedError, VLMClient, VLMError, image_data_url
 from .config import VLMConfig
@@ -357,7 +357,7 @@ class Agent:
             slug = re.sub(r"[^a-z0-9]+", "-", run.question.lower()).strip("-")[:40]
             path = path / f"trace_{time.strftime('%Y%m%dT%H%M%S')}_{slug}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, json.dumps(trace, indent=2, default=str))
+        atomic_write(path, json.dumps(trace, indent=2, default=str))
 
 
 def _json_tool_calls(obj: Any) -> list[tuple[str, Any]]:

@@ -31,10 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..embed.ocr import OCR_WEIGHT, STOPWORDS
 from ..errors import InputError
+from ..timeparse import fmt_time
 from ..types import MemoryRecord
 from .base import MemoryLike
-from .questions import Order, classify_question, fmt_duration, fmt_time, subject_phrase, temporal_order
+from .questions import Order, classify_question, fmt_duration, subject_phrase, temporal_order
 from .schema import Answer, Cost, Evidence
 
 AFFORDANCES: dict[str, list[str]] = {
@@ -74,10 +76,7 @@ DECOYS = (
 _DEICTIC = re.compile(
     r"^(this|that|it|these|those|this thing|this object|this place|here|there)$", re.IGNORECASE
 )
-_STOP = {"the", "a", "an", "of", "to", "in", "on", "at", "for", "with", "by", "and", "or", "my", "our", "your",
-         "this", "that", "is", "are", "was", "were", "some", "any"}  # fmt: skip
 CALIBRATION_FILE = "offline_calibration.json"
-OCR_BONUS = 0.35  # same scale as the memory's own OCR fusion: a full word match adds this to a cosine
 
 
 @dataclass
@@ -109,7 +108,7 @@ def rewrite(question: str, subject: str) -> list[list[str]]:
     low = question.lower()
     if subject and not _DEICTIC.match(subject):
         groups.append(_paraphrases(subject))
-        words = [w for w in re.findall(r"[a-z0-9]+", subject.lower()) if w not in _STOP]
+        words = [w for w in re.findall(r"[a-z0-9]+", subject.lower()) if w not in STOPWORDS]
         head = words[-1] if words else ""
         if len(words) > 1 and head:
             groups.append(_paraphrases(head))
@@ -187,16 +186,16 @@ class OfflineReasoner:
         return cands
 
     def _add_ocr(self, cands: dict[int, Cand], subject: str, k: int) -> None:
-        words = [w for w in re.findall(r"[a-z0-9]+", subject.lower()) if w not in _STOP and len(w) >= 2]
+        words = [w for w in re.findall(r"[a-z0-9]+", subject.lower()) if w not in STOPWORDS and len(w) >= 2]
         if not words:
             return
         if getattr(self.memory, "ocr_enabled", False):  # OCR-only matches the vectors missed
             for h in self.memory.search_text(" ".join(words), k=min(k, 20)):
                 if h.ocr_match and h.memory.id not in cands:
-                    cands[h.memory.id] = Cand(h.memory, float(h.score or 0.0) - OCR_BONUS)
+                    cands[h.memory.id] = Cand(h.memory, float(h.score or 0.0) - OCR_WEIGHT)
         for c in cands.values():
             c.ocr = ocr_overlap(words, c.rec.ocr_text)
-            c.score += OCR_BONUS * c.ocr
+            c.score += OCR_WEIGHT * c.ocr
 
     def _window(self) -> float:
         if self.s.window_s is not None:
@@ -264,10 +263,10 @@ class OfflineReasoner:
             self._support(cands)
             out[name] = max((c.support for c in cands.values()), default=0.0)
         try:
-            from ..memory import atomic_write_text
+            from ..fsio import atomic_write
 
             text = json.dumps({"key": self._calibration_key(), "decoys": out}, indent=1)
-            atomic_write_text(Path(self.memory.path) / CALIBRATION_FILE, text)
+            atomic_write(Path(self.memory.path) / CALIBRATION_FILE, text)
         except OSError:  # a read-only memory still answers; it just calibrates again next time
             pass
         return out

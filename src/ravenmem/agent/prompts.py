@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from .questions import fmt_duration, fmt_time
+from ..timeparse import fmt_time
+from .questions import fmt_duration
 
 ANSWER_FORMAT = """When you answer, reply with ONLY this JSON object (no other text):
 {"question_type": "position" | "time" | "binary" | "text" | "duration",

@@ -7,7 +7,6 @@ and the offline reasoner builds its whole answer from it.
 from __future__ import annotations
 
 import re
-from datetime import datetime, timezone
 from typing import Literal
 
 from .schema import QuestionType
@@ -83,12 +82,6 @@ def subject_phrase(question: str) -> str:
     s = _ARTICLE.sub("", s)
     s = s.strip(" ?.!,")
     return s or question.strip(" ?.!")
-
-
-def fmt_time(t: float) -> str:
-    """ISO 8601 in UTC with 0.01 s, the one time format the models see and write back."""
-    dt = datetime.fromtimestamp(t, tz=timezone.utc)
-    return dt.strftime("%Y-%m-%dT%H:%M:%S.") + f"{dt.microsecond // 10000:02d}Z"
 
 
 def fmt_duration(seconds: float) -> str:

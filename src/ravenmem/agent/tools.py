@@ -18,9 +18,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from ..errors import InputError, RavenmemError
+from ..timeparse import fmt_time
 from ..types import Hit, MemoryRecord
 from .base import MemoryLike, record_image_url
-from .questions import fmt_time
 
 TimeArg = float | str | None
 

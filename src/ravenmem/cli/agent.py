@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import math
 import sys
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -14,6 +13,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ..timeparse import fmt_time
 from ._console import out_console
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
@@ -29,10 +29,6 @@ ConfigOpt = Annotated[
 ]
 TimeoutOpt = Annotated[float | None, typer.Option("--timeout", help="seconds per VLM request")]
 RetriesOpt = Annotated[int | None, typer.Option("--max-retries", help="retries on 429/5xx/timeouts")]
-
-
-def _fmt_time(t: float) -> str:
-    return datetime.fromtimestamp(t, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
 def ask(
@@ -110,7 +106,7 @@ def _render(a: dict[str, Any], note: str) -> None:
         yaw = f"{math.degrees(a['yaw']):.0f} deg" if a.get("yaw") is not None else "-"
         con.print(f"[bold]x y z yaw:[/] {x:.2f} {y:.2f} {z:.2f} {yaw}   ({a['position_source']})")
     if a.get("time") is not None:
-        con.print(f"[bold]time seen:[/] {_fmt_time(a['time'])}")
+        con.print(f"[bold]time seen:[/] {fmt_time(a['time'])}")
     if a.get("duration") is not None:
         con.print(f"[bold]duration:[/] {a['duration']:.1f} s")
     if a.get("yes") is not None:
@@ -123,7 +119,7 @@ def _render(a: dict[str, Any], note: str) -> None:
             table.add_column(col, justify="left" if col in ("time (UTC)", "image") else "right")
         for e in a["evidence"]:
             score = "" if e.get("score") is None else f"{e['score']:.3f}"
-            table.add_row(str(e["id"]), _fmt_time(e["t"]), f"{e['x']:.2f}", f"{e['y']:.2f}", f"{e['z']:.2f}",
+            table.add_row(str(e["id"]), fmt_time(e["t"]), f"{e['x']:.2f}", f"{e['y']:.2f}", f"{e['z']:.2f}",
                           f"{math.degrees(e['yaw']):.0f}", score, str(e.get("image_file") or ""))  # fmt: skip
         con.print(table)
     c = a["cost"]

@@ -10,7 +10,6 @@ import importlib
 import json
 import os
 import sys
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -19,6 +18,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ..errors import InputError, RavenmemError
+from ..timeparse import fmt_time
 from ..types import Hit
 from ._console import out_console
 
@@ -34,10 +34,6 @@ app = typer.Typer(
 console = out_console()
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
-
-
-def fmt_time(t: float) -> str:
-    return datetime.fromtimestamp(t, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
 def hit_dict(h: Hit, rank: int, mem: Any) -> dict[str, Any]:

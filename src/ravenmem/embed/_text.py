@@ -11,13 +11,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..fsio import atomic_open
 from .base import l2_normalize
 
 TEXT_MODEL_ID = "minilm"
@@ -111,16 +111,8 @@ def load_label_bank(text: MiniLM, names: Sequence[str], templates: Sequence[str]
 
 def _save_atomic(path: Path, arr: np.ndarray) -> None:
     """Write via a temporary file and rename, so a crash never leaves a half-written cache."""
-    tmp: str | None = None
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npy.tmp")
-        with os.fdopen(fd, "wb") as f:
+        with atomic_open(path) as f:
             np.save(f, arr)
-        os.replace(tmp, path)
-        tmp = None
     except OSError:
         pass  # a read-only home is fine: the bank is recomputed next time
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)

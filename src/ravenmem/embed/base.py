@@ -33,7 +33,11 @@ class Embedder(Protocol):
         ...
 
 
-EMBEDDERS: Registry[Embedder] = Registry("embedder")
+EMBEDDERS: Registry[Embedder] = Registry(
+    "embedder",
+    "ravenmem.embedders",
+    {"offline": "ravenmem.embed.offline", "open_clip": "ravenmem.embed.open_clip", "hf": "ravenmem.embed.hf"},
+)
 
 
 def l2_normalize(x: np.ndarray) -> np.ndarray:
@@ -44,7 +48,4 @@ def l2_normalize(x: np.ndarray) -> np.ndarray:
 
 def create_embedder(spec: str = "offline", **kwargs: object) -> Embedder:
     """Create an embedder by spec: `offline`, `open_clip:MODEL/PRETRAINED`, `hf:NAME_OR_PATH`, ..."""
-    from . import _load_backends
-
-    _load_backends()
     return EMBEDDERS.create(spec, **kwargs)

@@ -16,6 +16,90 @@ import numpy as np
 
 from ..errors import InputError
 
+OCR_WEIGHT = 0.35
+"""Fused text score = cosine + OCR_WEIGHT * ocr_score (ocr_score in [0, 1]): a full match of the
+words a frame shows outweighs the cosine gap between a right and a wrong frame."""
+
+STOPWORDS = frozenset(
+    [
+        "the",
+        "a",
+        "an",
+        "of",
+        "to",
+        "in",
+        "on",
+        "at",
+        "for",
+        "with",
+        "by",
+        "and",
+        "or",
+        "my",
+        "our",
+        "your",
+        "this",
+        "that",
+        "is",
+        "are",
+        "was",
+        "were",
+        "some",
+        "any",
+    ]
+)
+"""Function words that never have to be read in a frame."""
+
+QUERY_FILLER = frozenset(
+    [
+        "from",
+        "be",
+        "been",
+        "where",
+        "when",
+        "what",
+        "which",
+        "who",
+        "how",
+        "did",
+        "do",
+        "does",
+        "i",
+        "me",
+        "we",
+        "you",
+        "it",
+        "its",
+        "these",
+        "those",
+        "there",
+        "here",
+        "last",
+        "first",
+        "seen",
+        "see",
+        "saw",
+        "find",
+        "show",
+        "sign",
+        "number",
+        "room",
+        "label",
+        "text",
+        "written",
+        "says",
+        "say",
+    ]
+)
+"""Words of a question about text that are not the text itself ("the sign that says EXIT")."""
+
+
+def ocr_terms(query: str) -> str:
+    """The words of a query worth looking for in OCR text (stopwords and filler dropped)."""
+    words = [w.strip(".,;:!?\"'()[]") for w in query.split()]
+    keep = [w for w in words if len(w) >= 2 and w.lower() not in STOPWORDS | QUERY_FILLER] or words
+    return " ".join(keep)
+
 
 @dataclass(frozen=True)
 class OcrWord:

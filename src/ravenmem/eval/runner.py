@@ -33,6 +33,7 @@ from tqdm import tqdm
 
 from ..agent.schema import Answer
 from ..errors import InputError
+from ..fsio import atomic_open, atomic_write, atomic_write_json
 from ..imageio import read_image
 from ..ingest.keyframes import KeyframeConfig, parse_keyframes
 from .cache import CachingEmbedder, build_memory
@@ -127,10 +128,7 @@ class AnswerLog:
         if path.exists():
             data = path.read_bytes()
             if data and not data.endswith(b"\n"):
-                keep = data[: data.rfind(b"\n") + 1]
-                tmp = path.with_name(path.name + ".tmp")
-                tmp.write_bytes(keep)
-                os.replace(tmp, path)
+                atomic_write(path, data[: data.rfind(b"\n") + 1])
 
     def rows(self) -> list[dict[str, Any]]:
         """All rows, the last one per key winning (a retried question replaces its failure)."""
@@ -234,9 +232,7 @@ class Runner:
         else:
             methods, seeds = self.cfg.methods, self.cfg.seeds
         doc = asdict(self.cfg) | {"methods": methods, "seeds": seeds, "updated": _now()}
-        tmp = cfg_path.with_name(".config.json.tmp")
-        tmp.write_text(json.dumps(doc, indent=2, default=str), encoding="utf-8")
-        os.replace(tmp, cfg_path)
+        atomic_write_json(cfg_path, doc, indent=2, default=str)
         return log
 
     def _make_embedder(self) -> CachingEmbedder:
@@ -303,9 +299,7 @@ class Runner:
         rows = log.rows()
         summary = summarize(rows, self.thresholds)
         summary["run_dir"] = str(self.dir)
-        tmp = self.dir / ".summary.json.tmp"
-        tmp.write_text(json.dumps(summary, indent=2, default=_json_default), encoding="utf-8")
-        os.replace(tmp, self.dir / "summary.json")
+        atomic_write_json(self.dir / "summary.json", summary, indent=2, default=_json_default)
         return summary
 
     def _run_episode(self, ep: Episode, items: list[tuple[Question, str, int]], emb: CachingEmbedder,
@@ -437,13 +431,9 @@ def rejudge(run_dir: str | Path, judge: Any, thresholds: Thresholds | None = Non
         )
         r["score"] = score_row(r, thr)
         n += 1
-    tmp = path.with_name(".answers.jsonl.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w") as f:
         for r in rows:
             f.write(json.dumps(r, default=_json_default) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
     summary = summarize(rows, thr) | {"run_dir": str(root)}
-    (root / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default), encoding="utf-8")
+    atomic_write_json(root / "summary.json", summary, indent=2, default=_json_default)
     return n

@@ -15,7 +15,6 @@ embedding.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from dataclasses import asdict, fields, replace
@@ -23,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..fsio import atomic_write_json
 from ..ingest.keyframes import KeyframeConfig, parse_keyframes
 from .datasets import load_dataset
 from .datasets.frames import Subsampled
@@ -47,9 +47,7 @@ def _memory_totals(run_dir: Path) -> tuple[int, int]:
 
 def _write(out: Path, doc: dict[str, Any]) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / ".study.json.tmp"
-    tmp.write_text(json.dumps(doc, indent=2, default=str), encoding="utf-8")
-    tmp.replace(out / "study.json")
+    atomic_write_json(out / "study.json", doc, indent=2, default=str)
 
 
 def compression_study(

@@ -13,14 +13,3 @@ def open_source(path: str, format: str | None = None, **kwargs: object) -> Frame
     from .sources import open_source as _open
 
     return _open(path, format, **kwargs)
-
-
-def _load_backends() -> None:
-    import importlib
-
-    for mod in ("video", "tum", "folder", "rosbag"):
-        try:
-            importlib.import_module(f"{__name__}.{mod}")
-        except ModuleNotFoundError as e:
-            if e.name != f"{__name__}.{mod}":
-                raise

@@ -36,4 +36,8 @@ class FrameSource(Protocol):
     def __iter__(self) -> Iterator[Frame]: ...
 
 
-SOURCES: Registry[FrameSource] = Registry("source format")
+SOURCES: Registry[FrameSource] = Registry(
+    "source format",
+    "ravenmem.sources",
+    {fmt: f"ravenmem.ingest.{fmt}" for fmt in ("video", "tum", "folder", "rosbag")},
+)

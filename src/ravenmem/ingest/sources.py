@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from . import folder, rosbag, tum, video  # noqa: F401  (registers the backends)
+from . import video
 from ._util import IMAGE_EXTS
 from .base import SOURCES, FrameSource
 

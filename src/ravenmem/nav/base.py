@@ -76,11 +76,9 @@ class Planner(Protocol):
         ...
 
 
-PLANNERS: Registry[Planner] = Registry("planner")
+PLANNERS: Registry[Planner] = Registry("planner", "ravenmem.planners", {"astar": "ravenmem.nav.astar"})
 
 
 def create_planner(spec: str = "astar") -> Planner:
     """Create a planner by name (`astar` is built in)."""
-    from . import astar  # noqa: F401  (registers the built-in planner)
-
     return PLANNERS.create(spec)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import InputError
+from ..fsio import atomic_open, atomic_write_json
 from ..types import Pose
 from .base import Cell, Intrinsics
 
@@ -396,12 +396,10 @@ class OccupancyGrid:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         npz = folder / "map.npz"
-        tmp = folder / "map.npz.tmp"
-        with open(tmp, "wb") as f:
+        with atomic_open(npz) as f:
             np.savez_compressed(
                 f, logodds=self.logodds, known=self.known, explored=self.explored, elevation=self.elevation
             )
-        os.replace(tmp, npz)
         meta = {
             "version": FORMAT_VERSION,
             "resolution": self.resolution,
@@ -410,9 +408,7 @@ class OccupancyGrid:
             "frame": "world x east, y north, metres; row = y, col = x",
             "config": asdict(self.config),
         }
-        tmpj = folder / "map.json.tmp"
-        tmpj.write_text(json.dumps(meta, indent=2))
-        os.replace(tmpj, folder / "map.json")
+        atomic_write_json(folder / "map.json", meta, indent=2)
         return npz
 
     @classmethod

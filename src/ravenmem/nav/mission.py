@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..fsio import atomic_write_json
 from ..sim.base import Environment, Observation
 from ..sim.control import ControlConfig, follow_waypoints
 from .base import PlanResult
@@ -51,9 +51,7 @@ def explore_into(
     folder = Path(mem.path)
     explorer.grid.save(folder)
     meta = {"env": env.name, "robot": env.robot.__dict__, "config": cfg.__dict__, "report": report.as_dict()}
-    tmp = folder / (EXPLORE_FILE + ".tmp")
-    tmp.write_text(json.dumps(meta))
-    os.replace(tmp, folder / EXPLORE_FILE)
+    atomic_write_json(folder / EXPLORE_FILE, meta)
     return explorer.grid, report
 
 

@@ -96,11 +96,13 @@ class Environment(Protocol):
     def close(self) -> None: ...
 
 
-ENVIRONMENTS: Registry[Environment] = Registry("environment")
+ENVIRONMENTS: Registry[Environment] = Registry(
+    "environment",
+    "ravenmem.environments",
+    {"vizdoom": "ravenmem.sim.vizdoom", "synthetic": "ravenmem.sim.synthetic"},
+)
 
 
 def create_env(spec: str = "vizdoom:freedoom2/MAP01", **kwargs: object) -> Environment:
     """Create an environment by spec, e.g. `vizdoom:freedoom2/MAP01` or `synthetic:rooms`."""
-    from . import synthetic, vizdoom  # noqa: F401  (register the built-in backends)
-
     return ENVIRONMENTS.create(spec, **kwargs)

@@ -16,7 +16,6 @@ old or the new index, never a torn one; the CRC catches a corrupted file.
 from __future__ import annotations
 
 import math
-import os
 import struct
 import zlib
 from collections.abc import Iterator
@@ -26,6 +25,8 @@ from typing import Any
 
 import faiss as _faiss
 import numpy as np
+
+from ..fsio import atomic_open
 
 faiss: Any = _faiss  # the SWIG stubs miss the keyword constructors and callback IO used here
 
@@ -177,9 +178,8 @@ class VectorIndex:
     # --- file ----------------------------------------------------------------------------------
     def save(self, path: Path, max_id: int, uid: bytes) -> None:
         """Atomically replace `path` with this index, recording that it covers ids <= max_id."""
-        tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")
         crc = 0
-        with open(tmp, "wb") as f:
+        with atomic_open(path, "w+b") as f:
             f.write(b"\0" * _HEADER.size)
 
             def write(chunk: bytes) -> int:
@@ -193,10 +193,6 @@ class VectorIndex:
             del writer
             f.seek(0)
             f.write(_HEADER.pack(_MAGIC, 1, self.dim, max_id, self.ntotal, self.trained_n, crc, uid))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-        fsync_dir(path.parent)
 
     @classmethod
     def load(cls, path: Path, dim: int, uid: bytes) -> tuple[VectorIndex, int]:
@@ -242,15 +238,3 @@ def _one_thread() -> Iterator[None]:
         yield
     finally:
         faiss.omp_set_num_threads(threads)
-
-
-def fsync_dir(folder: Path) -> None:
-    """Make a rename durable (POSIX); a no-op where directories cannot be opened."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

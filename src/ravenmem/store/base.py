@@ -70,7 +70,9 @@ class Store(Protocol):
     def close(self) -> None: ...
 
 
-STORES: Registry[Store] = Registry("store")
+STORES: Registry[Store] = Registry(
+    "store", "ravenmem.stores", {"local": "ravenmem.store.local", "milvus": "ravenmem.store.milvus"}
+)
 
 
 def open_store(uri: str, dim: int, **kwargs: object) -> Store:
@@ -79,9 +81,6 @@ def open_store(uri: str, dim: int, **kwargs: object) -> Store:
     - a plain folder path (or `local:PATH`): the embedded FAISS + SQLite store in that folder;
     - `milvus:///path/file.db`: Milvus Lite; `milvus://host:19530`: a Milvus server.
     """
-    from . import _load_backends
-
-    _load_backends()
     if uri.startswith("milvus://"):
         return STORES.create("milvus:" + uri[len("milvus://") :], dim=dim, **kwargs)
     if uri.startswith("local:"):

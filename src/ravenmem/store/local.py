@@ -101,7 +101,7 @@ class LocalStore:
         self._worker: threading.Thread | None = None
         self._cancel = threading.Event()
         self._retry_at = 0
-        for stale in folder.glob("index.faiss.tmp-*"):
+        for stale in folder.glob(".index.faiss.*.tmp"):
             stale.unlink(missing_ok=True)
         self._vi, self._saved_max = self._open_index()
         self._maintain()

@@ -16,7 +16,7 @@ from ...registry import Registry
 from ..types import Episode
 from . import findingdory, generic, navqa, ravenqa
 
-DATASETS: Registry[list[Episode]] = Registry("dataset")
+DATASETS: Registry[list[Episode]] = Registry("dataset", "ravenmem.datasets")
 DATASETS.register("raven-qa")(ravenqa.load)
 DATASETS.register("ravenqa")(ravenqa.load)
 DATASETS.register("navqa")(navqa.load)

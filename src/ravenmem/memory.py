@@ -238,17 +238,36 @@ class Memory:
 
     def search_image(
         self,
-        image: np.ndarray | str | os.PathLike[str],
+        image: np.ndarray | str | os.PathLike[str] | None = None,
         k: int = 5,
         after: TimeLike = None,
         before: TimeLike = None,
         near: Near | None = None,
+        memory_id: int | None = None,
     ) -> list[Hit]:
-        """Memories that look like a query image (cosine), best first."""
+        """Memories that look like a query image (cosine), best first.
+
+        The query is a picture (an array or an image file) or, with `memory_id`, a stored memory:
+        "more views like memory 12", which is how an agent follows up on a promising frame. The
+        memory itself is left out of its own results.
+        """
         self._require_nonempty()
+        if (image is None) == (memory_id is None):
+            raise InputError("search_image needs either an image or a memory_id, not both")
+        filt = self.make_filter(after, before, near)
+        if memory_id is not None:
+            try:
+                (rec,) = self.store.get([int(memory_id)], with_embeddings=True)
+            except KeyError:
+                raise InputError(f"memory_id {memory_id}: no such memory") from None
+            emb = rec.embedding
+            assert emb is not None
+            scored = self.store.search_vector(emb, k + 1, filt)
+            return self._hits([(i, s) for i, s in scored if i != rec.id][:k])
+        assert image is not None
         img = read_image(Path(image)) if isinstance(image, (str, os.PathLike)) else image
         q = self.embedder.embed_images([img])[0]
-        return self._hits(self.store.search_vector(q, k, self.make_filter(after, before, near)))
+        return self._hits(self.store.search_vector(q, k, filt))
 
     def search_time(
         self,
@@ -257,11 +276,44 @@ class Memory:
         after: TimeLike = None,
         before: TimeLike = None,
         near: Near | None = None,
+        centred: bool = False,
     ) -> list[Hit]:
-        """The k memories from time t onwards, in forward chronological order (not centred)."""
+        """The k memories from time t onwards, in forward chronological order.
+
+        The paper's time tool looks forward from t; `centred=True` returns the k memories around
+        t instead (half before, half from t on), still in chronological order.
+        """
         self._require_nonempty()
-        recs = self.store.by_time(self.parse_time(t), k, self.make_filter(after, before, near))
-        return [Hit(memory=r) for r in recs]
+        t0 = self.parse_time(t)
+        filt = self.make_filter(after, before, near)
+        if not centred:
+            return [Hit(memory=r) for r in self.store.by_time(t0, k, filt)]
+        later = self.store.by_time(t0, k, filt)
+        earlier = self._before(t0, k, filt)
+        n_before = min(len(earlier), max(k // 2, k - len(later)))
+        picked = earlier[len(earlier) - n_before :] + later[: k - n_before]
+        return [Hit(memory=r) for r in picked]
+
+    def _before(self, t: float, k: int, filt: Filter) -> list[MemoryRecord]:
+        """Up to k memories strictly before t, chronological. The store only looks forward, so
+        this searches for a window [t - w, t) that holds at least k memories but fewer than the
+        page it reads (bisection on w), reading at most 4k rows per step."""
+        if k <= 0:
+            return []
+        start, _ = self.time_span()
+        page = 4 * k
+        w_lo, w_hi, w = 0.0, float("inf"), max((t - start) / max(self.count(), 1) * k, 1e-3)
+        before: list[MemoryRecord] = []
+        for _ in range(64):
+            recs = self.store.by_time(max(start, t - w), page, filt)
+            before = [r for r in recs if r.t < t]
+            if len(recs) == page and len(before) == page:  # the page ended before t: too wide
+                w_hi, w = w, (w_lo + w) / 2
+            elif len(before) >= k or t - w <= start:
+                break
+            else:
+                w_lo, w = w, (w * 4 if w_hi == float("inf") else (w + w_hi) / 2)
+        return before[-k:]
 
     def search_position(
         self,

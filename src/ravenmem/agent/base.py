@@ -36,11 +36,12 @@ class MemoryLike(Protocol):
 
     def search_image(
         self,
-        image: np.ndarray | str | os.PathLike[str],
+        image: np.ndarray | str | os.PathLike[str] | None = None,
         k: int = 5,
         after: TimeLike = None,
         before: TimeLike = None,
         near: Near | None = None,
+        memory_id: int | None = None,
     ) -> list[Hit]: ...
 
     def search_time(
@@ -50,6 +51,7 @@ class MemoryLike(Protocol):
         after: TimeLike = None,
         before: TimeLike = None,
         near: Near | None = None,
+        centred: bool = False,
     ) -> list[Hit]: ...
 
     def search_position(

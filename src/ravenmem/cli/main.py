@@ -19,7 +19,6 @@ from rich.table import Table
 
 from ..errors import InputError, RavenmemError
 from ..timeparse import fmt_time
-from ..types import Hit
 from ._console import out_console
 
 os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # model-loading bars are noise in a CLI
@@ -34,19 +33,6 @@ app = typer.Typer(
 console = out_console()
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
-
-
-def hit_dict(h: Hit, rank: int, mem: Any) -> dict[str, Any]:
-    """A hit as plain data: what --json prints and what the agent shows a model."""
-    r = h.memory
-    img = mem.image_file(r)
-    t0 = mem.time_span()[0]
-    return {
-        "rank": rank, "id": r.id, "score": h.score, "distance": h.distance, "t": r.t, "time": fmt_time(r.t),
-        "offset_s": round(r.t - t0, 3), "x": r.pose.x, "y": r.pose.y, "z": r.pose.z, "yaw": r.pose.yaw,
-        "image": str(img) if img else r.image_path, "source": r.source, "frame_index": r.frame_index,
-        "ocr_text": r.ocr_text, "ocr_match": h.ocr_match,
-    }  # fmt: skip
 
 
 def short_path(p: str | None) -> str:
@@ -166,6 +152,7 @@ def search(
     memory: MemoryOpt,
     text: Annotated[str | None, typer.Argument(help="text query")] = None,
     image: Annotated[Path | None, typer.Option(help="query image file")] = None,
+    like: Annotated[int | None, typer.Option("--like", help="memory id: more views like this memory")] = None,
     time: Annotated[str | None, typer.Option("--time", help="K memories forward from this time")] = None,
     position: Annotated[str | None, typer.Option(help="x,y or x,y,z: spatially nearest memories")] = None,
     k: Annotated[int, typer.Option("-k", "--k", help="how many results")] = 5,
@@ -175,45 +162,56 @@ def search(
     radius: Annotated[float | None, typer.Option(help="with --position: max distance (m)")] = None,
     json_out: JsonOpt = False,
 ) -> None:
-    """Search a memory with one of the four tools: text, --image, --time or --position."""
+    """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
     import ravenmem
+    from ravenmem.imageio import read_image
+    from ravenmem.tools import check_k, get_tool, hit_json
 
-    modes = [
-        m
-        for m, v in (("text", text), ("image", image), ("time", time), ("position", position))
-        if v is not None
-    ]
-    if len(modes) != 1:
-        raise InputError("give exactly one of: a text query, --image, --time or --position")
-    if k < 1:
-        raise InputError(f"-k must be >= 1, got {k}")
-    region = tuple(parse_floats(near, (3,), "--near")) if near else None
-    with ravenmem.open(memory) as mem:
-        q = mem.query().limit(k).after(after).before(before)
-        if region:
-            q = q.near(*region)
-        if text is not None:
-            q = q.text(text)
-        elif image is not None:
-            q = q.image(str(image))
-        elif time is not None:
-            q = q.time(time)
+    given = {"text": text, "image": image if image is not None else like, "time": time, "position": position}
+    modes = [m for m, v in given.items() if v is not None]
+    if len(modes) != 1 or (image is not None and like is not None):
+        raise InputError("give exactly one of: a text query, --image, --like, --time or --position")
+    mode, k = modes[0], check_k(k)
+    args: dict[str, Any] = {"after": after, "before": before}
+    if near and mode != "position":
+        args["near"] = parse_floats(near, (3,), "--near")
+    elif near:
+        raise InputError("--near does not apply to --position; use --radius")
+    if radius is not None and mode != "position":
+        raise InputError("--radius applies to --position only; use --near x,y,r with the other tools")
+    query_image = None
+    if mode == "text":
+        args["query"] = text
+    elif mode == "image":
+        if like is not None:
+            args["memory_id"] = like
         else:
-            xyz = parse_floats(position or "", (2, 3), "--position")
-            q = q.position(xyz[0], xyz[1], xyz[2] if len(xyz) == 3 else None)
-            if radius is not None:
-                q = q.near(xyz[0], xyz[1], radius)
-        hits = q.run()
-        rows = [hit_dict(h, i + 1, mem) for i, h in enumerate(hits)]
+            query_image = read_image(str(image))
+    elif mode == "time":
+        args["time"] = time
+    else:
+        xyz = parse_floats(position or "", (2, 3), "--position")
+        args.update(x=xyz[0], y=xyz[1], z=xyz[2] if len(xyz) == 3 else None, radius=radius)
+    tool = get_tool(mode)
+    call = tool.validate(args)
+    with ravenmem.open(memory) as mem:
+        hits = tool.run(mem, call, k, image=query_image)
+        t0 = mem.time_span()[0]
+
+        def image_file(rec: Any) -> str | None:
+            p = mem.image_file(rec)
+            return str(p) if p else rec.image_path
+
+        rows = [hit_json(h, i + 1, t0, image_file) for i, h in enumerate(hits)]
     if json_out:
-        print_json({"mode": modes[0], "results": rows})
+        print_json({"mode": mode, "tool": tool.name, "results": rows})
         return
-    table = Table(title=f"{modes[0]} search: {len(rows)} result(s)")
-    metric = "dist m" if modes[0] == "position" else "score"
-    for col in ("rank", metric, "time (UTC)", "+s", "x", "y", "z", "yaw", "image"):
+    table = Table(title=f"{mode} search: {len(rows)} result(s), {tool.order}")
+    metric = "dist m" if tool.metric == "distance" else "score"
+    for col in ("rank", metric, "time (UTC)", "+s", "x m", "y m", "z m", "yaw deg", "image"):
         table.add_column(col, justify="right" if col not in ("time (UTC)", "image") else "left")
     for r in rows:
-        val = r["distance"] if modes[0] == "position" else r["score"]
+        val = r["distance"] if tool.metric == "distance" else r["score"]
         table.add_row(
             str(r["rank"]),
             "" if val is None else f"{val:.3f}",
@@ -222,7 +220,7 @@ def search(
             f"{r['x']:.2f}",
             f"{r['y']:.2f}",
             f"{r['z']:.2f}",
-            f"{r['yaw']:.2f}",
+            f"{r['yaw_deg']:.0f}",
             short_path(r["image"]),
         )
     console.print(table)

@@ -1,0 +1,329 @@
+"""The four retrieval tools, described once.
+
+Every front end reaches the memory through this table: the agent's function-calling schemas,
+the `ravenmem search` command, the HTTP routes and the MCP tools are all generated from it, so a
+tool's name, its arguments (one pydantic model, one description per argument), the `Memory`
+method it calls and the order of its results are written in one place only.
+
+    from ravenmem.tools import TOOLS
+    tool = TOOLS["search_text"]
+    args = tool.validate({"query": "a red mug", "after": "10 minutes ago"})
+    hits = tool.run(mem, args, k=5)
+
+`k` is not an argument of the models: the agent's k is a setting of the run (the paper fixes it
+per dataset), while the CLI, HTTP and MCP take it from the caller and check it with `check_k`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from .errors import InputError
+from .timeparse import fmt_time
+from .types import Hit, MemoryRecord
+
+if TYPE_CHECKING:
+    from .agent.base import MemoryLike
+
+MAX_K = 1000  # results per call: beyond this a caller wants an export, not a search
+TimeArg = float | str
+Order = Literal["best first", "chronological", "nearest first"]
+TimeMode = Literal["forward", "centred"]
+
+_TIME_DOC = (
+    "a time: ISO 8601 as shown in results (UTC), HH:MM:SS, seconds from the start of the "
+    "recording ('+12s'), or a phrase such as '10 minutes ago'"
+)
+
+
+class ToolArgs(BaseModel):
+    """Filters every tool takes: a time window."""
+
+    model_config = ConfigDict(extra="forbid")
+    after: TimeArg | None = Field(None, description=f"only memories at or after this time ({_TIME_DOC})")
+    before: TimeArg | None = Field(None, description="only memories at or before this time")
+
+    @field_validator("after", "before", mode="before")
+    @classmethod
+    def _time(cls, v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError("time must be finite")
+        return v
+
+
+class _Near(ToolArgs):
+    near: list[float] | None = Field(
+        None, description="[x, y, radius] in metres: only memories taken inside this disc of the map"
+    )
+
+    @field_validator("near")
+    @classmethod
+    def _disc(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and (len(v) != 3 or not all(math.isfinite(c) for c in v) or v[2] <= 0):
+            raise ValueError("near must be [x, y, radius] with finite numbers and radius > 0")
+        return v
+
+    def disc(self) -> tuple[float, float, float] | None:
+        return (self.near[0], self.near[1], self.near[2]) if self.near else None
+
+
+class TextArgs(_Near):
+    query: str = Field(
+        ...,
+        min_length=1,
+        max_length=1000,
+        description="what to look for, e.g. 'a red backpack', or words written on a sign",
+    )
+
+    @field_validator("query")
+    @classmethod
+    def _words(cls, v: str) -> str:
+        if not v.strip():
+            raise ValueError("the query is blank")
+        return v
+
+
+class ImageArgs(_Near):
+    memory_id: int | None = Field(
+        None,
+        ge=0,
+        description="search with the image of this memory ('more views like memory 12'); "
+        "leave out to search with the image attached to the question",
+    )
+
+
+class TimeArgs(ToolArgs):
+    time: TimeArg = Field(..., description=f"where to start: {_TIME_DOC}")
+
+    @field_validator("time", mode="before")
+    @classmethod
+    def _finite(cls, v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError("time must be finite")
+        return v
+
+
+class PositionArgs(ToolArgs):
+    x: float = Field(..., allow_inf_nan=False, description="map x in metres")
+    y: float = Field(..., allow_inf_nan=False, description="map y in metres")
+    z: float | None = Field(
+        None, allow_inf_nan=False, description="height in metres; planar distance when left out"
+    )
+    radius: float | None = Field(
+        None, gt=0, allow_inf_nan=False, description="only memories within this many metres"
+    )
+
+
+Runner = Callable[..., list[Hit]]
+
+
+@dataclass(frozen=True)
+class Tool:
+    """One retrieval tool: its name, what it is for, its arguments and how it runs."""
+
+    name: str
+    key: str
+    summary: str
+    args: type[ToolArgs]
+    order: Order
+    metric: Literal["score", "distance"] | None
+    _run: Callable[..., list[Hit]]
+
+    def validate(self, raw: Mapping[str, Any] | ToolArgs) -> ToolArgs:
+        """Arguments as a checked model; a one-line `InputError` naming the field otherwise."""
+        if isinstance(raw, self.args):
+            return raw
+        try:
+            return self.args.model_validate(dict(raw))
+        except ValidationError as e:
+            err = e.errors()[0]
+            where = ".".join(str(p) for p in err["loc"]) or "arguments"
+            raise InputError(f"{self.name}: {where}: {err['msg']}") from None
+        except (TypeError, ValueError) as e:
+            raise InputError(f"{self.name}: arguments must be an object ({e})") from None
+
+    def run(
+        self,
+        mem: MemoryLike,
+        args: ToolArgs | Mapping[str, Any],
+        k: int,
+        *,
+        image: np.ndarray | None = None,
+        time_mode: TimeMode = "forward",
+        text_search: Runner | None = None,
+    ) -> list[Hit]:
+        """Run the tool on a memory; results in the tool's `order`.
+
+        `image` is the picture attached to a question (the image tool uses it when no
+        `memory_id` is given); `time_mode` picks the time tool's window; `text_search`
+        replaces the memory's text search (the caption baseline searches captions).
+        """
+        a = self.validate(args)
+        return self._run(mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search)
+
+    def label(self, args: ToolArgs) -> str:
+        """How a call is shown to a person or a model, e.g. `search_text("red mug")`."""
+        shown = {k: v for k, v in args.model_dump().items() if v is not None}
+        inner = ", ".join(f"{k}={v!r}" for k, v in shown.items())
+        return f"{self.name}({inner})"
+
+    def description(self, k: int | None = None) -> str:
+        more = f" Returns up to {k} memories" if k else " Returns memories"
+        metric = {"score": " with a similarity score (higher is better)", "distance": " with the distance"}
+        return f"{self.summary}{more}, {self.order}, each with its id, time and pose{metric.get(self.metric or '', '')}."
+
+    def json_schema(self) -> dict[str, Any]:
+        """The full JSON schema of the arguments (MCP and OpenAPI take it as it is)."""
+        return self.args.model_json_schema()
+
+    def plain_schema(self) -> dict[str, Any]:
+        """The arguments as a plain JSON schema: no anyOf, null or $ref, which every
+        OpenAI-compatible server accepts (Gemini's included); `validate` does the checking."""
+        full = self.json_schema()
+        props: dict[str, Any] = {}
+        for name, prop in full.get("properties", {}).items():
+            props[name] = _plain(prop)
+        return {"type": "object", "properties": props, "required": list(full.get("required", []))}
+
+
+def _plain(prop: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    options = prop.get("anyOf")
+    if options:
+        types = [o for o in options if o.get("type") != "null"]
+        pick = next((o for o in types if o.get("type") == "string"), types[0])
+        out.update(_plain(pick))
+    else:
+        out["type"] = prop.get("type", "string")
+        if "items" in prop:
+            out["items"] = {"type": prop["items"].get("type", "number")}
+    if "description" in prop:
+        out["description"] = prop["description"]
+    return out
+
+
+def check_k(k: object) -> int:
+    """k: a whole number from 1 to MAX_K (a bool or a numeric string is refused, not guessed)."""
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise InputError(f"k must be a whole number from 1 to {MAX_K}, got {k!r}")
+    if not 1 <= int(k) <= MAX_K:
+        raise InputError(f"k must be from 1 to {MAX_K}, got {k}")
+    return int(k)
+
+
+def _text(mem: MemoryLike, a: ToolArgs, k: int, text_search: Runner | None = None, **_: Any) -> list[Hit]:
+    assert isinstance(a, TextArgs)
+    search = text_search or mem.search_text
+    return search(a.query, k=k, after=a.after, before=a.before, near=a.disc())
+
+
+def _image(mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, **_: Any) -> list[Hit]:
+    assert isinstance(a, ImageArgs)
+    if a.memory_id is None and image is None:
+        raise InputError("search_image: give memory_id (no image is attached to this question)")
+    if a.memory_id is not None:
+        return mem.search_image(
+            None, k=k, after=a.after, before=a.before, near=a.disc(), memory_id=a.memory_id
+        )
+    return mem.search_image(image, k=k, after=a.after, before=a.before, near=a.disc())
+
+
+def _time(mem: MemoryLike, a: ToolArgs, k: int, time_mode: TimeMode = "forward", **_: Any) -> list[Hit]:
+    assert isinstance(a, TimeArgs)
+    hits = mem.search_time(a.time, k=k, after=a.after, before=a.before, centred=time_mode == "centred")
+    return sorted(hits, key=lambda h: (h.memory.t, h.memory.id))
+
+
+def _position(mem: MemoryLike, a: ToolArgs, k: int, **_: Any) -> list[Hit]:
+    assert isinstance(a, PositionArgs)
+    return mem.search_position(a.x, a.y, a.z, k=k, radius=a.radius, after=a.after, before=a.before)
+
+
+TOOLS: dict[str, Tool] = {
+    t.name: t
+    for t in (
+        Tool(
+            "search_text",
+            "text",
+            "Find memories whose image matches a text description (and text read in the scene).",
+            TextArgs,
+            "best first",
+            "score",
+            _text,
+        ),
+        Tool(
+            "search_image",
+            "image",
+            "Find memories that look like a picture: a memory given by its id, or the image "
+            "attached to the question.",
+            ImageArgs,
+            "best first",
+            "score",
+            _image,
+        ),
+        Tool(
+            "search_time",
+            "time",
+            "List the memories from a given time onwards.",
+            TimeArgs,
+            "chronological",
+            None,
+            _time,
+        ),
+        Tool(
+            "search_position",
+            "position",
+            "List the memories taken nearest to a map position (metres).",
+            PositionArgs,
+            "nearest first",
+            "distance",
+            _position,
+        ),
+    )
+}
+BY_KEY: dict[str, Tool] = {t.key: t for t in TOOLS.values()}
+
+
+def get_tool(name: str) -> Tool:
+    """A tool by name (`search_text`) or key (`text`)."""
+    tool = TOOLS.get(name) or BY_KEY.get(name)
+    if tool is None:
+        raise InputError(f"unknown tool {name!r}; choose one of: {', '.join(TOOLS)}")
+    return tool
+
+
+def hit_json(
+    hit: Hit, rank: int, t0: float, image: Callable[[MemoryRecord], str | None] | None = None
+) -> dict[str, Any]:
+    """A hit as plain data: the one shape that `--json`, the HTTP API and MCP return.
+
+    Times are Unix seconds (`t`), ISO UTC (`time`) and seconds from the first memory
+    (`offset_s`); yaw is radians (`yaw`) and degrees (`yaw_deg`); `image` is whatever the
+    front end uses to reach the picture (a file path for the CLI, a URL for the service).
+    """
+    r = hit.memory
+    return {
+        "rank": rank,
+        "id": r.id,
+        "score": hit.score,
+        "distance": hit.distance,
+        "t": r.t,
+        "time": fmt_time(r.t),
+        "offset_s": round(r.t - t0, 3),
+        "x": r.pose.x,
+        "y": r.pose.y,
+        "z": r.pose.z,
+        "yaw": r.pose.yaw,
+        "yaw_deg": round(math.degrees(r.pose.yaw), 2),
+        "image": image(r) if image is not None else r.image_path,
+        "source": r.source,
+        "frame_index": r.frame_index,
+        "ocr_text": r.ocr_text,
+        "ocr_match": hit.ocr_match,
+    }

@@ -129,3 +129,20 @@ def test_parse_keyframes_errors(spec: str, message: str) -> None:
     with pytest.raises(InputError) as e:
         parse_keyframes(spec)
     assert message in str(e.value)
+
+
+def test_keyframer_online_gives_the_reason_for_each_dropped_frame() -> None:
+    from ravenmem.ingest.keyframes import Keyframer
+
+    kf = Keyframer(KeyframeConfig(min_translation=0.5, max_similarity=0.95))
+    poses = [Pose(0.0, 0.0), Pose(0.1, 0.0), Pose(1.0, 0.0), Pose(2.0, 0.0)]
+    embs = [np.array([1.0, 0.0]), None, np.array([0.999, 0.04]), np.array([0.0, 1.0])]
+    out = []
+    for f, e in zip(frames([0.0, 1.0, 2.0, 3.0], poses), embs, strict=True):
+        reason = kf.pre(f)
+        if reason is None:
+            assert e is not None
+            reason = kf.post(e)
+        out.append(reason)
+    assert out == [None, DROP_MOTION, DROP_SIMILAR, None]
+    assert kf.stats.kept == 2 and kf.stats.dropped == {DROP_MOTION: 1, DROP_SIMILAR: 1}

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -78,6 +78,67 @@ def rotation_between(a: Pose, b: Pose) -> float:
     return abs((b.yaw - a.yaw + math.pi) % (2.0 * math.pi) - math.pi)
 
 
+class Keyframer:
+    """The keyframe rules as one stateful object, fed one frame at a time.
+
+    Recorded ingest and live adds (a robot streaming frames to a running memory) go through the
+    same object, so both keep the same frames: `pre(frame)` applies the cheap rules before the
+    embedder (stride, rate, motion: motion is measured from the last frame that passed them) and
+    `post(embedding)` the novelty rule after it (similarity to the last frame kept). Each returns
+    None when the frame passes, or the reason it was dropped (one of the DROP_* strings).
+    """
+
+    def __init__(self, cfg: KeyframeConfig | None = None) -> None:
+        self.cfg = cfg or KeyframeConfig()
+        self.stats = KeyframeStats()
+        self.novelty = NoveltyFilter(self.cfg.max_similarity) if self.cfg.max_similarity is not None else None
+        self._seen = 0
+        self._t0: float | None = None
+        self._last_slot = -1
+        self._last_pose: Pose | None = None
+
+    def pre(self, f: Frame) -> str | None:
+        """The cheap rules, in order: stride, rate, motion."""
+        cfg = self.cfg
+        i = self._seen
+        self._seen += 1
+        if i % cfg.stride:
+            return self._drop(DROP_STRIDE)
+        slot = -1
+        if cfg.fps is not None:
+            self._t0 = f.t if self._t0 is None else self._t0
+            slot = math.floor((f.t - self._t0) * cfg.fps + 1e-6)
+            if slot <= self._last_slot:
+                return self._drop(DROP_FPS)
+        motion = cfg.min_translation is not None or cfg.min_rotation is not None
+        last = self._last_pose
+        if motion and f.pose is not None and last is not None:
+            moved = cfg.min_translation is not None and f.pose.distance_to(last) >= cfg.min_translation
+            turned = cfg.min_rotation is not None and rotation_between(last, f.pose) >= cfg.min_rotation
+            if not (moved or turned):
+                return self._drop(DROP_MOTION)
+        if cfg.fps is not None:
+            self._last_slot = slot
+        if f.pose is not None:
+            self._last_pose = f.pose
+        if self.novelty is None:
+            self.stats.kept += 1
+        return None
+
+    def post(self, embedding: np.ndarray) -> str | None:
+        """The novelty rule, on the embedding of a frame that passed `pre`."""
+        if self.novelty is None:
+            return None
+        if not self.novelty.keep(embedding):
+            return self._drop(DROP_SIMILAR)
+        self.stats.kept += 1
+        return None
+
+    def _drop(self, reason: str) -> str:
+        self.stats.drop(reason)
+        return reason
+
+
 def select_frames(
     frames: Iterable[Frame], cfg: KeyframeConfig, stats: KeyframeStats | None = None
 ) -> Iterator[Frame]:
@@ -87,34 +148,12 @@ def select_frames(
     frame of each new slot, so timestamp jitter does not lower the kept rate. Frames without a
     pose pass the motion rule (nothing to compare) and do not reset it.
     """
-    st = stats if stats is not None else KeyframeStats()
-    motion = cfg.min_translation is not None or cfg.min_rotation is not None
-    t0: float | None = None
-    last_slot = -1
-    last_pose: Pose | None = None
-    for i, f in enumerate(frames):
-        if i % cfg.stride:
-            st.drop(DROP_STRIDE)
-            continue
-        slot = -1
-        if cfg.fps is not None:
-            t0 = f.t if t0 is None else t0
-            slot = math.floor((f.t - t0) * cfg.fps + 1e-6)
-            if slot <= last_slot:
-                st.drop(DROP_FPS)
-                continue
-        if motion and f.pose is not None and last_pose is not None:
-            moved = cfg.min_translation is not None and f.pose.distance_to(last_pose) >= cfg.min_translation
-            turned = cfg.min_rotation is not None and rotation_between(last_pose, f.pose) >= cfg.min_rotation
-            if not (moved or turned):
-                st.drop(DROP_MOTION)
-                continue
-        if cfg.fps is not None:
-            last_slot = slot
-        if f.pose is not None:
-            last_pose = f.pose
-        st.kept += 1
-        yield f
+    kf = Keyframer(replace(cfg, max_similarity=None))
+    if stats is not None:
+        kf.stats = stats
+    for f in frames:
+        if kf.pre(f) is None:
+            yield f
 
 
 class NoveltyFilter:

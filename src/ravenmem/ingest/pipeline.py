@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from ..types import Frame
 from .base import FrameSource
-from .keyframes import KeyframeConfig, NoveltyFilter, select_frames
+from .keyframes import DROP_SIMILAR, KeyframeConfig, Keyframer
 
 if TYPE_CHECKING:
     from ..memory import Memory
@@ -74,7 +74,7 @@ def ingest(
     """Run a source into a memory; returns counts (also appended to the memory's manifest)."""
     cfg = keyframes or KeyframeConfig()
     report = IngestReport(source=getattr(source, "name", str(source)))
-    novelty = NoveltyFilter(cfg.max_similarity) if cfg.max_similarity is not None else None
+    kf = Keyframer(cfg)
     show = sys.stderr.isatty() if progress is None else progress
     bar = tqdm(desc="ingest", unit="frame", disable=not show, file=sys.stderr)
     start = time.perf_counter()
@@ -84,11 +84,9 @@ def ingest(
         if not batch:
             return
         emb = mem.embedder.embed_images([f.image for f in batch])
-        keep = [i for i in range(len(batch)) if novelty is None or novelty.keep(emb[i])]
-        if novelty is not None and len(keep) < len(batch):
-            report.skipped["similar to last keyframe"] = (
-                report.skipped.get("similar to last keyframe", 0) + len(batch) - len(keep)
-            )
+        keep = [i for i in range(len(batch)) if kf.post(emb[i]) is None]
+        if len(keep) < len(batch):
+            report.skipped[DROP_SIMILAR] = report.skipped.get(DROP_SIMILAR, 0) + len(batch) - len(keep)
         if keep:
             ids = mem.add_frames([batch[i] for i in keep], embeddings=emb[keep])
             report.first_id = ids[0] if report.first_id is None else report.first_id
@@ -98,7 +96,9 @@ def ingest(
         batch.clear()
 
     try:
-        for f in select_frames(_posed(iter(source), report), cfg):
+        for f in _posed(iter(source), report):
+            if kf.pre(f) is not None:
+                continue
             report.candidates += 1
             batch.append(f)
             bar.update(1)

@@ -164,7 +164,7 @@ def main() -> None:
         build(args.memory, args.stride)
     times, seen = load_truth()
     with ravenmem.open(args.memory) as mem:
-        print(f"memory: {mem.count()} memories, embedder {mem.manifest['embedder']}")
+        print(f"memory: {mem.count()} memories, embedder {mem.manifest.embedder}")
         if args.sweep:
             sweep(mem, times, seen, args.tol)
             return

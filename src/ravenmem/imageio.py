@@ -13,15 +13,31 @@ from .fsio import atomic_open
 
 
 def read_image(path: str | os.PathLike[str]) -> np.ndarray:
-    """Read an image file as RGB uint8 (H, W, 3)."""
+    """Read an image file as RGB uint8 (H, W, 3).
+
+    Any failure is one `InputError` naming the file: a missing or unreadable file, bytes that
+    are not an image, a truncated or corrupt one (decoders raise many kinds of exceptions), or
+    a decompression bomb (more pixels than Pillow's `Image.MAX_IMAGE_PIXELS` guard allows).
+    """
     p = Path(path)
     if not p.exists():
         raise InputError(f"image file {p} does not exist")
+    if not p.is_file():
+        raise InputError(f"image file {p} is not a file")
     try:
         with Image.open(p) as im:
             return np.asarray(im.convert("RGB"), dtype=np.uint8)
-    except (UnidentifiedImageError, OSError, ValueError) as e:
-        raise InputError(f"image file {p} cannot be read: {e}") from e
+    except Image.DecompressionBombError as e:
+        raise InputError(f"image file {p} is too large to decode safely ({_first_line(e)})") from None
+    except UnidentifiedImageError:
+        raise InputError(f"image file {p} cannot be read: not an image Pillow knows") from None
+    except Exception as e:  # decoders raise OSError, ValueError, SyntaxError, struct.error, ...
+        raise InputError(f"image file {p} cannot be read: {_first_line(e)}") from None
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip().splitlines()
+    return text[0] if text else type(e).__name__
 
 
 def resize_max_side(image: np.ndarray, max_side: int) -> Image.Image:

@@ -1,19 +1,26 @@
 """The `Memory` facade: one folder on disk that holds what a robot saw, where and when.
 
-A memory folder contains `memory.json` (the manifest: embedder name and dim, store URI,
-thumbnail and OCR settings, ingest history), the store's files (for the embedded store) and
-`thumbs/` (JPEG thumbnails). The facade turns user queries into vectors, fuses the OCR
+A memory folder contains `memory.json` (the manifest, `ravenmem.manifest`: embedder name and
+dim, store URI, thumbnail and OCR settings, ingest history), the store's files (for the embedded
+store) and `thumbs/` (JPEG thumbnails). The facade turns user queries into vectors, fuses the OCR
 channel, resolves time expressions and hands out `Hit`s; the store does the indexing.
+
+Nothing read from a memory reaches outside its folder: the manifest is checked before the store
+is opened, the store must live in the folder (or be the server the user named at create time),
+and a record's image path is only followed when it stays inside the folder.
 """
 
 from __future__ import annotations
 
-import json
+import logging
+import math
 import os
+import shutil
 import threading
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,17 +29,18 @@ import numpy as np
 from .embed.base import Embedder, create_embedder
 from .embed.ocr import OCR_WEIGHT, ocr_terms
 from .errors import EmbedderMismatchError, EmptyMemoryError, InputError
-from .fsio import atomic_write
 from .imageio import read_image, write_jpeg
+from .manifest import FORMAT_VERSION, MANIFEST, Manifest, confine, store_for_create
 from .store.base import Store, open_store
 from .timeparse import TimeContext, parse_time
+from .tools import check_k
 from .types import Filter, Frame, Hit, MemoryRecord, Pose, Region
 
 if TYPE_CHECKING:
     from .query import Query
 
-MANIFEST = "memory.json"
-FORMAT_VERSION = 1
+__all__ = ["FORMAT_VERSION", "MANIFEST", "Memory", "create", "open"]
+log = logging.getLogger(__name__)
 Near = tuple[float, float, float]
 TimeLike = float | int | str | None
 
@@ -42,33 +50,46 @@ class Memory:
 
     Use `ravenmem.create(path)` for a new memory and `ravenmem.open(path)` for an existing one.
     The embedder is loaded on first use, so time and position queries start instantly.
+    `external_images=True` lets `image_file`/`load_image` follow absolute image paths (memories
+    built with `thumb_size=0` store the original frames' paths); off by default, because a
+    memory folder from elsewhere could name any file on this machine.
     """
 
-    def __init__(self, path: Path, manifest: dict[str, Any], store: Store, embedder: Embedder | None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        manifest: Manifest,
+        store: Store,
+        embedder: Embedder | None,
+        external_images: bool = False,
+    ) -> None:
         self.path = path
         self.manifest = manifest
         self.store = store
+        self.external_images = external_images
         self._embedder = embedder
         self._lock = threading.RLock()
         self._ocr: Any = None
         self._span: tuple[float, float] | None = None
+        self._created: _Created | None = None
+        self._closed = False
 
     # ---------------------------------------------------------------- properties
     @property
     def embedder(self) -> Embedder:
         with self._lock:
             if self._embedder is None:
-                self._embedder = create_embedder(self.manifest["embedder"])
+                self._embedder = create_embedder(self.manifest.embedder)
                 _check_embedder(self._embedder, self.manifest, self.path)
             return self._embedder
 
     @property
     def ocr_enabled(self) -> bool:
-        return bool(self.manifest.get("ocr", False))
+        return self.manifest.ocr
 
     @property
     def thumb_size(self) -> int:
-        return int(self.manifest.get("thumb_size", 0))
+        return self.manifest.thumb_size
 
     # ---------------------------------------------------------------- writing
     def add(self, image: np.ndarray, pose: Pose, t: float, source: str = "live", frame_index: int = 0) -> int:
@@ -127,23 +148,23 @@ class Memory:
             self.path / rel,
             f.image,
             max_side=self.thumb_size,
-            quality=int(self.manifest.get("thumb_quality", 85)),
+            quality=self.manifest.thumb_quality,
         )
         return rel
 
     def record_ingest(self, report: dict[str, Any]) -> None:
         """Append an ingest run's counts to the manifest (frames seen/kept, raw bytes)."""
         with self._lock:
-            self.manifest.setdefault("ingests", []).append(report)
+            self.manifest.ingests.append(report)
             self._save_manifest()
 
     def _save_manifest(self) -> None:
-        atomic_write(self.path / MANIFEST, json.dumps(self.manifest, indent=2, sort_keys=True))
+        self.manifest.save(self.path)
 
     # ---------------------------------------------------------------- reading
     @property
     def dim(self) -> int:
-        return int(self.manifest["dim"])
+        return self.manifest.dim
 
     def count(self) -> int:
         return self.store.count()
@@ -171,11 +192,16 @@ class Memory:
     def make_filter(
         self, after: TimeLike = None, before: TimeLike = None, near: Near | None = None
     ) -> Filter:
+        """A store filter from a time window (any time expression) and a disc (x, y, radius m)."""
         region = None
         if near is not None:
-            if len(near) != 3 or near[2] <= 0:
-                raise InputError(f"near must be (x, y, radius>0), got {near!r}")
-            region = Region(float(near[0]), float(near[1]), float(near[2]))
+            try:
+                x, y, r = (float(v) for v in near)
+            except (TypeError, ValueError):
+                raise InputError(f"near must be (x, y, radius) numbers, got {near!r}") from None
+            if not all(math.isfinite(v) for v in (x, y, r)) or r <= 0:
+                raise InputError(f"near must be finite (x, y, radius > 0), got {near!r}")
+            region = Region(x, y, r)
         return Filter(
             after=None if after is None else self.parse_time(after),
             before=None if before is None else self.parse_time(before),
@@ -214,8 +240,11 @@ class Memory:
     ) -> list[list[Hit]]:
         """`search_text` for many queries with one batched text encoding (reasoners that try
         several phrasings of a question use this). `ocr=False` leaves out the OCR channel."""
-        if not queries or any(not q or not q.strip() for q in queries):
-            raise InputError("empty text query")
+        if isinstance(queries, str) or not queries:
+            raise InputError("search_texts: expected a list of text queries")
+        for q in queries:
+            _check_text(q)
+        k = check_k(k)
         self._require_nonempty()
         filt = self.make_filter(after, before, near)
         use_ocr = ocr and self.ocr_enabled
@@ -251,6 +280,7 @@ class Memory:
         "more views like memory 12", which is how an agent follows up on a promising frame. The
         memory itself is left out of its own results.
         """
+        k = check_k(k)
         self._require_nonempty()
         if (image is None) == (memory_id is None):
             raise InputError("search_image needs either an image or a memory_id, not both")
@@ -283,6 +313,7 @@ class Memory:
         The paper's time tool looks forward from t; `centred=True` returns the k memories around
         t instead (half before, half from t on), still in chronological order.
         """
+        k = check_k(k)
         self._require_nonempty()
         t0 = self.parse_time(t)
         filt = self.make_filter(after, before, near)
@@ -326,11 +357,15 @@ class Memory:
         before: TimeLike = None,
     ) -> list[Hit]:
         """The k memories taken nearest to (x, y[, z]), nearest first; planar when z is None."""
-        self._require_nonempty()
-        if radius is not None and radius <= 0:
+        k = check_k(k)
+        x, y = _finite("x", x), _finite("y", y)
+        z = None if z is None else _finite("z", z)
+        if radius is not None and not _finite("radius", radius) > 0:
             raise InputError(f"radius must be > 0, got {radius}")
+        self._require_nonempty()
         filt = self.make_filter(after, before)
-        return self._hits(self.store.nearest(x, y, z, k, radius, filt), kind="distance")
+        r = None if radius is None else float(radius)
+        return self._hits(self.store.nearest(x, y, z, k, r, filt), kind="distance")
 
     def query(self) -> Query:
         from .query import Query
@@ -348,15 +383,32 @@ class Memory:
         return self.store.by_time(t0, self.count())
 
     def image_file(self, rec: MemoryRecord) -> Path | None:
-        if not rec.image_path:
+        """The file holding a record's picture, or None: no picture, a missing file, or a path
+        that would leave the memory folder (`..`, a symlink leading out, an absolute path).
+        Absolute paths (the original frames of a `thumb_size=0` memory) are followed only
+        when the memory was opened with `external_images=True`."""
+        if not rec.image_path or not isinstance(rec.image_path, str):
             return None
-        p = Path(rec.image_path)
-        p = p if p.is_absolute() else self.path / p
-        return p if p.exists() else None
+        if Path(rec.image_path).is_absolute():
+            f: Path | None = Path(rec.image_path) if self.external_images else None
+        else:
+            f = confine(self.path, rec.image_path)
+        try:
+            return f if f is not None and f.is_file() else None
+        except OSError:
+            return None
 
     def load_image(self, rec: MemoryRecord) -> np.ndarray | None:
+        """A record's picture as RGB uint8, or None when `image_file` gives none or the file
+        does not decode as an image (logged)."""
         p = self.image_file(rec)
-        return read_image(p) if p is not None else None
+        if p is None:
+            return None
+        try:
+            return read_image(p)
+        except InputError as e:
+            log.warning("memory %s: %s", rec.id, e)
+            return None
 
     def info(self) -> dict[str, Any]:
         """What `ravenmem info` prints: counts, span, extent, embedder, bytes per memory, compression."""
@@ -365,14 +417,14 @@ class Memory:
         thumbs = self.path / "thumbs"
         thumb_bytes = sum(p.stat().st_size for p in thumbs.glob("*.jpg")) if thumbs.exists() else 0
         store_bytes = int(st.get("bytes") or 0)  # type: ignore[call-overload]
-        ingests = self.manifest.get("ingests", [])
-        seen = sum(int(r.get("frames_seen", 0)) for r in ingests)
-        raw = sum(int(r.get("raw_bytes", 0)) for r in ingests)
+        ingests = self.manifest.ingests
+        seen = sum(_count(r.get("frames_seen")) for r in ingests)
+        raw = sum(_count(r.get("raw_bytes")) for r in ingests)
         out: dict[str, Any] = {
             "path": str(self.path),
-            "embedder": self.manifest["embedder"],
+            "embedder": self.manifest.embedder,
             "dim": self.dim,
-            "store": self.manifest.get("store", "local"),
+            "store": self.manifest.store,
             "ocr": self.ocr_enabled,
             "thumb_size": self.thumb_size,
             "memories": n,
@@ -388,9 +440,13 @@ class Memory:
             if raw and store_bytes
             else None,
         }
-        for key in ("t_min", "t_max", "extent"):
+        for key in ("t_min", "t_max"):
             if key in st:
                 out[key] = st[key]
+        bounds = [st.get(f"{c}_{m}") for c in "xyz" for m in ("min", "max")]
+        if n and all(isinstance(b, (int, float)) for b in bounds):
+            xyz = [float(b) for b in bounds]  # type: ignore[arg-type]
+            out["extent"] = {c: [xyz[2 * i], xyz[2 * i + 1]] for i, c in enumerate("xyz")}
         if n:
             out["duration_s"] = float(st["t_max"]) - float(st["t_min"])  # type: ignore[arg-type]
         out["ingests"] = ingests
@@ -398,7 +454,30 @@ class Memory:
 
     # ---------------------------------------------------------------- lifecycle
     def close(self) -> None:
-        self.store.close()
+        if not self._closed:
+            self._closed = True
+            self.store.close()
+
+    @contextmanager
+    def undo_create_on_error(self) -> Iterator[Memory]:
+        """For a memory `create` made in this process: when the block fails before anything
+        was stored, close it and remove exactly what `create` made (a failed first ingest
+        leaves nothing behind). A memory that was opened, or holds memories, is kept."""
+        try:
+            yield self
+        except BaseException:
+            made = self._created
+            if made is not None and not self._closed:
+                try:
+                    empty = self.store.count() == 0
+                except Exception:  # the store itself failed: it holds nothing we stored
+                    empty = True
+                if empty:
+                    try:
+                        self.close()
+                    finally:
+                        made.undo()
+            raise
 
     def __enter__(self) -> Memory:
         return self
@@ -407,7 +486,7 @@ class Memory:
         self.close()
 
     def __repr__(self) -> str:
-        return f"Memory({str(self.path)!r}, embedder={self.manifest['embedder']!r}, memories={self.count()})"
+        return f"Memory({str(self.path)!r}, embedder={self.manifest.embedder!r}, memories={self.count()})"
 
 
 def _validate_frame(f: Frame) -> None:
@@ -423,16 +502,76 @@ def _validate_frame(f: Frame) -> None:
         raise InputError(f"frame {f.source}#{f.index}: timestamp is not finite ({f.t})")
 
 
-def _check_embedder(emb: Embedder, manifest: dict[str, Any], path: Path) -> None:
-    if emb.name != manifest["embedder"] or emb.dim != int(manifest["dim"]):
+def _check_text(q: object) -> None:
+    if not isinstance(q, str):
+        raise InputError(f"a text query must be a string, got {type(q).__name__}")
+    if not q.strip():
+        raise InputError("empty text query")
+    try:
+        q.encode("utf-8")
+    except UnicodeEncodeError:  # lone surrogates: a command-line argument with invalid UTF-8 bytes
+        raise InputError(f"text query {q!r} is not valid UTF-8") from None
+
+
+def _finite(name: str, v: object) -> float:
+    """`v` as a finite float, or a one-line InputError naming the argument."""
+    try:
+        f = float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {v!r}") from None
+    if not math.isfinite(f):
+        raise InputError(f"{name} must be a finite number, got {v!r}")
+    return f
+
+
+def _count(v: object) -> int:
+    """A count from the ingest history; anything that is not a finite number counts 0."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        return 0
+    return int(v)
+
+
+def _check_embedder(emb: Embedder, manifest: Manifest, path: Path) -> None:
+    if emb.name != manifest.embedder or emb.dim != manifest.dim:
         raise EmbedderMismatchError(
-            f"memory {path} was built with embedder {manifest['embedder']!r} (dim {manifest['dim']}); "
+            f"memory {path} was built with embedder {manifest.embedder!r} (dim {manifest.dim}); "
             f"it cannot be searched with {emb.name!r} (dim {emb.dim})"
         )
 
 
 def _resolve_embedder(embedder: str | Embedder) -> Embedder:
     return create_embedder(embedder) if isinstance(embedder, str) else embedder
+
+
+class _Created:
+    """What `create` made, so that a failure removes exactly that: the top folder it created
+    (with everything below), or the entries it added to a folder that existed (and was empty)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        top = folder
+        while not top.parent.exists() and top.parent != top:
+            top = top.parent
+        self.top: Path | None = None if folder.exists() else top
+        self.before = set(os.listdir(folder)) if folder.exists() else set()
+
+    def undo(self) -> None:
+        if self.top is not None:
+            shutil.rmtree(self.top, ignore_errors=True)
+            return
+        for name in set(os.listdir(self.folder)) - self.before:
+            p = self.folder / name
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
+
+
+def _is_memory(p: Path) -> bool:
+    try:
+        return (p / MANIFEST).is_file()
+    except OSError:
+        return False
 
 
 def create(
@@ -443,53 +582,72 @@ def create(
     thumb_quality: int = 85,
     ocr: bool = True,
     exist_ok: bool = False,
+    external_images: bool = False,
 ) -> Memory:
-    """Create a new memory folder (or open it when `exist_ok` and it exists with the same embedder)."""
+    """Create a new memory folder (or open it when `exist_ok` and it exists with the same embedder).
+
+    A memory is only created in a new or an empty folder: ravenmem never writes into a folder
+    that holds something else. The embedder is resolved before anything is written, and if
+    opening the store fails, what was created is removed again. `store`: None for the embedded
+    store, `milvus:///PATH/INSIDE/THE/FOLDER/file.db` for Milvus Lite, `milvus://HOST:PORT`.
+    """
     p = Path(path)
-    if (p / MANIFEST).exists():
+    if _is_memory(p):
         if not exist_ok:
             raise InputError(f"{p} already holds a memory; open it, or choose another folder")
-        mem = open(p, embedder=embedder)
-        return mem
-    if p.exists() and not p.is_dir():
-        raise InputError(f"{p} exists and is not a folder")
-    if thumb_size < 0:
+        return open(p, embedder=embedder, external_images=external_images)
+    if p.exists():
+        if not p.is_dir():
+            raise InputError(f"{p} exists and is not a folder")
+        if any(p.iterdir()):
+            raise InputError(
+                f"{p} is a folder with other files and no {MANIFEST}: ravenmem creates a memory only "
+                "in a new or empty folder (nothing was written)"
+            )
+    if isinstance(thumb_size, int) and not isinstance(thumb_size, bool) and thumb_size < 0:
         raise InputError(f"thumb_size must be >= 0 (0 = off), got {thumb_size}")
+    uri = store_for_create(store, p)
     emb = _resolve_embedder(embedder)
-    p.mkdir(parents=True, exist_ok=True)
-    uri = store or "local"
-    st = open_store(str(p) if uri == "local" else uri, dim=emb.dim)
-    manifest: dict[str, Any] = {
-        "format_version": FORMAT_VERSION, "embedder": emb.name, "dim": emb.dim, "store": uri,
-        "thumb_size": thumb_size, "thumb_quality": thumb_quality, "ocr": bool(ocr),
-        "created": time.time(), "ingests": [],
-    }  # fmt: skip
-    mem = Memory(p, manifest, st, emb)
-    mem._save_manifest()
+    manifest = Manifest(
+        embedder=emb.name,
+        dim=emb.dim,  # may load the model: before anything is written
+        store=uri,
+        thumb_size=thumb_size,
+        thumb_quality=thumb_quality,
+        ocr=bool(ocr),
+        created=time.time(),
+    )
+    made = _Created(p)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+        manifest.save(p)  # first: from here on the folder is recognisably a ravenmem memory
+        st = open_store(manifest.store_uri(p), dim=manifest.dim)
+    except BaseException:
+        made.undo()
+        raise
+    mem = Memory(p, manifest, st, emb, external_images=external_images)
+    mem._created = made
     return mem
 
 
-def open(path: str | os.PathLike[str], embedder: str | Embedder | None = None) -> Memory:  # noqa: A001
-    """Open an existing memory folder. Passing an embedder other than the one it was built with
-    is a clear error (its vectors would not be comparable)."""
+def open(  # noqa: A001
+    path: str | os.PathLike[str], embedder: str | Embedder | None = None, external_images: bool = False
+) -> Memory:
+    """Open an existing memory folder.
+
+    The manifest is checked before the store is touched (`ravenmem.manifest`). Passing an
+    embedder other than the one it was built with is a clear error (its vectors would not be
+    comparable); a spec such as `offline` is resolved to its full name before comparing.
+    `external_images`: see `Memory`.
+    """
     p = Path(path)
-    mf = p / MANIFEST
-    if not mf.exists():
+    if not _is_memory(p):
         what = "does not exist" if not p.exists() else "is not a ravenmem memory (no memory.json)"
         raise InputError(f"memory {p} {what}")
-    try:
-        manifest = json.loads(mf.read_text(encoding="utf-8"))
-        manifest["embedder"], manifest["dim"]  # noqa: B018 - required keys
-    except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise InputError(f"{mf}: corrupt manifest ({e})") from e
+    manifest = Manifest.load(p)
     emb = None
     if embedder is not None:
-        if isinstance(embedder, str) and embedder != manifest["embedder"]:
-            raise EmbedderMismatchError(
-                f"memory {p} was built with embedder {manifest['embedder']!r}; it cannot be searched with {embedder!r}"
-            )
         emb = _resolve_embedder(embedder)
         _check_embedder(emb, manifest, p)
-    uri = manifest.get("store", "local")
-    st = open_store(str(p) if uri == "local" else uri, dim=int(manifest["dim"]))
-    return Memory(p, manifest, st, emb)
+    st = open_store(manifest.store_uri(p), dim=manifest.dim)
+    return Memory(p, manifest, st, emb, external_images=external_images)

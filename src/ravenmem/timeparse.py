@@ -14,6 +14,8 @@ Nothing here reads the local time zone.
 
 from __future__ import annotations
 
+import math
+import numbers
 import re
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
@@ -50,12 +52,16 @@ class TimeContext:
 
 
 def parse_duration(text: str) -> float:
-    """`90`, `90s`, `1m30s`, `2 hours`, `00:01:30` -> seconds."""
+    """`90`, `90s`, `1m30s`, `2 hours`, `00:01:30` -> seconds (finite)."""
     s = text.strip().lower()
     try:
-        return float(s)
+        v = float(s)
     except ValueError:
         pass
+    else:
+        if not math.isfinite(v):
+            raise InputError(f"duration {text!r} is not a finite number of seconds")
+        return v
     m = _CLOCK.match(s)
     if m:
         return _clock_seconds(m)
@@ -77,16 +83,39 @@ def _clock_seconds(m: re.Match[str]) -> float:
 
 
 def parse_time(expr: str | float | int, ctx: TimeContext | None) -> float:
-    """Resolve a time expression to Unix seconds; `ctx` is needed for relative forms."""
-    if isinstance(expr, (int, float)):
-        return _offset_or_epoch(float(expr), ctx, str(expr))
+    """Resolve a time expression to Unix seconds; `ctx` is needed for relative forms.
+
+    The result is always a finite number: `nan`, `inf`, `1e400` (and anything that resolves to
+    them) are refused with an `InputError` rather than silently matching nothing.
+    """
+    t = _parse_time(expr, ctx)
+    if not math.isfinite(t):
+        raise InputError(f"time {expr!r} is not a finite time")
+    return t
+
+
+def _parse_time(expr: str | float | int, ctx: TimeContext | None) -> float:
+    if isinstance(expr, bool) or not isinstance(expr, (str, numbers.Real)):
+        raise InputError(f"a time must be a number or a string, got {expr!r}")
+    if isinstance(expr, numbers.Real):
+        try:
+            v = float(expr)
+        except OverflowError:
+            v = math.inf
+        if not math.isfinite(v):
+            raise InputError(f"time {expr!r} is not a finite time")
+        return _offset_or_epoch(v, ctx, str(expr))
     s = expr.strip().lower()
     if not s:
         raise InputError("empty time expression")
     try:
-        return _offset_or_epoch(float(s), ctx, expr)
+        v = float(s)
     except ValueError:
         pass
+    else:
+        if not math.isfinite(v):
+            raise InputError(f"time {expr!r} is not a finite time")
+        return _offset_or_epoch(v, ctx, expr)
     if s in ("now", "end", "latest"):
         return _need(ctx, expr).end
     if s in ("start", "beginning", "first"):

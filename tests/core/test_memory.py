@@ -111,7 +111,7 @@ def test_bad_inputs(tmp_path, color_embedder, mem):
         ravenmem.create(mem.path, embedder=color_embedder)
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "memory.json").write_text("{not json")
-    with pytest.raises(InputError, match="corrupt manifest"):
+    with pytest.raises(InputError, match="not valid JSON"):
         ravenmem.open(tmp_path / "bad")
     with pytest.raises(InputError, match="RGB uint8"):
         mem.add(np.zeros((4, 4), np.uint8), Pose(0, 0), T0)

@@ -60,3 +60,22 @@ def test_durations():
     assert parse_duration("2 hours") == 7200
     with pytest.raises(InputError):
         parse_duration("soon")
+
+
+@pytest.mark.parametrize(
+    "expr",
+    ["1e400", "nan", "-inf", "inf", float("nan"), float("inf"), 10**400, "start+inf", "nan ago", "+nan"],
+)
+def test_non_finite_times_are_refused(expr):
+    with pytest.raises(InputError, match="finite"):
+        parse_time(expr, CTX)
+
+
+def test_numbers_of_any_numeric_type():
+    import numpy as np
+
+    assert parse_time(np.int64(12), CTX) == parse_time(np.float32(12.0), CTX) == START + 12
+    with pytest.raises(InputError, match="number or a string"):
+        parse_time([12], CTX)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="number or a string"):
+        parse_time(True, CTX)

@@ -1,12 +1,36 @@
-"""Console helpers shared by the command modules."""
+"""Console helpers shared by the command modules.
+
+Rich reads `[...]` in printed strings as markup: a time typed as `[/bold] x` crashes the print
+(MarkupError) and a message holding `[nan, nan, 1.0]` loses that part silently. So every piece
+of user, model or error text goes through `esc` before it is printed with markup, and error
+lines are printed as plain `Text`, never parsed.
+"""
 
 from __future__ import annotations
 
 import sys
 
 from rich.console import Console
+from rich.markup import escape
+from rich.text import Text
 
 
 def out_console() -> Console:
     """Terminal width on a terminal; wide enough for tables when piped (rich would use 80)."""
     return Console() if sys.stdout.isatty() else Console(width=200)
+
+
+def esc(value: object) -> str:
+    """`value` as text that rich prints literally (brackets escaped)."""
+    return escape(str(value))
+
+
+def one_line(message: object) -> str:
+    """A message on one line (errors from libraries sometimes span several)."""
+    return " ".join(part.strip() for part in str(message).splitlines() if part.strip())
+
+
+def print_error(message: object) -> None:
+    """`error: <message>` on stderr, on one line, never parsed as markup and never wrapped."""
+    err = Console(stderr=True, soft_wrap=True, highlight=False)
+    err.print(Text.assemble(("error:", "red"), " ", one_line(message)))

@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ..timeparse import fmt_time
-from ._console import out_console
+from ._console import esc, out_console
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 BaseUrlOpt = Annotated[
@@ -97,14 +97,14 @@ def ask(
 def _render(a: dict[str, Any], note: str) -> None:
     con = out_console()
     if note:
-        con.print(f"[yellow]note:[/] {note}", highlight=False)
+        con.print(f"[yellow]note:[/] {esc(note)}", highlight=False)
     status = "[red]FAILED[/]" if a["failed"] else ("found" if a["found"] else "[yellow]not found[/]")
-    con.print(f"[bold]type:[/] {a['question_type']}   [bold]method:[/] {a['method']}   {status}")
-    con.print(f"[bold]answer:[/] {a['text']}", highlight=False)
+    con.print(f"[bold]type:[/] {esc(a['question_type'])}   [bold]method:[/] {esc(a['method'])}   {status}")
+    con.print(f"[bold]answer:[/] {esc(a['text'])}", highlight=False)
     if a.get("position"):
         x, y, z = a["position"]
         yaw = f"{math.degrees(a['yaw']):.0f} deg" if a.get("yaw") is not None else "-"
-        con.print(f"[bold]x y z yaw:[/] {x:.2f} {y:.2f} {z:.2f} {yaw}   ({a['position_source']})")
+        con.print(f"[bold]x y z yaw:[/] {x:.2f} {y:.2f} {z:.2f} {yaw}   ({esc(a['position_source'])})")
     if a.get("time") is not None:
         con.print(f"[bold]time seen:[/] {fmt_time(a['time'])}")
     if a.get("duration") is not None:
@@ -112,7 +112,7 @@ def _render(a: dict[str, Any], note: str) -> None:
     if a.get("yes") is not None:
         con.print(f"[bold]yes/no:[/] {'yes' if a['yes'] else 'no'}")
     if a.get("error"):
-        con.print(f"[red]error:[/] {a['error']}", highlight=False)
+        con.print(f"[red]error:[/] {esc(a['error'])}", highlight=False)
     if a["evidence"]:
         table = Table(title="evidence memories")
         for col in ("id", "time (UTC)", "x", "y", "z", "yaw", "score", "image"):
@@ -120,7 +120,7 @@ def _render(a: dict[str, Any], note: str) -> None:
         for e in a["evidence"]:
             score = "" if e.get("score") is None else f"{e['score']:.3f}"
             table.add_row(str(e["id"]), fmt_time(e["t"]), f"{e['x']:.2f}", f"{e['y']:.2f}", f"{e['z']:.2f}",
-                          f"{math.degrees(e['yaw']):.0f}", score, str(e.get("image_file") or ""))  # fmt: skip
+                          f"{math.degrees(e['yaw']):.0f}", score, esc(e.get("image_file") or ""))  # fmt: skip
         con.print(table)
     c = a["cost"]
     con.print(
@@ -129,7 +129,7 @@ def _render(a: dict[str, Any], note: str) -> None:
         f"{c['wall_s']:.2f} s"
     )
     if a.get("reasoning"):
-        con.print(f"[dim]reasoning: {a['reasoning']}[/]", highlight=False)
+        con.print(f"[dim]reasoning: {esc(a['reasoning'])}[/]", highlight=False)
 
 
 def caption(
@@ -162,7 +162,7 @@ def caption(
     if json_out:
         sys.stdout.write(json.dumps(out, indent=2) + "\n")
     else:
-        Console().print(f"captioned {n} memories ({total} in the memory); captions in {out['file']}")
+        Console().print(f"captioned {n} memories ({total} in the memory); captions in {esc(out['file'])}")
 
 
 def register(app: typer.Typer) -> None:

@@ -20,7 +20,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ..errors import InputError
-from ._console import out_console
+from ._console import esc, out_console
 
 eval_app = typer.Typer(help="Benchmarks (RAVEN-QA, NaVQA, FindingDory, your own questions), reports and studies.",
                        no_args_is_help=False)  # fmt: skip
@@ -157,18 +157,18 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
         return
     from ..eval.report import _num, _pct
 
-    table = Table(title=f"{summary['rows']} answers in {summary.get('run_dir', '')}")
+    table = Table(title=esc(f"{summary['rows']} answers in {summary.get('run_dir', '')}"))
     for col in ("method", "embedder", "VLM", "Q", "accuracy %", "pos err m", "time err min", "alpha", "s/q"):
         table.add_column(col)
     for g in summary["groups"]:
-        table.add_row(g["method"] + (f" [{g['variant']}]" if g.get("variant") else ""), g["embedder"], g["vlm"],
+        table.add_row(esc(g["method"] + (f" [{g['variant']}]" if g.get("variant") else "")), esc(g["embedder"]), esc(g["vlm"]),
                       str(g["questions"]), _pct(g["accuracy"]), _num(g["pos_error_m"]), _num(g["time_error_min"]),
                       _num(g["alpha"], 3), _num(g["seconds_per_q"], 2))  # fmt: skip
     out_console().print(table)
     for g in summary["groups"]:
         if g["not_judged"]:
             console.print(
-                f"{g['method']}: {g['not_judged']} text answer(s) not scored (no LLM judge; use --judge MODEL)"
+                f"{esc(g['method'])}: {g['not_judged']} text answer(s) not scored (no LLM judge; use --judge MODEL)"
             )
 
 
@@ -240,11 +240,13 @@ def eval_main(
         method_opts={"top_k": parse_top_k(top_k), "max_tool_calls": max_tool_calls, "frames": frames},
         dataset_opts={"rate": rate, "tz": tz, "split": split},
     )  # fmt: skip
-    summary = Runner(cfg, log=lambda m: console.print(m, highlight=False)).run()
+    summary = Runner(cfg, log=lambda m: console.print(esc(m), highlight=False)).run()
     _print_summary(summary, json_out)
     if not json_out:
         console.print(
-            f"rows: {Path(summary['run_dir']) / 'answers.jsonl'}; report: ravenmem eval report {summary['run_dir']} --out report.md"
+            esc(
+                f"rows: {Path(summary['run_dir']) / 'answers.jsonl'}; report: ravenmem eval report {summary['run_dir']} --out report.md"
+            )
         )
 
 
@@ -273,7 +275,7 @@ def report_cmd(
     if time_threshold is not None:
         thr.time_s = 60.0 * time_threshold
     path = write_report(run_dir, out, thresholds=Thresholds(**thr.to_dict()))
-    console.print(f"wrote {path} (figures in {path.parent / (path.stem + '_figs')})")
+    console.print(esc(f"wrote {path} (figures in {path.parent / (path.stem + '_figs')})"))
 
 
 @eval_app.command("judge")
@@ -290,7 +292,7 @@ def judge_cmd(
     from ..eval.runner import rejudge
 
     n = rejudge(run_dir, Judge(VLMConfig.resolve(model=judge, base_url=judge_base_url)))
-    console.print(f"judged {n} text answer(s) in {run_dir}")
+    console.print(esc(f"judged {n} text answer(s) in {run_dir}"))
 
 
 def _study_config(dataset: str | None, method: str | None, queries: Path | None, embedder: str, vlm: str | None,
@@ -322,11 +324,13 @@ def compression_cmd(
         values = [int(s) for s in _split_list(strides, "--strides")]
     except ValueError:
         raise InputError(f"--strides: expected whole numbers, got {strides!r}") from None
-    doc = compression_study(cfg, values, out, log=lambda m: console.print(m, highlight=False))
+    doc = compression_study(cfg, values, out, log=lambda m: console.print(esc(m), highlight=False))
     for p in doc["points"]:
         console.print(f"stride {p['stride']:>4}: {p['memories']} memories from {p['frames']} frames "
-                      f"({p['sparsification']:.1f}x), {p['method']}: {100 * (p['accuracy']['mean'] or 0):.1f}%")  # fmt: skip
-    console.print(f"wrote {out / 'study.json'}; plot: ravenmem eval report {out} --out {out / 'report.md'}")
+                      f"({p['sparsification']:.1f}x), {esc(p['method'])}: {100 * (p['accuracy']['mean'] or 0):.1f}%")  # fmt: skip
+    console.print(
+        esc(f"wrote {out / 'study.json'}; plot: ravenmem eval report {out} --out {out / 'report.md'}")
+    )
 
 
 @study_app.command("coverage")
@@ -346,11 +350,13 @@ def coverage_cmd(
     cfg = _study_config(dataset, method, queries, embedder, vlm, vlm_base_url, seeds, cache_dir, workers, keyframes,
                         top_k, max_tool_calls, pos_threshold, limit, episodes)  # fmt: skip
     doc = coverage_study(cfg, _floats(fractions, "--fractions"), out, cell=cell,
-                         log=lambda m: console.print(m, highlight=False))  # fmt: skip
+                         log=lambda m: console.print(esc(m), highlight=False))  # fmt: skip
     for p in doc["points"]:
-        console.print(f"coverage {100 * p['coverage']:>3.0f}%: {p['memories']} memories, {p['method']}: "
+        console.print(f"coverage {100 * p['coverage']:>3.0f}%: {p['memories']} memories, {esc(p['method'])}: "
                       f"{100 * (p['accuracy']['mean'] or 0):.1f}%")  # fmt: skip
-    console.print(f"wrote {out / 'study.json'}; plot: ravenmem eval report {out} --out {out / 'report.md'}")
+    console.print(
+        esc(f"wrote {out / 'study.json'}; plot: ravenmem eval report {out} --out {out / 'report.md'}")
+    )
 
 
 def register(app: typer.Typer) -> None:

@@ -1,6 +1,8 @@
 """The `ravenmem` command: a thin layer over the Python API.
 
-Errors a user can fix (`RavenmemError`) print one line and exit 2; every command has `--json`.
+Exit codes: 0 success; 1 a command that ran but failed (a FAILED `ask`); 2 bad input, i.e. a
+`RavenmemError` or a usage error (unknown option or command, a missing `--memory`), printed as
+one `error: ...` line on stderr without a traceback. Every command has `--json`.
 Other areas (agent, nav, eval) add their commands through a `register(app)` in their module.
 """
 
@@ -8,25 +10,25 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import os
 import sys
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from ..errors import InputError, RavenmemError
 from ..timeparse import fmt_time
-from ._console import out_console
+from ._console import esc, out_console, print_error
 
 os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # model-loading bars are noise in a CLI
 os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
-os.environ.setdefault(
-    "HF_HUB_OFFLINE", "1"
-)  # never reach for a hub implicitly; hub names still work when cached
+# Downloads are allowed (`--embedder hf:openai/clip-vit-base-patch32` fetches the model once);
+# set HF_HUB_OFFLINE=1 yourself to forbid them.
 
+PROG = "ravenmem"
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="ravenmem: a long-term visual memory for robots."
 )
@@ -71,15 +73,33 @@ def parse_options(items: list[str], what: str) -> dict[str, Any]:
 
 
 def parse_floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
+    """`"1.3,0.6"` -> [1.3, 0.6]: n finite numbers (nan and inf are refused)."""
+    expected = f"{what}: expected {' or '.join(map(str, n))} comma-separated finite numbers, got {text!r}"
     try:
         vals = [float(v) for v in text.replace(" ", "").split(",")]
     except ValueError:
-        raise InputError(
-            f"{what}: expected {' or '.join(map(str, n))} comma-separated numbers, got {text!r}"
-        ) from None
-    if len(vals) not in n:
-        raise InputError(f"{what}: expected {' or '.join(map(str, n))} comma-separated numbers, got {text!r}")
+        raise InputError(expected) from None
+    if len(vals) not in n or not all(math.isfinite(v) for v in vals):
+        raise InputError(expected)
     return vals
+
+
+def _version(value: bool) -> None:
+    if value:
+        from .. import __version__
+
+        sys.stdout.write(f"{PROG} {__version__}\n")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool,
+        typer.Option("--version", help="print the version and exit", callback=_version, is_eager=True),
+    ] = False,
+) -> None:
+    """ravenmem: a long-term visual memory for robots."""
 
 
 @app.command()
@@ -130,7 +150,7 @@ def ingest(
     mem = ravenmem.create(
         memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True
     )
-    with mem:
+    with mem, mem.undo_create_on_error():  # a failed first ingest leaves no folder behind
         rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size)
         total = mem.count()
     out = rep.as_dict() | {"memory": str(memory), "memories_total": total}
@@ -138,11 +158,11 @@ def ingest(
         print_json(out)
         return
     console.print(
-        f"[bold]{rep.source}[/]: {rep.frames_seen} frames seen, {rep.kept} kept "
+        f"[bold]{esc(rep.source)}[/]: {rep.frames_seen} frames seen, {rep.kept} kept "
         f"({rep.keyframes_per_s:.1f} keyframes/s, {rep.seconds:.1f} s); memory now holds {total}"
     )
     for reason, n in sorted(rep.skipped.items()):
-        console.print(f"  skipped {n}: {reason}")
+        console.print(f"  skipped {n}: {esc(reason)}")
     if rep.kept == 0:
         raise InputError(f"no frame of {source} was kept: nothing was added to {memory}")
 
@@ -173,10 +193,10 @@ def search(
         raise InputError("give exactly one of: a text query, --image, --like, --time or --position")
     mode, k = modes[0], check_k(k)
     args: dict[str, Any] = {"after": after, "before": before}
-    if near and mode != "position":
+    if near and mode in ("text", "image"):
         args["near"] = parse_floats(near, (3,), "--near")
     elif near:
-        raise InputError("--near does not apply to --position; use --radius")
+        raise InputError(f"--near applies to text and image searches only, not to --{mode}")
     if radius is not None and mode != "position":
         raise InputError("--radius applies to --position only; use --near x,y,r with the other tools")
     query_image = None
@@ -221,7 +241,7 @@ def search(
             f"{r['y']:.2f}",
             f"{r['z']:.2f}",
             f"{r['yaw_deg']:.0f}",
-            short_path(r["image"]),
+            esc(short_path(r["image"])),
         )
     console.print(table)
 
@@ -241,13 +261,19 @@ def info(memory: MemoryOpt, json_out: JsonOpt = False) -> None:
             continue
         if key in ("t_min", "t_max") and isinstance(val, (int, float)):
             val = f"{val:.3f} ({fmt_time(val)})"
+        elif key == "extent":
+            val = ", ".join(f"{c} {lo:.2f} .. {hi:.2f} m" for c, (lo, hi) in val.items())
         elif isinstance(val, float):
             val = f"{val:,.2f}"
-        console.print(f"{key:>32}: {val}")
+        console.print(f"{key:>32}: {esc(val)}", highlight=False)
     for rep in data.get("ingests", []):
         console.print(
-            f"{'ingest':>32}: {rep.get('source')} seen {rep.get('frames_seen')} kept {rep.get('kept')} "
-            f"skipped {rep.get('skipped')}"
+            f"{'ingest':>32}: "
+            + esc(
+                f"{rep.get('source')} seen {rep.get('frames_seen')} kept {rep.get('kept')} "
+                f"skipped {rep.get('skipped')}"
+            ),
+            highlight=False,
         )
 
 
@@ -266,23 +292,40 @@ def _register_extensions() -> None:
 _register_extensions()
 
 
-def main() -> None:
-    try:
-        app(standalone_mode=False)
-    except RavenmemError as e:
-        Console(stderr=True, soft_wrap=True).print(f"[red]error:[/] {e}", highlight=False)
-        sys.exit(2)
-    except typer.Exit as e:
-        sys.exit(e.exit_code)
-    except typer.Abort:
-        sys.exit(130)
-    except Exception as e:  # click usage errors
-        import click
+def main(argv: list[str] | None = None) -> None:
+    """The `ravenmem` entry point: run a command and turn its outcome into an exit code.
 
-        if isinstance(e, click.ClickException):
-            e.show()
-            sys.exit(e.exit_code)
-        raise
+    typer runs on its own copy of click (`typer._click`), so its exceptions are caught through
+    typer's public classes: every click error (usage errors included) is a `typer.TyperException`;
+    `typer.Exit(code)` comes back as the return value in non-standalone mode.
+    """
+    for stream in (sys.stdout, sys.stderr):  # text from argv may hold lone surrogates
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            reconfigure(errors="backslashreplace")
+    try:
+        rc = app(args=argv, prog_name=PROG, standalone_mode=False)
+    except RavenmemError as e:
+        print_error(e)
+        sys.exit(2)
+    except typer.TyperException as e:
+        sys.exit(_usage_error(e))
+    except typer.Abort:
+        print_error("aborted")
+        sys.exit(1)
+    sys.exit(rc if isinstance(rc, int) else 0)
+
+
+def _usage_error(e: typer.TyperException) -> int:
+    """One line for a click error (with where to get help); the help page for a bare `ravenmem`."""
+    show = getattr(e, "show", None)
+    ctx = getattr(e, "ctx", None)
+    if type(e).__name__ == "NoArgsIsHelpError" and show is not None:
+        show()  # `ravenmem` alone: the help page, as click prints it
+        return 2
+    hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+    print_error(f"{e.format_message()}{hint}")
+    return 2
 
 
 if __name__ == "__main__":

@@ -2,7 +2,8 @@
 
 Spec: `hf:NAME_OR_LOCAL_FOLDER`, e.g. `hf:/models/siglip2-base-patch16-224` (offline: a folder
 written by `save_pretrained` holding the model and its processor) or `hf:google/siglip-base-patch16-224`
-(resolved by the hub cache; set HF_HUB_OFFLINE=1 to forbid downloads). The model must offer
+(downloaded once into the hub cache; set HF_HUB_OFFLINE=1 to forbid downloads; a model that cannot
+be loaded, e.g. without network, is one `InputError`). The model must offer
 `get_image_features` and `get_text_features`; transformers >= 5 returns an output object whose
 `pooler_output` holds the projected embedding, older versions a tensor: both are handled.
 Keyword `device` picks where it runs; it does not change the name.
@@ -68,12 +69,16 @@ class HFEmbedder(LazyTorchEmbedder):
         import torch
 
         device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
-        model = tf.AutoModel.from_pretrained(self.source)
-        if not (hasattr(model, "get_image_features") and hasattr(model, "get_text_features")):
-            raise InputError(
-                f"hf embedder: {self.source} ({type(model).__name__}) is not an image-text dual encoder"
-            )
-        self._processor = tf.AutoProcessor.from_pretrained(self.source)
+        try:
+            model = tf.AutoModel.from_pretrained(self.source)
+            if not (hasattr(model, "get_image_features") and hasattr(model, "get_text_features")):
+                raise InputError(
+                    f"hf embedder: {self.source} ({type(model).__name__}) is not an image-text dual encoder"
+                )
+            self._processor = tf.AutoProcessor.from_pretrained(self.source)
+        except (OSError, ValueError) as e:  # not found, no network (downloads retry first), bad folder
+            reason = " ".join(str(e).split()) or type(e).__name__
+            raise InputError(f"hf embedder: cannot load {self.source!r}: {reason}") from None
         self._model = model.to(device).eval()
         self.device = device
         return int(self._encode_texts(["a"]).shape[-1])

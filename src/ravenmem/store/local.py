@@ -20,6 +20,7 @@ import threading
 import uuid
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 
@@ -73,6 +74,7 @@ class LocalStore:
         if synchronous.upper() not in ("FULL", "NORMAL", "EXTRA"):
             raise InputError(f"synchronous: expected FULL, NORMAL or EXTRA, got {synchronous!r}")
         folder.mkdir(parents=True, exist_ok=True)
+        check_own_database(folder / "store.sqlite")
         self.folder, self.dim = folder, dim
         self.ann_threshold, self.nprobe, self.retrain_growth = ann_threshold, nprobe, retrain_growth
         self.filter_budget = filter_budget
@@ -481,6 +483,45 @@ _OPTIONS = {
     "train_per_list": int,
     "synchronous": str,
 }
+
+
+def check_own_database(db: Path) -> None:
+    """Refuse, before anything writes to it, a `store.sqlite` that is not this store's own.
+
+    Opening a SQLite file read-write switches it to WAL and creates tables, which would alter
+    another program's database. So: a symlink, a file that is not SQLite, a database not in WAL
+    mode (this store always is) or one with other tables is a one-line error, and the file is
+    read only with `immutable=1` (no lock, no -wal/-shm files created).
+    """
+    if not db.exists() and not db.is_symlink():
+        return
+    if db.is_symlink() or not db.is_file():
+        raise InputError(f"{db}: not a regular file; refusing to open it as a ravenmem store")
+    with open(db, "rb") as f:
+        head = f.read(100)
+    if not head:
+        return  # an empty file: a store killed while it was being created
+    if len(head) < 100 or not head.startswith(b"SQLite format 3\x00"):
+        raise InputError(f"{db}: not a SQLite database, so not a ravenmem store; nothing was changed")
+    if head[18] != 2 or head[19] != 2:
+        raise InputError(
+            f"{db}: a SQLite database not in WAL mode, so not a ravenmem store (another program's?); "
+            "nothing was changed"
+        )
+    uri = f"file:{quote(str(db.resolve()))}?mode=ro&immutable=1"
+    try:
+        ro = sqlite3.connect(uri, uri=True)
+        try:
+            tables = {str(r[0]) for r in ro.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            ro.close()
+    except sqlite3.DatabaseError as e:
+        raise InputError(f"{db}: cannot be read as a ravenmem store ({e}); nothing was changed") from None
+    if tables and not {"memories", "vectors", "meta"} <= tables:
+        shown = ", ".join(sorted(tables)[:5])
+        raise InputError(
+            f"{db}: holds tables of another program ({shown}), not a ravenmem store; nothing was changed"
+        )
 
 
 @STORES.register("local")

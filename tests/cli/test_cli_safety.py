@@ -1,0 +1,282 @@
+"""What a memory folder may make ravenmem do: read and write only inside that folder, and never
+touch a folder or a database that is not a ravenmem memory (subprocesses, as a user runs them)."""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import http.server
+import json
+import os
+import shutil
+import sqlite3
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+import ravenmem
+from ravenmem.embed.base import create_embedder
+from tests.agent.scripted_server import ScriptedModel, answer
+from tests.cli.helpers import assert_one_line_error, make_memory, run_cli
+
+
+def tree(folder: Path) -> dict[str, str]:
+    """Every file under `folder` with the hash of its bytes."""
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def foreign_db(path: Path) -> Path:
+    """Another program's SQLite database (rollback journal, its own tables)."""
+    con = sqlite3.connect(path)
+    con.execute("CREATE TABLE customers (id INTEGER PRIMARY KEY, name TEXT)")
+    con.execute("INSERT INTO customers (name) VALUES ('Ada')")
+    con.commit()
+    con.close()
+    return path
+
+
+def journal_mode(path: Path) -> str:
+    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        return str(con.execute("PRAGMA journal_mode").fetchone()[0])
+    finally:
+        con.close()
+
+
+@pytest.fixture
+def frames(tmp_path: Path) -> Path:
+    """An image folder with a pose file: the smallest real source `ingest` takes."""
+    src = tmp_path / "frames"
+    src.mkdir()
+    for i in range(3):
+        Image.new("RGB", (64, 48), (80 * i, 40, 200 - 60 * i)).save(src / f"frame_{i}.png")
+    (src / "poses.csv").write_text(
+        "file,t,x,y\n" + "".join(f"frame_{i}.png,{1000 + i},{i},0\n" for i in range(3))
+    )
+    return src
+
+
+# ---------------------------------------------------------------- folders that are not memories
+def test_ingest_never_writes_into_a_folder_that_is_not_a_memory(tmp_path: Path, frames: Path):
+    other = tmp_path / "otherapp"
+    other.mkdir()
+    db = foreign_db(other / "store.sqlite")
+    before = tree(other)
+    line = assert_one_line_error(run_cli("ingest", str(frames), "-m", str(other), "--no-ocr"))
+    assert "other files" in line and "nothing was written" in line
+    assert tree(other) == before and journal_mode(db) == "delete"
+
+
+def test_a_foreign_store_sqlite_is_refused_unchanged(tmp_path: Path, frames: Path):
+    mem = make_memory(tmp_path / "m.mem", n=2)
+    db = mem / "store.sqlite"
+    db.unlink()
+    for f in mem.glob("index.faiss"):
+        f.unlink()
+    foreign_db(db)
+    mf = mem / "memory.json"  # built by the default embedder, so that `ingest` gets as far as the store
+    offline = create_embedder("offline")
+    mf.write_text(json.dumps(json.loads(mf.read_text()) | {"embedder": offline.name, "dim": offline.dim}))
+    before = tree(mem)
+    for args in (["info"], ["search", "--time", "0"], ["ingest", str(frames), "--no-ocr"]):
+        line = assert_one_line_error(run_cli(*args, "-m", str(mem)))
+        assert "store.sqlite" in line and "not a ravenmem store" in line
+    assert tree(mem) == before and journal_mode(db) == "delete"  # no WAL switch, no -wal/-shm files
+
+
+def test_a_store_sqlite_that_is_no_database_is_refused(tmp_path: Path):
+    mem = make_memory(tmp_path / "m.mem", n=2)
+    (mem / "store.sqlite").write_bytes(b"just some text\n" * 10)
+    before = tree(mem)
+    line = assert_one_line_error(run_cli("search", "--time", "0", "-m", str(mem)))
+    assert "not a SQLite database" in line and tree(mem) == before
+
+
+def test_memory_pointing_at_a_database_file(tmp_path: Path, frames: Path):
+    db = foreign_db(tmp_path / "shop.sqlite")
+    before = db.read_bytes()
+    assert "not a ravenmem memory" in assert_one_line_error(run_cli("info", "-m", str(db)))
+    assert "not a folder" in assert_one_line_error(run_cli("ingest", str(frames), "-m", str(db)))
+    assert db.read_bytes() == before and journal_mode(db) == "delete"
+    assert sorted(os.listdir(tmp_path)) == ["frames", "shop.sqlite"]
+
+
+# ---------------------------------------------------------------- the manifest
+@pytest.mark.parametrize(
+    "edit,needle",
+    [
+        (b'{"embedder": "caf\xe9", "dim": 4}', "not UTF-8"),
+        ({"dim": "abc"}, "field 'dim'"),
+        ({"thumb_size": "big"}, "field 'thumb_size'"),
+        ({"format_version": 999}, "format_version 999 was written by a newer ravenmem"),
+        ({"ocr": "yes"}, "field 'ocr'"),
+        ({"ingests": "many"}, "field 'ingests'"),
+        (b"[1, 2, 3]", "expected a JSON object"),
+        (b'{"dim": 4}', "'embedder' is missing"),
+        (b"{not json", "not valid JSON"),
+    ],
+)
+def test_a_bad_manifest_is_one_line_and_nothing_is_written(tmp_path: Path, edit: object, needle: str):
+    mem = make_memory(tmp_path / "m.mem", n=2)
+    mf = mem / "memory.json"
+    if isinstance(edit, bytes):
+        mf.write_bytes(edit)
+    else:
+        mf.write_text(json.dumps(json.loads(mf.read_text()) | edit))  # type: ignore[operator]
+    before = tree(mem)
+    line = assert_one_line_error(run_cli("search", "--time", "0", "-m", str(mem)))
+    assert needle in line and "memory.json" in line
+    assert tree(mem) == before
+
+
+@pytest.mark.parametrize(
+    "store",
+    [
+        "ELSEWHERE",
+        "local:ELSEWHERE",
+        "milvus://ELSEWHERE/x.db",
+        "milvus-lite:../x.db",
+        "s3://bucket/x",
+        "../up",
+    ],
+)
+def test_the_manifest_store_cannot_point_outside_the_folder(tmp_path: Path, frames: Path, store: str):
+    mem = make_memory(tmp_path / "m.mem", n=2)
+    elsewhere = tmp_path / "elsewhere"
+    mf = mem / "memory.json"
+    mf.write_text(
+        json.dumps(json.loads(mf.read_text()) | {"store": store.replace("ELSEWHERE", str(elsewhere))})
+    )
+    commands = [["info"], ["ingest", str(frames), "--no-ocr"]] if store == "ELSEWHERE" else [["info"]]
+    for args in commands:
+        line = assert_one_line_error(run_cli(*args, "-m", str(mem)))
+        assert "store" in line
+    assert not elsewhere.exists() and not (tmp_path / "x.db").exists() and not (tmp_path / "up").exists()
+
+
+def test_create_refuses_a_milvus_lite_file_outside_the_memory(tmp_path: Path, frames: Path):
+    outside = tmp_path / "lite" / "x.db"
+    line = assert_one_line_error(
+        run_cli("ingest", str(frames), "-m", str(tmp_path / "m.mem"), "--store", f"milvus://{outside}")
+    )
+    assert "inside the memory folder" in line
+    assert not (tmp_path / "m.mem").exists() and not outside.parent.exists()
+
+
+# ---------------------------------------------------------------- image paths read from a memory
+def test_ask_never_sends_files_outside_the_memory(tmp_path: Path):
+    """Records whose image_path leaves the folder (`..`, an absolute path, a symlink) are not
+    read: the VLM receives the memory's own thumbnails only."""
+    secret = tmp_path / "secret"
+    secret.mkdir()
+    private = secret / "private.jpg"
+    Image.new("RGB", (40, 30), (1, 2, 3)).save(private)
+    notes = secret / "notes.txt"
+    notes.write_text("password=hunter2\n")
+    mem = make_memory(tmp_path / "home" / "m.mem", n=4)
+    (mem / "thumbs" / "link.jpg").symlink_to(private)
+    con = sqlite3.connect(mem / "store.sqlite")
+    for i, path in enumerate(["../../secret/private.jpg", str(notes), "thumbs/link.jpg"], start=1):
+        con.execute("UPDATE memories SET image_path = ? WHERE id = ?", (path, i))
+    con.commit()
+    con.close()
+    with ravenmem.open(mem) as m:
+        recs = m.all_records()
+        assert [m.image_file(r) is None for r in recs] == [True, True, True, False]
+        assert [m.load_image(r) is None for r in recs] == [True, True, True, False]
+
+    leaked = [base64.b64encode(p.read_bytes()).decode()[:40] for p in (private, notes)]
+    env = {"XDG_CONFIG_HOME": str(tmp_path), "RAVENMEM_VLM_API_KEY": "k"}
+    with ScriptedModel(default=answer(question_type="text", answer="no idea", evidence=[])) as srv:
+        r = run_cli("ask", "What did I see?", "-m", str(mem), "--method", "vlm-only", "--base-url", srv.base_url,
+                    "--model", "vlm", "--json", env=env)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        sent = json.dumps(srv.requests)
+        assert srv.requests and sum(srv.images(i) for i in range(len(srv.requests))) == 1
+    assert not any(chunk in sent for chunk in leaked)
+
+
+# ---------------------------------------------------------------- embedder downloads
+@pytest.fixture
+def hub_404() -> Iterator[str]:
+    """A model hub on 127.0.0.1 that knows no model (every request: 404)."""
+
+    class NotFound(http.server.BaseHTTPRequestHandler):
+        def _nf(self) -> None:
+            self.send_response(404)
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+
+        do_GET = do_HEAD = _nf
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), NotFound)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    yield f"http://127.0.0.1:{srv.server_address[1]}"
+    srv.shutdown()
+    srv.server_close()
+
+
+def _hub_env(tmp_path: Path, endpoint: str) -> dict[str, str]:
+    # the CLI no longer forces HF_HUB_OFFLINE: the embedder really tries to download
+    env = {"HF_HOME": str(tmp_path / "hf-home"), "HF_ENDPOINT": endpoint, "HF_HUB_OFFLINE": "0"}
+    return env | {"TRANSFORMERS_OFFLINE": "0"}
+
+
+def test_a_model_that_cannot_be_downloaded_leaves_nothing_behind(tmp_path: Path, frames: Path, hub_404: str):
+    pytest.importorskip("transformers")
+    env = _hub_env(tmp_path, hub_404)
+    new = tmp_path / "new" / "deep" / "m.mem"
+    line = assert_one_line_error(
+        run_cli(
+            "ingest", str(frames), "-m", str(new), "--embedder", "hf:openai/clip-vit-base-patch32", env=env
+        )
+    )
+    assert "cannot load 'openai/clip-vit-base-patch32'" in line
+    assert not (tmp_path / "new").exists()
+    empty = tmp_path / "empty.mem"  # a folder that existed before is kept, and left empty
+    empty.mkdir()
+    assert_one_line_error(
+        run_cli(
+            "ingest", str(frames), "-m", str(empty), "--embedder", "hf:openai/clip-vit-base-patch32", env=env
+        )
+    )
+    assert empty.is_dir() and not any(empty.iterdir())
+
+
+@pytest.mark.slow
+def test_no_network_download_failure(tmp_path: Path, frames: Path):
+    """The hub unreachable (connection refused; huggingface_hub retries for ~25 s first)."""
+    pytest.importorskip("transformers")
+    env = _hub_env(tmp_path, "http://127.0.0.1:9")
+    new = tmp_path / "m.mem"
+    line = assert_one_line_error(
+        run_cli(
+            "ingest", str(frames), "-m", str(new), "--embedder", "hf:openai/clip-vit-base-patch32", env=env
+        )
+    )
+    assert "cannot load" in line and not new.exists()
+
+
+# ---------------------------------------------------------------- appending
+def test_ingest_again_with_default_flags_appends(tmp_path: Path, frames: Path):
+    """The default `--embedder offline` is resolved to the stored full name before comparing."""
+    later = tmp_path / "later"
+    shutil.copytree(frames, later)
+    (later / "poses.csv").write_text(
+        "file,t,x,y\n" + "".join(f"frame_{i}.png,{2000 + i},{i},1\n" for i in range(3))
+    )
+    mem = tmp_path / "m.mem"
+    for src, total in ((frames, 3), (later, 6)):
+        r = run_cli("ingest", str(src), "-m", str(mem), "--no-ocr", "--json")
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["memories_total"] == total

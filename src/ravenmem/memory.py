@@ -559,6 +559,8 @@ class _Created:
         if self.top is not None:
             shutil.rmtree(self.top, ignore_errors=True)
             return
+        if not self.folder.is_dir():
+            return
         for name in set(os.listdir(self.folder)) - self.before:
             p = self.folder / name
             if p.is_dir() and not p.is_symlink():

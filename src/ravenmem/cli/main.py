@@ -310,6 +310,8 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
     except typer.TyperException as e:
         sys.exit(_usage_error(e))
+    except typer.Exit as e:  # raised outside a command (typer returns it from inside one)
+        sys.exit(e.exit_code)
     except typer.Abort:
         print_error("aborted")
         sys.exit(1)

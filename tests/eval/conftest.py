@@ -2,4 +2,4 @@
 
 from __future__ import annotations
 
-from tests.eval.eval_helpers import embedder, raven_root  # noqa: F401 - pytest fixtures
+from tests.eval.eval_helpers import embedder, raven_root, scoring_root  # noqa: F401 - pytest fixtures

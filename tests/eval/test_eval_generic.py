@@ -7,8 +7,8 @@ import pytest
 
 from ravenmem.errors import InputError
 from ravenmem.eval.datasets import load_dataset
-from ravenmem.eval.runner import RunConfig, Runner, read_rows
-from tests.eval.eval_helpers import CountingColorEmbedder, save, solid
+from ravenmem.eval.runner import Runner, read_rows
+from tests.eval.eval_helpers import CountingColorEmbedder, run_cfg, save, solid
 
 REPO = Path(__file__).resolve().parents[2]
 TUM = REPO.parent / "shared" / "data" / "tum_fr1_rpy"
@@ -39,16 +39,29 @@ def test_questions_file_over_a_tum_folder(tmp_path: Path, embedder: CountingColo
     q = {
         "time_tolerance_s": 0.2,
         "questions": [
-            {"id": "green", "question": "When did you see green?", "type": "frame",
-             "answer": {"frame_ranges": [[name(4), name(7)]]}},
-            {"id": "blue-where", "question": "Where was the blue wall?", "type": "position",
-             "answer": {"frames": [name(9)], "tolerance_m": 0.25}},
-            {"id": "red-when", "question": "When did you see red?", "type": "time", "answer": {"window": [0.0, 0.35]}},
+            {
+                "id": "green",
+                "question": "When did you see green?",
+                "type": "frame",
+                "answer": {"frame_ranges": [[name(4), name(7)]]},
+            },
+            {
+                "id": "blue-where",
+                "question": "Where was the blue wall?",
+                "type": "position",
+                "answer": {"frames": [name(9)], "tolerance_m": 0.25},
+            },
+            {
+                "id": "red-when",
+                "question": "When did you see red?",
+                "type": "time",
+                "answer": {"window": [0.0, 0.35]},
+            },
             {"id": "t", "question": "When did you start?", "type": "time", "answer": {"time": 0.0}},
             {"id": "b", "question": "Did you see a blue wall?", "type": "binary", "answer": {"yes": True}},
             {"id": "x", "question": "What colour?", "type": "text", "answer": {"text": "red"}},
         ],
-    }  # fmt: skip
+    }
     qfile = tmp_path / "q.json"
     qfile.write_text(json.dumps(q))
     (ep,) = load_dataset(f"tum:{rec}", queries=str(qfile))
@@ -57,8 +70,7 @@ def test_questions_file_over_a_tum_folder(tmp_path: Path, embedder: CountingColo
     assert qs["green"].truth.times[0] == pytest.approx(T0 + 0.4)
     assert qs["blue-where"].truth.positions[0][0] == pytest.approx(0.1 * 9 + 0.05, abs=1e-6)
     assert ep.t0 == pytest.approx(T0) and len(ep.frame_files) == 12
-    cfg = RunConfig(dataset=f"tum:{rec}", queries=str(qfile), methods=["embedder-only"], out=str(tmp_path / "run"),
-                    cache_dir=str(tmp_path / "cache"), progress=False, thumb_size=32)  # fmt: skip
+    cfg = run_cfg(f"tum:{rec}", ["embedder-only"], tmp_path, dataset_opts={"queries": str(qfile)})
     s = Runner(cfg, embedder=embedder, log=lambda _: None).run()
     rows = {r["qid"]: r for r in read_rows(tmp_path / "run")}
     assert rows["green"]["score"]["correct"] and rows["green"]["pred"]["files"][0] in qs["green"].truth.files
@@ -66,7 +78,7 @@ def test_questions_file_over_a_tum_folder(tmp_path: Path, embedder: CountingColo
     assert rows["red-when"]["score"]["correct"]
     assert rows["blue-where"]["score"]["correct"]
     assert rows["x"]["score"]["correct"] is None
-    assert s["groups"][0]["by_type"]["frame"]["mean"] == 1.0
+    assert s["groups"][0]["by"]["type"]["frame"]["accuracy"]["mean"] == 1.0
 
 
 def test_questions_file_errors(tmp_path: Path) -> None:
@@ -109,8 +121,9 @@ def test_example_tum_queries_against_real_frames(
     assert len(qs["controller"].truth.files) == 19 + 17 + 15 + 37 + 29 + 17
     assert qs["first-person"].truth.times == [pytest.approx(1305031234.461690)]
     # a quick end-to-end pass over the real recording (every 24th frame, colour embedder)
-    cfg = RunConfig(dataset=f"queries:{qfile}", methods=["embedder-only"], out=str(tmp_path / "run"), limit=3,
-                    cache_dir=str(tmp_path / "cache"), progress=False, thumb_size=32, keyframes="stride=24")  # fmt: skip
+    cfg = run_cfg(
+        f"queries:{qfile}", ["embedder-only"], tmp_path, dataset_opts={"limit": 3}, keyframes="stride=24"
+    )
     Runner(cfg, embedder=embedder, log=lambda _: None).run()
     rows = read_rows(tmp_path / "run")
     assert len(rows) == 3 and 25 <= rows[0]["memory"]["memories"] <= 31 and rows[0]["memory"]["frames"] == 723

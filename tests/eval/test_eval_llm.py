@@ -10,10 +10,11 @@ from typing import Any
 import numpy as np
 
 from ravenmem.agent.schema import Answer
+from ravenmem.eval.config import RunConfig
 from ravenmem.eval.judge import parse_verdict
-from ravenmem.eval.runner import RunConfig, Runner, read_rows, rejudge
+from ravenmem.eval.runner import Runner, read_rows, rejudge
 from tests.agent.scripted_server import ScriptedModel, answer, content, tool
-from tests.eval.eval_helpers import COLORS, CountingColorEmbedder, write_navqa
+from tests.eval.eval_helpers import COLORS, CountingColorEmbedder, run_cfg, write_navqa
 
 
 def judge_reply(body: dict[str, Any]) -> dict[str, Any]:
@@ -29,28 +30,40 @@ class Speaker:
         self.name = name
 
     def ask(self, question: str, image: np.ndarray | None = None) -> Answer:
-        return Answer(question=question, method=self.name, question_type="text",
-                      text="The wall was red." if self.name == "good" else "It was green.")  # fmt: skip
+        return Answer(
+            question=question,
+            method=self.name,
+            question_type="text",
+            text="The wall was red." if self.name == "good" else "It was green.",
+        )
 
 
 def navqa_cfg(tmp: Path, **kw: Any) -> RunConfig:
     root = tmp / "navqa"
     if not root.exists():
         write_navqa(root)
-    return RunConfig(**({"dataset": f"navqa:{root}", "methods": ["good", "bad"], "out": str(tmp / "run"),
-                         "cache_dir": str(tmp / "cache"), "progress": False, "thumb_size": 32,
-                         "episodes": "*@1673884500.000-*"} | kw))  # fmt: skip
+    return run_cfg(
+        f"navqa:{root}", ["good", "bad"], tmp, dataset_opts={"episodes": "*@1673884500.000-*"}, **kw
+    )
+
+
+def text_acc(g: dict[str, Any]) -> float | None:
+    return g["by"]["type"]["text"]["accuracy"]["mean"]
 
 
 def test_judge_scores_text_answers(tmp_path: Path) -> None:
     with ScriptedModel(default=judge_reply) as srv:
-        cfg = navqa_cfg(tmp_path, judge_model="scripted-judge", judge_base_url=srv.base_url)
-        s = Runner(cfg, method_factory=lambda n, m, **o: Speaker(n, m), embedder=CountingColorEmbedder(),
-                   log=lambda _: None).run()  # fmt: skip
+        cfg = navqa_cfg(tmp_path, judge="scripted-judge", judge_base_url=srv.base_url)
+        s = Runner(
+            cfg,
+            method_factory=lambda n, m, **o: Speaker(n, m),
+            embedder=CountingColorEmbedder(),
+            log=lambda _: None,
+        ).run()
         assert len(srv.requests) == 2 and srv.requests[0]["model"] == "scripted-judge"
         assert "Reference answer(s):\n- It was red" in srv.requests[0]["messages"][1]["content"]
     g = {x["method"]: x for x in s["groups"]}
-    assert g["good"]["by_type"]["text"]["mean"] == 1.0 and g["bad"]["by_type"]["text"]["mean"] == 0.0
+    assert text_acc(g["good"]) == 1.0 and text_acc(g["bad"]) == 0.0
     assert g["good"]["not_judged"] == 0
     text_rows = [r for r in read_rows(tmp_path / "run") if r["question"]["type"] == "text"]
     assert {r["judge"]["reason"] for r in text_rows} == {"compared colours"}
@@ -58,10 +71,14 @@ def test_judge_scores_text_answers(tmp_path: Path) -> None:
 
 def test_without_judge_text_is_not_scored_then_rejudged(tmp_path: Path) -> None:
     cfg = navqa_cfg(tmp_path)
-    s = Runner(cfg, method_factory=lambda n, m, **o: Speaker(n, m), embedder=CountingColorEmbedder(),
-               log=lambda _: None).run()  # fmt: skip
+    s = Runner(
+        cfg,
+        method_factory=lambda n, m, **o: Speaker(n, m),
+        embedder=CountingColorEmbedder(),
+        log=lambda _: None,
+    ).run()
     g = {x["method"]: x for x in s["groups"]}
-    assert g["good"]["not_judged"] == 1 and g["good"]["by_type"]["text"]["mean"] is None
+    assert g["good"]["not_judged"] == 1 and text_acc(g["good"]) is None
     from ravenmem.agent.config import VLMConfig
     from ravenmem.eval.judge import Judge
 
@@ -70,7 +87,7 @@ def test_without_judge_text_is_not_scored_then_rejudged(tmp_path: Path) -> None:
     assert n == 2
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     g = {x["method"]: x for x in summary["groups"]}
-    assert g["good"]["by_type"]["text"]["mean"] == 1.0 and g["good"]["not_judged"] == 0
+    assert text_acc(g["good"]) == 1.0 and g["good"]["not_judged"] == 0
 
 
 def test_verdict_parsing() -> None:
@@ -98,16 +115,25 @@ def vlm_reply(body: dict[str, Any]) -> dict[str, Any]:
     return answer(question_type="position", answer="there", evidence=[int(best[0])])
 
 
-def test_raven_agent_through_the_runner(raven_root: Path, tmp_path: Path) -> None:
+def test_raven_agent_through_the_runner(scoring_root: Path, tmp_path: Path) -> None:
     with ScriptedModel(default=vlm_reply) as srv:
-        cfg = RunConfig(dataset=f"raven-qa:{raven_root}", methods=["raven"], vlm="scripted", vlm_base_url=srv.base_url,
-                        out=str(tmp_path / "run"), cache_dir=str(tmp_path / "cache"), progress=False, thumb_size=32,
-                        workers=2, method_opts={"top_k": 3, "max_tool_calls": 2})  # fmt: skip
+        cfg = run_cfg(
+            f"raven-qa:{scoring_root / 'sim' / 'simple'}",
+            ["raven"],
+            tmp_path,
+            vlm="scripted",
+            vlm_base_url=srv.base_url,
+            method_opts={"top_k": 3, "max_tool_calls": 2},
+        )
         s = Runner(cfg, embedder=CountingColorEmbedder(), log=lambda _: None).run()
-        assert len(srv.requests) == 8  # two requests per question
+        assert len(srv.requests) == 6  # two requests per question
     (g,) = s["groups"]
-    assert g["vlm"] == "scripted" and g["accuracy"]["mean"] == 1.0
+    assert g["vlm"] == "scripted" and g["accuracy"]["mean"] == 1.0 == g["frame_accuracy"]["mean"]
+    assert g["position_accuracy"]["mean"] == 1.0 and g["pos_error_m"]["mean"] == 0.0
     assert g["images_per_q"]["mean"] == 3 and g["tokens_per_q"]["mean"] > 0
-    assert g["alpha"]["mean"] == 0.3  # 3 of 10 memories shown
+    assert g["alpha"]["mean"] == 3 / 40  # 3 of 40 memories shown
     rows = read_rows(tmp_path / "run")
     assert all(r["answer"]["position_source"] == "evidence" and r["vlm"] == "scripted" for r in rows)
+    assert all(
+        r["ran"] == {"method": "raven", "model": "scripted", "embedder": "test-color-eval"} for r in rows
+    )

@@ -10,14 +10,30 @@ from ravenmem.eval.runner import build_row
 from ravenmem.eval.types import Episode, Question, Truth
 
 T = 1000.0
-EP = Episode(id="ep", dataset="t", key="k", frames=lambda: [], questions=[],
-             frame_times=[T + i for i in range(10)], frame_files=[f"f{i}.jpg" for i in range(10)],
-             pos_threshold=15.0, frame_tol=0.5)  # fmt: skip
+EP = Episode(
+    id="ep",
+    dataset="t",
+    key="k",
+    frames=lambda: [],
+    questions=[],
+    frame_times=[T + i for i in range(10)],
+    frame_files=[f"f{i}.jpg" for i in range(10)],
+    pos_threshold=15.0,
+    frame_tol=0.5,
+)
 
 
-def row(q: Question, ans: Answer, thr: Thresholds | None = None, seed: int = 0, method: str = "m",
-        ep: Episode = EP, **kw: Any) -> dict[str, Any]:  # fmt: skip
-    return build_row(ep, q, method, seed, ans, thr or Thresholds(), **kw)
+def row(
+    q: Question,
+    ans: Answer,
+    thr: Thresholds | None = None,
+    seed: int = 0,
+    method: str = "m",
+    ep: Episode = EP,
+    **kw: Any,
+) -> dict[str, Any]:
+    ran = {"method": method, "model": kw.pop("vlm", None), "embedder": kw.pop("embedder", "")}
+    return build_row(ep, q, method, seed, ans, thr or Thresholds(), ran=ran, **kw)
 
 
 def ev(t: float) -> Evidence:
@@ -79,8 +95,16 @@ def test_frames_in_order_relaxed_and_none() -> None:
 
 def test_frame_by_file_tolerance() -> None:
     q = Question("q", "Where?", "frame", Truth(files=["f5.jpg"]))
-    ep = Episode(id="e", dataset="t", key="k", frames=lambda: [], questions=[], frame_times=EP.frame_times,
-                 frame_files=EP.frame_files, frame_tol=1.5)  # fmt: skip
+    ep = Episode(
+        id="e",
+        dataset="t",
+        key="k",
+        frames=lambda: [],
+        questions=[],
+        frame_times=EP.frame_times,
+        frame_files=EP.frame_files,
+        frame_tol=1.5,
+    )
     assert row(q, Answer(evidence=[ev(T + 6)]), ep=ep)["score"]["correct"]  # neighbour frame counts
     assert not row(q, Answer(evidence=[ev(T + 7)]), ep=ep)["score"]["correct"]
     assert not row(q, Answer(evidence=[ev(T + 6)]), Thresholds(frame_s=0.2), ep=ep)["score"]["correct"]
@@ -106,8 +130,17 @@ def test_parsers() -> None:
 
 
 def test_summary_mean_std_over_seeds_and_breakdowns() -> None:
-    qs = [Question(f"q{i}", "Where?", "position", Truth(positions=[[0, 0, 0]]), category="spatial" if i < 2 else "other",
-                   horizon="short" if i % 2 else "long") for i in range(4)]  # fmt: skip
+    qs = [
+        Question(
+            f"q{i}",
+            "Where?",
+            "position",
+            Truth(positions=[[0, 0, 0]]),
+            category="spatial" if i < 2 else "other",
+            horizon="short" if i % 2 else "long",
+        )
+        for i in range(4)
+    ]
     rows = []
     for seed, good in ((0, 4), (1, 2)):  # seed 0: all right, seed 1: two right
         for i, q in enumerate(qs):
@@ -122,12 +155,60 @@ def test_summary_mean_std_over_seeds_and_breakdowns() -> None:
     acc = g["raven"]["accuracy"]
     assert acc["mean"] == pytest.approx(0.75) and acc["std"] == pytest.approx(0.35355, abs=1e-4)
     assert acc["seeds"] == 2 and acc["n"] == 8
-    assert g["raven"]["by_category"]["spatial"]["mean"] == 1.0
-    assert g["raven"]["by_category"]["other"]["mean"] == pytest.approx(0.5)
-    assert set(g["raven"]["by_horizon"]) == {"short", "long"}
+    by = g["raven"]["by"]
+    assert by["category"]["spatial"]["accuracy"]["mean"] == 1.0
+    assert by["category"]["other"]["accuracy"]["mean"] == pytest.approx(0.5)
+    assert set(by["horizon"]) == {"short", "long"} and set(by["horizon_type"]) == {
+        "short/position",
+        "long/position",
+    }
+    assert by["category"]["other"]["position_accuracy"]["mean"] == pytest.approx(0.5)
+    # the threshold sweep: errors 1 m (6 answers) and 50 m (2); 15 m is the episode's threshold
+    sweep = dict(zip(g["raven"]["pos_sweep"]["thresholds_m"], g["raven"]["pos_sweep"]["accuracy"]))
+    assert (
+        sweep[0.5]["mean"] == 0.0
+        and sweep[1.0]["mean"] == pytest.approx(0.75)
+        and sweep[25.0]["mean"] == 0.75
+    )
+    assert g["raven"]["pos_thresholds_m"] == [15.0]
     assert g["raven"]["alpha"]["mean"] == pytest.approx(0.15)
     assert g["raven"]["tokens_per_q"]["mean"] == 110 and g["raven"]["images_per_q"]["mean"] == 4
     assert g["raven"]["pos_error_m"]["median"] == pytest.approx(1.0)
     assert g["random"]["vlm"] == "-" and g["random"]["accuracy"]["mean"] == 1.0
     strict = {x["method"]: x for x in summarize(rows, Thresholds(position_m=0.5))["groups"]}
     assert strict["raven"]["accuracy"]["mean"] == 0.0 and strict["random"]["accuracy"]["mean"] == 1.0
+
+
+def test_frame_question_also_scores_the_position_and_splits() -> None:
+    """RAVEN-QA: frame accuracy is the criterion, position accuracy is reported beside it."""
+    q = Question(
+        "q", "Where?", "frame", Truth(positions=[[4, 0, 0]], files=["f4.jpg"]), subset="sim", split="hard"
+    )
+    ep = Episode(
+        id="e",
+        dataset="raven-qa",
+        key="k",
+        frames=lambda: [],
+        questions=[],
+        frame_times=EP.frame_times,
+        frame_files=EP.frame_files,
+        frame_tol=0.5,
+        pos_threshold=2.0,
+    )
+    right = row(q, Answer(position=[4.0, 0.0, 0.0], evidence=[ev(T + 4)]), ep=ep)
+    assert right["score"]["correct"] and right["score"]["frame_correct"] and right["score"]["pos_correct"]
+    near = row(q, Answer(position=[5.0, 0.0, 0.0], evidence=[ev(T + 5)]), ep=ep)  # the next frame, 1 m off
+    assert (
+        near["score"]["correct"] is False
+        and near["score"]["pos_correct"]
+        and near["score"]["pos_error_m"] == 1.0
+    )
+    nowhere = row(q, Answer(evidence=[ev(T + 4)]), ep=ep)
+    assert nowhere["score"]["correct"] and nowhere["score"]["pos_correct"] is False
+    assert right["question"]["subset"] == "sim" and right["question"]["split"] == "hard"
+    (g,) = summarize([right, near, nowhere])["groups"]
+    assert g["frame_accuracy"]["mean"] == pytest.approx(2 / 3) == g["accuracy"]["mean"]
+    assert g["position_accuracy"]["mean"] == pytest.approx(2 / 3)
+    assert set(g["by"]["subset_split"]) == {"sim/hard"} and set(g["by"]["split"]) == {"hard"}
+    sweep = dict(zip(g["pos_sweep"]["thresholds_m"], g["pos_sweep"]["accuracy"]))
+    assert sweep[0.5]["mean"] == pytest.approx(1 / 3)  # no position: wrong at every threshold

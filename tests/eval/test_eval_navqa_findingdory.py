@@ -12,7 +12,7 @@ from ravenmem.eval.datasets import load_dataset
 from ravenmem.eval.datasets.findingdory import FRAMES_PER_MINUTE, frame_of_time, frame_time
 from ravenmem.eval.datasets.frames import BASE_DAY
 from ravenmem.eval.datasets.navqa import POS_THRESHOLD, read_coda_pickle
-from tests.eval.eval_helpers import T0, solid, write_navqa, write_video
+from tests.eval.eval_helpers import T0, solid, write_findingdory, write_navqa
 
 
 def test_navqa_human_qa_clips(tmp_path: Path) -> None:
@@ -56,8 +56,13 @@ def test_navqa_coda_pickles_and_refuses_code(tmp_path: Path) -> None:
     pdir.mkdir(parents=True)
     for i in range(20):
         bgr = solid("blue")[..., ::-1].copy()
-        d = {"cam0": bgr, "position": np.array([1.0, 2.0 * i, 0.5]), "rotation": np.array([0, 0, 0, 1.0]),
-             "timestamp": T0 + i, "bbox_3d": {}}  # fmt: skip
+        d = {
+            "cam0": bgr,
+            "position": np.array([1.0, 2.0 * i, 0.5]),
+            "rotation": np.array([0, 0, 0, 1.0]),
+            "timestamp": T0 + i,
+            "bbox_3d": {},
+        }
         (pdir / f"{T0 + i}.pkl").write_bytes(pickle.dumps(d, protocol=pickle.HIGHEST_PROTOCOL))
     eps = load_dataset(f"navqa:{root}")
     frame = next(iter(eps[1].frames()))
@@ -87,30 +92,6 @@ def test_navqa_errors(tmp_path: Path) -> None:
     (tmp_path / "x").mkdir()
     with pytest.raises(InputError, match="no data.csv"):
         load_dataset(f"navqa:{tmp_path / 'x'}")
-
-
-def write_findingdory(root: Path, fmt: str = "jsonl") -> Path:
-    write_video(root / "videos" / "validation" / "ep_id_7.mp4", ["red"] * 4 + ["green"] * 4 + ["blue"] * 4)
-    rows = [
-        {"ep_id": "7", "video": "videos/validation/ep_id_7.mp4", "question": "Which frame shows the green box?",
-         "answer": "[[4, 5, 6, 7]]", "task_id": "t1", "high_level_category": "Single-Goal Spatial Tasks",
-         "low_level_category": "object recall", "num_interactions": 3},
-        {"ep_id": "7", "video": "videos/validation/ep_id_7.mp4", "question": "Red, then blue?",
-         "answer": "[[0, 1], [9, 10, 11]]", "task_id": "t2", "high_level_category": "Multi-Goal Tasks",
-         "low_level_category": "sequence", "num_interactions": 3},
-        {"ep_id": "7", "video": "videos/validation/ep_id_7.mp4", "question": "Where is the purple sofa?",
-         "answer": "[[-1]]", "task_id": "t3", "high_level_category": "Single-Goal Spatial Tasks",
-         "low_level_category": "negative", "num_interactions": 3},
-    ]  # fmt: skip
-    if fmt == "jsonl":
-        (root / "validation.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\n")
-    else:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
-        (root / "data").mkdir(parents=True, exist_ok=True)
-        pq.write_table(pa.Table.from_pylist(rows), root / "data" / "validation-00000-of-00001.parquet")
-    return root
 
 
 @pytest.mark.parametrize("fmt", ["jsonl", "parquet"])

@@ -11,8 +11,9 @@ import pytest
 
 from ravenmem.agent.schema import Answer, Evidence
 from ravenmem.errors import InputError
-from ravenmem.eval.runner import AnswerLog, RunConfig, Runner, read_rows
-from tests.eval.eval_helpers import CountingColorEmbedder, write_raven_video
+from ravenmem.eval.config import DatasetConfig, RunConfig
+from ravenmem.eval.runner import AnswerLog, Runner, agent_takes, check_methods, method_names, read_rows
+from tests.eval.eval_helpers import CountingColorEmbedder, no_vlm_env, run_cfg, write_raven_video
 
 
 class ColourLookup:
@@ -24,19 +25,29 @@ class ColourLookup:
     def ask(self, question: str, image: np.ndarray | None = None) -> Answer:
         (hit,) = self.memory.search_text(question, k=1)
         r = hit.memory
-        return Answer(question=question, method=self.name, question_type="position", position=list(r.pose.xyz),
-                      position_source="evidence", evidence=[Evidence(id=r.id, t=r.t, x=r.pose.x, y=r.pose.y)])  # fmt: skip
+        return Answer(
+            question=question,
+            method=self.name,
+            question_type="position",
+            position=list(r.pose.xyz),
+            position_source="evidence",
+            evidence=[Evidence(id=r.id, t=r.t, x=r.pose.x, y=r.pose.y)],
+        )
 
 
-def cfg(root: Path, tmp: Path, **kw: Any) -> RunConfig:
-    base = dict(dataset=f"raven-qa:{root}", methods=["lookup"], out=str(tmp / "run"), cache_dir=str(tmp / "cache"),
-                workers=2, progress=False, thumb_size=64)  # fmt: skip
-    return RunConfig(**(base | kw))
+def cfg(
+    root: Path, tmp: Path, methods: list[str] | None = None, limit: int | None = None, **kw: Any
+) -> RunConfig:
+    return run_cfg(f"raven-qa:{root}", methods or ["lookup"], tmp, dataset_opts={"limit": limit}, **kw)
 
 
 def make(c: RunConfig, emb: CountingColorEmbedder, factory: Any = None) -> Runner:
-    return Runner(c, method_factory=factory or (lambda n, m, **o: ColourLookup(n, m, **o)), embedder=emb,
-                  log=lambda _: None)  # fmt: skip
+    return Runner(
+        c,
+        method_factory=factory or (lambda n, m, **o: ColourLookup(n, m, **o)),
+        embedder=emb,
+        log=lambda _: None,
+    )
 
 
 def test_rows_summary_resume_and_cache(
@@ -51,7 +62,7 @@ def test_rows_summary_resume_and_cache(
     assert r0["answer"]["position"] == [4.0, 0.0, 0.0] and r0["score"]["correct"]
     assert r0["truth"]["files"] == ["frame_005.jpg"] and r0["memory"]["memories"] == 10
     assert r0["score"]["frame_correct"] and r0["pred"]["files"] == ["frame_005.jpg"]
-    assert json.loads((run / "config.json").read_text())["dataset"] == c.dataset
+    assert json.loads((run / "config.json").read_text())["dataset"] == c.dataset.spec
     assert s1["groups"][0]["accuracy"]["mean"] == 1.0 and s1["groups"][0]["accuracy"]["seeds"] == 2
     assert json.loads((run / "summary.json").read_text())["groups"][0]["rows"] == 6
     embedded = embedder.images
@@ -59,13 +70,13 @@ def test_rows_summary_resume_and_cache(
     # same run again: nothing to do, nothing re-embedded, rows not duplicated; then the rest of the questions
     make(c, embedder).run()
     assert len((run / "answers.jsonl").read_text().splitlines()) == 6 and embedder.images == embedded
-    c.limit = None
+    c.dataset.limit = None
     make(c, embedder).run()
     assert len(read_rows(run)) == 8 and embedder.images == embedded
     # another run folder, same memory settings: the cached memory is reused; other keyframes: vectors reused
-    make(cfg(raven_root, tmp_path, out=str(tmp_path / "run2")), embedder).run()
+    make(cfg(raven_root, tmp_path, out="run2"), embedder).run()
     assert embedder.images == embedded
-    make(cfg(raven_root, tmp_path, out=str(tmp_path / "run3"), keyframes="stride=2"), embedder).run()
+    make(cfg(raven_root, tmp_path, out="run3", keyframes="stride=2"), embedder).run()
     assert embedder.images == embedded
     r3 = read_rows(tmp_path / "run3")
     assert r3[0]["memory"]["memories"] == 5
@@ -124,8 +135,11 @@ def test_bounded_parallelism_and_failures(
     )
     assert {g["method"]: g["failed"] for g in s["groups"]} == {"flaky": 2, "slow": 0}
     n = len(calls)
-    make(cfg(raven_root, tmp_path, methods=["slow", "flaky"], workers=3, retry_failed=True), embedder,
-         lambda n, m, **o: Slow(n, m, **o)).run()  # fmt: skip
+    make(
+        cfg(raven_root, tmp_path, methods=["slow", "flaky"], workers=3, retry_failed=True),
+        embedder,
+        lambda n, m, **o: Slow(n, m, **o),
+    ).run()
     assert len(calls) == n + 2 and len(read_rows(tmp_path / "run")) == 16
 
 
@@ -141,8 +155,104 @@ def test_real_methods_through_the_runner(
     rows = read_rows(tmp_path / "run")
     rnd = sorted((r["qid"], r["seed"], r["answer"]["position"]) for r in rows if r["method"] == "random")
     # random is reproducible: a second run folder gives the same answers
-    Runner(cfg(raven_root, tmp_path, methods=["random"], seeds=2, out=str(tmp_path / "again")), embedder=embedder,
-           log=lambda _: None).run()  # fmt: skip
+    Runner(
+        cfg(raven_root, tmp_path, methods=["random"], seeds=2, out="again"),
+        embedder=embedder,
+        log=lambda _: None,
+    ).run()
     again = sorted((r["qid"], r["seed"], r["answer"]["position"]) for r in read_rows(tmp_path / "again"))
     assert rnd == again
     assert all(r["answer"]["cost"]["memories_total"] == 10 for r in rows if r["method"] == "embedder-only")
+
+
+def test_methods_needing_a_vlm_stop_before_any_question(
+    raven_root: Path, tmp_path: Path, embedder: CountingColorEmbedder, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for k, v in no_vlm_env(tmp_path).items():
+        monkeypatch.setenv(k, v)
+    from ravenmem.agent.base import needs_vlm
+
+    assert [m for m in method_names() if needs_vlm(m)] == ["caption", "raven", "vlm-only"]
+    for methods in (["raven"], ["offline", "caption"], ["vlm-only"]):
+        c = cfg(raven_root, tmp_path, methods=methods)
+        with pytest.raises(InputError, match=f"--method {methods[-1]} needs a VLM and none is configured"):
+            Runner(c, embedder=embedder, log=lambda _: None).run()
+    assert not (tmp_path / "run" / "answers.jsonl").exists() and embedder.images == 0
+
+
+def test_rows_record_what_ran_and_options_reach_methods(
+    raven_root: Path, tmp_path: Path, embedder: CountingColorEmbedder
+) -> None:
+    seen: list[dict[str, Any]] = []
+
+    def factory(name: str, memory: Any, **opts: Any) -> ColourLookup:
+        seen.append(opts)
+        return ColourLookup(name, memory, **opts)
+
+    opts = {
+        "top_k": {"time": 200, "text": 30},
+        "max_tool_calls": 15,
+        "preset": "findingdory",
+        "temperature": 0.2,
+    }
+    opts |= {"show_scores": False, "time_mode": "centred"}
+    c = cfg(raven_root, tmp_path, methods=["lookup"], method_opts=opts, seeds=2)
+    make(c, embedder, factory).run()
+    assert {o["seed"] for o in seen} == {0, 1} and all(o == opts | {"seed": o["seed"]} for o in seen)
+    rows = read_rows(tmp_path / "run")
+    assert {json.dumps(r["ran"], sort_keys=True) for r in rows} == {
+        json.dumps({"embedder": "test-color-eval", "method": "lookup", "model": None}, sort_keys=True)
+    }
+    doc = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert doc["method_opts"] == opts and doc["config"]["methods"]["preset"] == "findingdory"
+    # a run folder written before the typed configs (flat config.json) resumes, and refuses other settings
+    old = {
+        k: doc[k]
+        for k in (
+            "dataset",
+            "queries",
+            "embedder",
+            "vlm",
+            "vlm_base_url",
+            "keyframes",
+            "ocr",
+            "thumb_size",
+            "method_opts",
+            "dataset_opts",
+        )
+    } | {"methods": ["lookup"], "seeds": 2}
+    (tmp_path / "run" / "config.json").write_text(json.dumps(old))
+    make(c, embedder, factory).run()
+    assert len(read_rows(tmp_path / "run")) == 8
+    with pytest.raises(InputError, match=r"other settings \(method_opts\)"):
+        make(
+            cfg(raven_root, tmp_path, methods=["lookup"], method_opts={"preset": "navqa"}), embedder, factory
+        ).run()
+
+
+def test_unknown_methods_and_options_the_agent_lacks(raven_root: Path, tmp_path: Path) -> None:
+    with pytest.raises(
+        InputError, match="--method: unknown oracle; choose from caption, embedder-only, offline"
+    ):
+        check_methods(cfg(raven_root, tmp_path, methods=["oracle"]))
+    for option, value in (
+        ("show_scores", False),
+        ("time_mode", "centred"),
+        ("preset", "navqa"),
+        ("temperature", 0.5),
+    ):
+        c = cfg(raven_root, tmp_path, methods=["raven"], method_opts={option: value})
+        if agent_takes(option):
+            check_methods(c)
+        else:  # never silently dropped by an agent that does not know it yet
+            with pytest.raises(InputError, match=f"this version's raven method does not take {option}"):
+                check_methods(c)
+    check_methods(cfg(raven_root, tmp_path, methods=["offline"], method_opts={"show_scores": False}))
+    with pytest.raises(InputError, match="--time-mode: one of forward, centred"):
+        cfg(raven_root, tmp_path, method_opts={"time_mode": "backward"})
+    with pytest.raises(InputError, match="--preset: one of raven-qa, navqa, findingdory"):
+        cfg(raven_root, tmp_path, method_opts={"preset": "paper"})
+    with pytest.raises(InputError, match="--top-k"):
+        cfg(raven_root, tmp_path, method_opts={"top_k": 0})
+    with pytest.raises(InputError, match="expected NAME:PATH"):
+        DatasetConfig("raven-qa")

@@ -9,7 +9,8 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from collections.abc import Callable
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -92,6 +93,21 @@ METHODS: Registry[Method] = Registry(
         ("raven", "offline", "embedder-only", "random", "vlm-only", "caption"), "ravenmem.agent.methods"
     ),
 )
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def vlm_method(factory: F) -> F:
+    """Mark a method factory as one that cannot answer without a VLM. The evaluator refuses to
+    run such a method when no model is configured (instead of a silent stand-in); third-party
+    factories registered by entry point can carry the same `needs_vlm = True` attribute."""
+    factory.needs_vlm = True  # type: ignore[attr-defined]
+    return factory
+
+
+def needs_vlm(name: str) -> bool:
+    """Whether the method registered as `name` needs a VLM (imports only its registering module)."""
+    return bool(getattr(METHODS.get(name), "needs_vlm", False))
 
 
 def image_file(mem: Any, rec: MemoryRecord) -> Path | None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .base import METHODS, MemoryLike, Method
+from .base import METHODS, MemoryLike, Method, vlm_method
 from .tools import per_tool_k
 
 _AGENT_OPTS = (
@@ -33,6 +33,7 @@ def _pick(opts: dict[str, Any], names: tuple[str, ...], per_tool: bool = False) 
 
 
 @METHODS.register("raven")
+@vlm_method
 def _raven(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .loop import Agent
 
@@ -61,6 +62,7 @@ def _random(spec: str, memory: MemoryLike, **opts: Any) -> Method:
 
 
 @METHODS.register("vlm-only")
+@vlm_method
 def _vlm_only(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .baselines import VLMOnly
 
@@ -69,6 +71,7 @@ def _vlm_only(spec: str, memory: MemoryLike, **opts: Any) -> Method:
 
 
 @METHODS.register("caption")
+@vlm_method
 def _caption(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .captions import CaptionAgent
 

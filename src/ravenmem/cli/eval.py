@@ -1,87 +1,198 @@
-"""`ravenmem eval`: run benchmarks, write reports, run the compression and coverage studies.
+"""`ravenmem eval`: run benchmarks, write reports, run the studies.
 
 ravenmem eval --dataset raven-qa:/data/RAVEN_QA/real_world --method raven --vlm gemini-2.5-flash --seeds 3
 ravenmem eval --dataset tum:../shared/data/tum_fr1_rpy --queries benchmarks/data/tum_queries.json --method offline
 ravenmem eval report runs/2026-11-21/ --out report.md
 ravenmem eval study compression --dataset ... --method offline --strides 1,5,25,250 --out runs/compression
-ravenmem eval study coverage --dataset raven-qa:sim_export --method offline --fractions 0.25,0.5,1 --out runs/cov
+ravenmem eval study top-k --dataset ... --method raven --vlm ... --values 1,3,5,10 --out runs/topk
+ravenmem eval study embedders --labels benchmarks/data/tum_labels.json --images DIR/rgb --embedders offline,hf:PATH
 ravenmem eval judge runs/2026-11-21/navqa_raven --judge gpt-4o-mini
+
+Every command that runs questions takes the same run options (`RUN_OPTIONS`, declared once and
+added to each command by `run_options`), and `build_run_config` turns them into the typed
+`RunConfig` in one place.
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from ..errors import InputError
-from ._console import esc, out_console
+from ._console import out_console
 
-eval_app = typer.Typer(help="Benchmarks (RAVEN-QA, NaVQA, FindingDory, your own questions), reports and studies.",
-                       no_args_is_help=False)  # fmt: skip
-study_app = typer.Typer(help="Accuracy vs keyframe sparsification (compression) or exploration coverage.",
-                        no_args_is_help=True)  # fmt: skip
+eval_app = typer.Typer(
+    help="Benchmarks (RAVEN-QA, NaVQA, FindingDory, your own questions), reports and studies.",
+    no_args_is_help=False,
+)
+study_app = typer.Typer(
+    help="Accuracy as one setting changes: keyframe rate, coverage, top-k, scores shown, time mode, "
+    "tool-call budget; and retrieval quality per embedder.",
+    no_args_is_help=True,
+)
 eval_app.add_typer(study_app, name="study")
 console = Console(stderr=True)
 
-DatasetOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--dataset",
-        "-d",
-        help="NAME:PATH, NAME = raven-qa | navqa | findingdory | tum | video | folder | rosbag | memory | queries",
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _opt(*names: str, help: str) -> Any:
+    return typer.Option(*names, help=help)
+
+
+# name, type, default, typer option: the options of every command that runs questions
+RUN_OPTIONS: list[tuple[str, Any, Any, Any]] = [
+    (
+        "dataset",
+        str | None,
+        None,
+        _opt(
+            "--dataset",
+            "-d",
+            help="NAME:PATH, NAME = raven-qa | navqa | findingdory | tum | video | folder | rosbag | memory | queries",
+        ),
+    ),
+    (
+        "method",
+        str | None,
+        None,
+        _opt("--method", help="comma-separated: raven, offline, embedder-only, vlm-only, caption, random"),
+    ),
+    (
+        "queries",
+        Path | None,
+        None,
+        _opt("--queries", help="our questions.json for tum:/video:/folder:/rosbag:/memory: datasets"),
+    ),
+    ("embedder", str, "offline", _opt("--embedder", help="offline | open_clip:MODEL/TAG | hf:NAME_OR_PATH")),
+    (
+        "vlm",
+        str | None,
+        None,
+        _opt("--vlm", help="VLM model name (endpoint from --vlm-base-url / RAVENMEM_VLM_BASE_URL)"),
+    ),
+    ("vlm_base_url", str | None, None, _opt("--vlm-base-url", help="OpenAI-compatible endpoint for the VLM")),
+    ("seeds", int, 1, _opt("--seeds", help="repeat every question with seeds 0..N-1 (mean ± std)")),
+    (
+        "cache_dir",
+        Path,
+        Path(".ravenmem-cache/eval"),
+        _opt("--cache-dir", help="where memories and embeddings are cached"),
+    ),
+    ("workers", int, 4, _opt("--workers", help="questions answered in parallel")),
+    (
+        "keyframes",
+        str | None,
+        None,
+        _opt("--keyframes", help="e.g. 'stride=5,fps=2,max_similarity=0.95' (default: all frames)"),
+    ),
+    ("ocr", bool, False, _opt("--ocr", help="read text in keyframes while building memories (slower)")),
+    ("thumb_size", int, 320, _opt("--thumb-size", help="thumbnail longer side (px) in built memories")),
+    (
+        "top_k",
+        str | None,
+        None,
+        _opt("--top-k", help="memories per tool call: N, or per tool 'time=200,text=30,position=1'"),
+    ),
+    (
+        "max_tool_calls",
+        int | None,
+        None,
+        _opt("--max-tool-calls", help="tool calls before the model must answer"),
+    ),
+    ("frames", int | None, None, _opt("--frames", help="vlm-only: frames sampled over the history")),
+    (
+        "preset",
+        str | None,
+        None,
+        _opt("--preset", help="the paper's settings per dataset: raven-qa | navqa | findingdory"),
+    ),
+    ("temperature", float | None, None, _opt("--temperature", help="the VLM's sampling temperature")),
+    (
+        "show_scores",
+        bool | None,
+        None,
+        _opt("--show-scores/--hide-scores", help="similarity scores shown to the model"),
+    ),
+    (
+        "time_mode",
+        str | None,
+        None,
+        _opt("--time-mode", help="time tool: forward (from the time on) | centred (around it)"),
+    ),
+    (
+        "pos_threshold",
+        str | None,
+        None,
+        _opt("--pos-threshold", help="metres: one number, or per RAVEN-QA subset 'real_world=3,sim=1'"),
+    ),
+    ("time_threshold", float | None, None, _opt("--time-threshold", help="minutes (default 0.5)")),
+    ("duration_threshold", float | None, None, _opt("--duration-threshold", help="minutes (default 0.5)")),
+    (
+        "frame_tolerance",
+        float | None,
+        None,
+        _opt("--frame-tolerance", help="seconds either side of an accepted frame"),
+    ),
+    ("planar", bool, False, _opt("--planar", help="position error in x, y only")),
+    ("judge", str | None, None, _opt("--judge", help="LLM judge model for text answers")),
+    (
+        "judge_base_url",
+        str | None,
+        None,
+        _opt("--judge-base-url", help="endpoint of the judge (default: the VLM's)"),
+    ),
+    (
+        "rate",
+        float | None,
+        None,
+        _opt("--rate", help="raven-qa: frames per second where no timestamps are given"),
+    ),
+    ("tz", str | None, None, _opt("--tz", help="navqa: time zone of data.csv timestamps (America/Chicago)")),
+    ("split", str | None, None, _opt("--split", help="findingdory: split name (validation)")),
+    ("limit", int | None, None, _opt("--limit", help="only the first N questions (smoke runs)")),
+    ("episodes", str | None, None, _opt("--episodes", help="only episodes whose id matches this glob")),
+    (
+        "retry_failed",
+        bool,
+        False,
+        _opt("--retry-failed", help="answer again the questions whose method failed"),
     ),
 ]
-MethodOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--method", help="comma-separated: raven, offline, embedder-only, vlm-only, caption, random"
-    ),
-]
-QueriesOpt = Annotated[
-    Path | None,
-    typer.Option("--queries", help="our questions.json for tum:/video:/folder:/rosbag:/memory: datasets"),
-]
-EmbedderOpt = Annotated[
-    str, typer.Option("--embedder", help="offline | open_clip:MODEL/TAG | hf:NAME_OR_PATH")
-]
-VlmOpt = Annotated[
-    str | None,
-    typer.Option("--vlm", help="VLM model name (endpoint from --vlm-base-url / RAVENMEM_VLM_BASE_URL)"),
-]
-VlmUrlOpt = Annotated[
-    str | None, typer.Option("--vlm-base-url", help="OpenAI-compatible endpoint for the VLM")
-]
-SeedsOpt = Annotated[
-    int, typer.Option("--seeds", help="repeat every question with seeds 0..N-1 (mean ± std)")
-]
-OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="run folder (default runs/<date>/<name>)")]
-CacheOpt = Annotated[Path, typer.Option("--cache-dir", help="where memories and embeddings are cached")]
-WorkersOpt = Annotated[int, typer.Option("--workers", help="questions answered in parallel")]
-KeyframesOpt = Annotated[
-    str | None,
-    typer.Option("--keyframes", help="e.g. 'stride=5,fps=2,max_similarity=0.95' (default: all frames)"),
-]
-TopKOpt = Annotated[
-    str | None,
-    typer.Option("--top-k", help="memories per tool call: N, or per tool 'time=200,text=30,position=1'"),
-]
-ToolCallsOpt = Annotated[
-    int | None, typer.Option("--max-tool-calls", help="tool calls before the model must answer")
-]
-PosThrOpt = Annotated[
-    str | None,
-    typer.Option("--pos-threshold", help="metres: one number, or per RAVEN-QA split 'real_world=3,sim=1'"),
-]
-LimitOpt = Annotated[int | None, typer.Option("--limit", help="only the first N questions (smoke runs)")]
-EpisodesOpt = Annotated[
-    str | None, typer.Option("--episodes", help="only episodes whose id matches this glob")
-]
+
+
+def run_options(fn: F) -> F:
+    """Give a command the run options: its own parameters stay, the run options are added, and
+    the command receives them as one `cfg: RunConfig` (built by `build_run_config`)."""
+    own = [p for p in inspect.signature(fn, eval_str=True).parameters.values() if p.name != "cfg"]
+    shared = [
+        inspect.Parameter(
+            name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=Annotated[typ, option]
+        )
+        for name, typ, default, option in RUN_OPTIONS
+    ]
+    names = [name for name, *_ in RUN_OPTIONS]
+
+    @functools.wraps(fn)
+    def wrapper(**kw: Any) -> Any:
+        if getattr(kw.get("ctx"), "invoked_subcommand", None) is not None:
+            return None  # `eval report ...`: the group's callback has nothing to run
+        run = {n: kw.pop(n) for n in names}
+        return fn(cfg=build_run_config(**run), **kw)
+
+    params = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in own] + shared
+    wrapper.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = {p.name: p.annotation for p in params}
+    return wrapper  # type: ignore[return-value]
 
 
 def _split_list(text: str | None, what: str) -> list[str]:
@@ -89,6 +200,20 @@ def _split_list(text: str | None, what: str) -> list[str]:
     if not items:
         raise InputError(f"{what}: give at least one value")
     return items
+
+
+def _ints(text: str, what: str) -> list[int]:
+    try:
+        return [int(x) for x in _split_list(text, what)]
+    except ValueError:
+        raise InputError(f"{what}: expected comma-separated whole numbers, got {text!r}") from None
+
+
+def _floats(text: str, what: str) -> list[float]:
+    try:
+        return [float(x) for x in _split_list(text, what)]
+    except ValueError:
+        raise InputError(f"{what}: expected comma-separated numbers, got {text!r}") from None
 
 
 def parse_top_k(text: str | None) -> int | dict[str, int] | None:
@@ -107,48 +232,74 @@ def parse_top_k(text: str | None) -> int | dict[str, int] | None:
         raise InputError(f"--top-k: expected N or tool=N,... with whole numbers, got {text!r}") from None
 
 
-def _floats(text: str, what: str) -> list[float]:
-    try:
-        return [float(x) for x in _split_list(text, what)]
-    except ValueError:
-        raise InputError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+def _pos_threshold(text: str | None) -> tuple[float | None, dict[str, float] | None]:
+    """'2.5' -> (2.5, None); 'real_world=3,sim=1' -> (None, {'real_world': 3.0, 'sim': 1.0})."""
+    if not text:
+        return None, None
+    if "=" not in text:
+        return _floats(text, "--pos-threshold")[0], None
+    per = {}
+    for part in _split_list(text, "--pos-threshold"):
+        k, _, v = part.partition("=")
+        per[k.strip()] = _floats(v, "--pos-threshold")[0]
+    return None, per
 
 
-def build_config(dataset: str | None, method: str | None, **kw: Any) -> Any:
-    """RunConfig from CLI values (shared by `eval` and the study commands)."""
-    from ..eval.runner import RunConfig
+def build_run_config(**o: Any) -> Any:
+    """The RunConfig from the run options' values: the one place CLI values become a config."""
+    from ..eval.config import DatasetConfig, MemoryConfig, MethodConfig, ModelConfig, RunConfig, Thresholds
 
-    if not dataset:
+    if not o["dataset"]:
         raise InputError("--dataset NAME:PATH is required (e.g. raven-qa:/data/RAVEN_QA/real_world)")
-    methods = _split_list(method, "--method")
-    thresholds: dict[str, Any] = {}
-    dataset_opts: dict[str, Any] = {k: v for k, v in kw.pop("dataset_opts", {}).items() if v is not None}
-    pos = kw.pop("pos_threshold", None)
-    if pos:
-        if "=" in pos:
-            if not dataset.startswith(("raven-qa:", "ravenqa:")):
-                raise InputError("--pos-threshold split=value,... is for raven-qa datasets; give one number")
-            per = {}
-            for part in _split_list(pos, "--pos-threshold"):
-                k, _, v = part.partition("=")
-                per[k.strip()] = _floats(v, "--pos-threshold")[0]
-            dataset_opts["pos_threshold"] = per
-        else:
-            thresholds["position_m"] = _floats(pos, "--pos-threshold")[0]
-    for key, scale in (("time_min", 60.0), ("duration_min", 60.0)):
-        v = kw.pop(key, None)
-        if v is not None:
-            thresholds[key.replace("_min", "_s")] = v * scale
-    for key in ("frame_s", "planar"):
-        v = kw.pop(key, None)
-        if v is not None and v is not False:
-            thresholds[key] = v
-    method_opts = {k: v for k, v in kw.pop("method_opts", {}).items() if v is not None}
-    q = kw.pop("queries", None)
-    rest: dict[str, Any] = {k: (str(v) if isinstance(v, Path) else v) for k, v in kw.items() if v is not None}
-    return RunConfig(dataset=dataset, methods=methods, queries=str(q) if q else None, thresholds=thresholds,
-                     dataset_opts=dataset_opts, method_opts=method_opts,
-                     **rest)  # fmt: skip
+    pos_m, pos_per = _pos_threshold(o["pos_threshold"])
+    minutes = {k: o[k] * 60.0 for k in ("time_threshold", "duration_threshold") if o[k] is not None}
+    thresholds = Thresholds(
+        position_m=pos_m,
+        time_s=minutes.get("time_threshold", 30.0),
+        duration_s=minutes.get("duration_threshold", 30.0),
+        frame_s=o["frame_tolerance"],
+        planar=o["planar"],
+    )
+    return RunConfig(
+        dataset=DatasetConfig(
+            spec=o["dataset"],
+            queries=str(o["queries"]) if o["queries"] else None,
+            rate=o["rate"],
+            tz=o["tz"],
+            split=o["split"],
+            pos_threshold=pos_per,
+            episodes=o["episodes"],
+            limit=o["limit"],
+        ),
+        methods=MethodConfig(
+            names=_split_list(o["method"], "--method"),
+            top_k=parse_top_k(o["top_k"]),
+            max_tool_calls=o["max_tool_calls"],
+            frames=o["frames"],
+            show_scores=o["show_scores"],
+            time_mode=o["time_mode"],
+            preset=o["preset"],
+            temperature=o["temperature"],
+        ),
+        models=ModelConfig(
+            embedder=o["embedder"],
+            vlm=o["vlm"],
+            vlm_base_url=o["vlm_base_url"],
+            judge=o["judge"],
+            judge_base_url=o["judge_base_url"],
+        ),
+        memory=MemoryConfig(
+            keyframes=o["keyframes"], ocr=o["ocr"], thumb_size=o["thumb_size"], cache_dir=str(o["cache_dir"])
+        ),
+        thresholds=thresholds,
+        seeds=o["seeds"],
+        workers=o["workers"],
+        retry_failed=o["retry_failed"],
+    )
+
+
+def _log(msg: str) -> None:
+    console.print(msg, highlight=False)
 
 
 def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
@@ -157,96 +308,67 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
         return
     from ..eval.report import _num, _pct
 
-    table = Table(title=esc(f"{summary['rows']} answers in {summary.get('run_dir', '')}"))
-    for col in ("method", "embedder", "VLM", "Q", "accuracy %", "pos err m", "time err min", "alpha", "s/q"):
+    table = Table(title=f"{summary['rows']} answers in {summary.get('run_dir', '')}")
+    cols = [
+        "method",
+        "embedder",
+        "VLM",
+        "Q",
+        "accuracy %",
+        "frame %",
+        "position %",
+        "pos err m",
+        "time err min",
+    ]
+    for col in cols + ["alpha", "images/q", "tokens/q", "s/q"]:
         table.add_column(col)
     for g in summary["groups"]:
-        table.add_row(esc(g["method"] + (f" [{g['variant']}]" if g.get("variant") else "")), esc(g["embedder"]), esc(g["vlm"]),
-                      str(g["questions"]), _pct(g["accuracy"]), _num(g["pos_error_m"]), _num(g["time_error_min"]),
-                      _num(g["alpha"], 3), _num(g["seconds_per_q"], 2))  # fmt: skip
+        table.add_row(
+            g["method"] + (f" [{g['variant']}]" if g.get("variant") else ""),
+            g["embedder"],
+            g["vlm"],
+            str(g["questions"]),
+            _pct(g["accuracy"]),
+            _pct(g.get("frame_accuracy")),
+            _pct(g.get("position_accuracy")),
+            _num(g["pos_error_m"]),
+            _num(g["time_error_min"]),
+            _num(g["alpha"], 3),
+            _num(g["images_per_q"], 1),
+            _num(g["tokens_per_q"], 0),
+            _num(g["seconds_per_q"], 2),
+        )
     out_console().print(table)
     for g in summary["groups"]:
         if g["not_judged"]:
             console.print(
-                f"{esc(g['method'])}: {g['not_judged']} text answer(s) not scored (no LLM judge; use --judge MODEL)"
+                f"{g['method']}: {g['not_judged']} text answer(s) not scored (no LLM judge; use --judge MODEL)"
             )
 
 
 @eval_app.callback(invoke_without_command=True)
+@run_options
 def eval_main(
     ctx: typer.Context,
-    dataset: DatasetOpt = None,
-    method: MethodOpt = None,
-    queries: QueriesOpt = None,
-    embedder: EmbedderOpt = "offline",
-    vlm: VlmOpt = None,
-    vlm_base_url: VlmUrlOpt = None,
-    seeds: SeedsOpt = 1,
-    out: OutOpt = None,
+    cfg: Any = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="run folder (default runs/<date>/<name>)")
+    ] = None,
     name: Annotated[str | None, typer.Option("--name", help="run name under runs/<date>/")] = None,
     runs_dir: Annotated[Path, typer.Option("--runs-dir", help="parent of dated run folders")] = Path("runs"),
-    cache_dir: CacheOpt = Path(".ravenmem-cache/eval"),
-    workers: WorkersOpt = 4,
-    keyframes: KeyframesOpt = None,
-    ocr: Annotated[
-        bool, typer.Option(help="read text in keyframes while building memories (slower)")
-    ] = False,
-    thumb_size: Annotated[int, typer.Option(help="thumbnail longer side (px) in built memories")] = 320,
-    top_k: TopKOpt = None,
-    max_tool_calls: ToolCallsOpt = None,
-    frames: Annotated[
-        int | None, typer.Option("--frames", help="vlm-only: frames sampled over the history")
-    ] = None,
-    pos_threshold: PosThrOpt = None,
-    time_threshold: Annotated[
-        float | None, typer.Option("--time-threshold", help="minutes (default 0.5)")
-    ] = None,
-    duration_threshold: Annotated[
-        float | None, typer.Option("--duration-threshold", help="minutes (default 0.5)")
-    ] = None,
-    frame_tolerance: Annotated[
-        float | None, typer.Option("--frame-tolerance", help="seconds either side of an accepted frame")
-    ] = None,
-    planar: Annotated[bool, typer.Option("--planar", help="position error in x, y only")] = False,
-    judge: Annotated[str | None, typer.Option("--judge", help="LLM judge model for text answers")] = None,
-    judge_base_url: Annotated[
-        str | None, typer.Option("--judge-base-url", help="endpoint of the judge (default: the VLM's)")
-    ] = None,
-    rate: Annotated[
-        float | None, typer.Option("--rate", help="raven-qa: frames per second where no timestamps are given")
-    ] = None,
-    tz: Annotated[
-        str | None, typer.Option("--tz", help="navqa: time zone of data.csv timestamps (America/Chicago)")
-    ] = None,
-    split: Annotated[str | None, typer.Option("--split", help="findingdory: split name (validation)")] = None,
-    limit: LimitOpt = None,
-    episodes: EpisodesOpt = None,
-    retry_failed: Annotated[
-        bool, typer.Option("--retry-failed", help="answer again the questions whose method failed")
-    ] = False,
     json_out: Annotated[bool, typer.Option("--json", help="print the summary as JSON")] = False,
 ) -> None:
     """Evaluate methods on a benchmark: one JSONL row per answer in the run folder, then a summary."""
-    if ctx.invoked_subcommand is not None:
-        return
+    from ..eval.config import OutputConfig
     from ..eval.runner import Runner
 
-    cfg = build_config(
-        dataset, method, queries=queries, embedder=embedder, vlm=vlm, vlm_base_url=vlm_base_url, seeds=seeds, out=out,
-        name=name, runs_dir=runs_dir, cache_dir=cache_dir, workers=workers, keyframes=keyframes, ocr=ocr,
-        thumb_size=thumb_size, pos_threshold=pos_threshold, time_min=time_threshold, duration_min=duration_threshold,
-        frame_s=frame_tolerance, planar=planar, judge_model=judge, judge_base_url=judge_base_url, limit=limit,
-        episodes=episodes, retry_failed=retry_failed,
-        method_opts={"top_k": parse_top_k(top_k), "max_tool_calls": max_tool_calls, "frames": frames},
-        dataset_opts={"rate": rate, "tz": tz, "split": split},
-    )  # fmt: skip
-    summary = Runner(cfg, log=lambda m: console.print(esc(m), highlight=False)).run()
+    cfg.output = OutputConfig(out=str(out) if out else None, runs_dir=str(runs_dir), name=name)
+    summary = Runner(cfg, log=_log).run()
     _print_summary(summary, json_out)
     if not json_out:
+        run_dir = summary["run_dir"]
         console.print(
-            esc(
-                f"rows: {Path(summary['run_dir']) / 'answers.jsonl'}; report: ravenmem eval report {summary['run_dir']} --out report.md"
-            )
+            f"rows: {Path(run_dir) / 'answers.jsonl'}; report: ravenmem eval report {run_dir} --out report.md"
         )
 
 
@@ -265,17 +387,19 @@ def report_cmd(
         float | None, typer.Option("--time-threshold", help="re-score with this time threshold (min)")
     ] = None,
 ) -> None:
-    """Markdown tables (method x embedder x VLM, per category, per horizon) and PNG plots."""
-    from ..eval.metrics import Thresholds
-    from ..eval.report import _thresholds_of, write_report
+    """Markdown tables (method x embedder x VLM, per category, split, horizon, cost) and PNG plots."""
+    from dataclasses import replace
 
-    thr = _thresholds_of(run_dir)
+    from ..eval.report import write_report
+    from ..eval.runner import run_thresholds
+
+    thr = run_thresholds(run_dir)
     if pos_threshold is not None:
-        thr.position_m = pos_threshold
+        thr = replace(thr, position_m=pos_threshold)
     if time_threshold is not None:
-        thr.time_s = 60.0 * time_threshold
-    path = write_report(run_dir, out, thresholds=Thresholds(**thr.to_dict()))
-    console.print(esc(f"wrote {path} (figures in {path.parent / (path.stem + '_figs')})"))
+        thr = replace(thr, time_s=60.0 * time_threshold)
+    path = write_report(run_dir, out, thresholds=thr)
+    console.print(f"wrote {path} (figures in {path.parent / (path.stem + '_figs')})")
 
 
 @eval_app.command("judge")
@@ -292,71 +416,166 @@ def judge_cmd(
     from ..eval.runner import rejudge
 
     n = rejudge(run_dir, Judge(VLMConfig.resolve(model=judge, base_url=judge_base_url)))
-    console.print(esc(f"judged {n} text answer(s) in {run_dir}"))
+    console.print(f"judged {n} text answer(s) in {run_dir}")
 
 
-def _study_config(dataset: str | None, method: str | None, queries: Path | None, embedder: str, vlm: str | None,
-                  vlm_base_url: str | None, seeds: int, cache_dir: Path, workers: int, keyframes: str | None,
-                  top_k: str | None, max_tool_calls: int | None, pos_threshold: str | None, limit: int | None,
-                  episodes: str | None) -> Any:  # fmt: skip
-    return build_config(dataset, method, queries=queries, embedder=embedder, vlm=vlm, vlm_base_url=vlm_base_url,
-                        seeds=seeds, cache_dir=cache_dir, workers=workers, keyframes=keyframes,
-                        pos_threshold=pos_threshold, limit=limit, episodes=episodes,
-                        method_opts={"top_k": parse_top_k(top_k), "max_tool_calls": max_tool_calls})  # fmt: skip
+# ------------------------------------------------------------------------------------ studies
+StudyOut = Annotated[
+    Path, typer.Option("--out", "-o", help="study folder (a run folder per setting + study.json)")
+]
+
+
+def _print_study(doc: dict[str, Any], out: Path) -> None:
+    from ..eval.report import _num, _pct
+
+    first = {"compression": "stride", "coverage": "coverage"}.get(doc["study"], doc.get("option", "value"))
+    table = Table(title=f"{doc['study']} study")
+    for col in (
+        first,
+        "memories",
+        "method",
+        "accuracy %",
+        "frame %",
+        "position %",
+        "alpha",
+        "images/q",
+        "tokens/q",
+        "tool calls/q",
+    ):
+        table.add_column(col)
+    for p in doc["points"]:
+        value = f"{100 * p['coverage']:.0f}%" if "coverage" in p else str(p.get("stride", p.get("value")))
+        table.add_row(
+            value,
+            str(p.get("memories", "")),
+            p["method"],
+            _pct(p["accuracy"]),
+            _pct(p.get("frame_accuracy")),
+            _pct(p.get("position_accuracy")),
+            _num(p["alpha"], 3),
+            _num(p["images_per_q"], 1),
+            _num(p["tokens_per_q"], 0),
+            _num(p["tool_calls_per_q"], 1),
+        )
+    out_console().print(table)
+    console.print(f"wrote {out / 'study.json'}; curve: ravenmem eval report {out} --out {out / 'report.md'}")
 
 
 @study_app.command("compression")
+@run_options
 def compression_cmd(
-    out: Annotated[Path, typer.Option("--out", "-o", help="study folder (one run folder per stride + study.json)")],
+    out: StudyOut,
+    cfg: Any = None,
     strides: Annotated[str, typer.Option("--strides", help="keyframe strides")] = "1,2,5,10,25,50,100,250",
-    dataset: DatasetOpt = None, method: MethodOpt = None, queries: QueriesOpt = None,
-    embedder: EmbedderOpt = "offline", vlm: VlmOpt = None, vlm_base_url: VlmUrlOpt = None, seeds: SeedsOpt = 1,
-    cache_dir: CacheOpt = Path(".ravenmem-cache/eval"), workers: WorkersOpt = 4, keyframes: KeyframesOpt = None,
-    top_k: TopKOpt = None, max_tool_calls: ToolCallsOpt = None, pos_threshold: PosThrOpt = None,
-    limit: LimitOpt = None, episodes: EpisodesOpt = None,
-) -> None:  # fmt: skip
+) -> None:
     """Accuracy vs keyframe stride (frames per memory), the sparsification curve."""
     from ..eval.studies import compression_study
 
-    cfg = _study_config(dataset, method, queries, embedder, vlm, vlm_base_url, seeds, cache_dir, workers, keyframes,
-                        top_k, max_tool_calls, pos_threshold, limit, episodes)  # fmt: skip
-    try:
-        values = [int(s) for s in _split_list(strides, "--strides")]
-    except ValueError:
-        raise InputError(f"--strides: expected whole numbers, got {strides!r}") from None
-    doc = compression_study(cfg, values, out, log=lambda m: console.print(esc(m), highlight=False))
-    for p in doc["points"]:
-        console.print(f"stride {p['stride']:>4}: {p['memories']} memories from {p['frames']} frames "
-                      f"({p['sparsification']:.1f}x), {esc(p['method'])}: {100 * (p['accuracy']['mean'] or 0):.1f}%")  # fmt: skip
-    console.print(
-        esc(f"wrote {out / 'study.json'}; plot: ravenmem eval report {out} --out {out / 'report.md'}")
-    )
+    doc = compression_study(cfg, _ints(strides, "--strides"), out, log=_log)
+    _print_study(doc, out)
 
 
 @study_app.command("coverage")
+@run_options
 def coverage_cmd(
-    out: Annotated[Path, typer.Option("--out", "-o", help="study folder (one run folder per fraction + study.json)")],
-    fractions: Annotated[str, typer.Option("--fractions", help="coverage fractions in (0, 1]")] = "0.25,0.5,0.75,1.0",
+    out: StudyOut,
+    cfg: Any = None,
+    fractions: Annotated[
+        str, typer.Option("--fractions", help="coverage fractions in (0, 1]")
+    ] = "0.25,0.5,0.75,1.0",
     cell: Annotated[float, typer.Option("--cell", help="grid cell (m) for coverage")] = 1.0,
-    dataset: DatasetOpt = None, method: MethodOpt = None, queries: QueriesOpt = None,
-    embedder: EmbedderOpt = "offline", vlm: VlmOpt = None, vlm_base_url: VlmUrlOpt = None, seeds: SeedsOpt = 1,
-    cache_dir: CacheOpt = Path(".ravenmem-cache/eval"), workers: WorkersOpt = 4, keyframes: KeyframesOpt = None,
-    top_k: TopKOpt = None, max_tool_calls: ToolCallsOpt = None, pos_threshold: PosThrOpt = None,
-    limit: LimitOpt = None, episodes: EpisodesOpt = None,
-) -> None:  # fmt: skip
+) -> None:
     """Accuracy vs the fraction of the environment explored when the questions are asked."""
     from ..eval.studies import coverage_study
 
-    cfg = _study_config(dataset, method, queries, embedder, vlm, vlm_base_url, seeds, cache_dir, workers, keyframes,
-                        top_k, max_tool_calls, pos_threshold, limit, episodes)  # fmt: skip
-    doc = coverage_study(cfg, _floats(fractions, "--fractions"), out, cell=cell,
-                         log=lambda m: console.print(esc(m), highlight=False))  # fmt: skip
-    for p in doc["points"]:
-        console.print(f"coverage {100 * p['coverage']:>3.0f}%: {p['memories']} memories, {esc(p['method'])}: "
-                      f"{100 * (p['accuracy']['mean'] or 0):.1f}%")  # fmt: skip
-    console.print(
-        esc(f"wrote {out / 'study.json'}; plot: ravenmem eval report {out} --out {out / 'report.md'}")
+    doc = coverage_study(cfg, _floats(fractions, "--fractions"), out, cell=cell, log=_log)
+    _print_study(doc, out)
+
+
+def _option_study(study: str, cfg: Any, values: list[Any], out: Path) -> None:
+    from ..eval.studies import option_study
+
+    _print_study(option_study(cfg, study, values, out, log=_log), out)
+
+
+@study_app.command("top-k")
+@run_options
+def top_k_cmd(
+    out: StudyOut,
+    cfg: Any = None,
+    values: Annotated[str, typer.Option("--values", help="memories per tool call")] = "1,3,5,10,20",
+) -> None:
+    """Accuracy and cost as the memories returned per tool call grow (the top-k sweep)."""
+    _option_study("top-k", cfg, _ints(values, "--values"), out)
+
+
+@study_app.command("scores")
+@run_options
+def scores_cmd(out: StudyOut, cfg: Any = None) -> None:
+    """Accuracy with the similarity scores shown to the model, and hidden from it."""
+    _option_study("scores", cfg, [True, False], out)
+
+
+@study_app.command("time-mode")
+@run_options
+def time_mode_cmd(out: StudyOut, cfg: Any = None) -> None:
+    """Accuracy with the time tool looking forward from the asked time, and centred on it."""
+    _option_study("time-mode", cfg, ["forward", "centred"], out)
+
+
+@study_app.command("tool-calls")
+@run_options
+def tool_calls_cmd(
+    out: StudyOut,
+    cfg: Any = None,
+    values: Annotated[str, typer.Option("--values", help="tool-call budgets")] = "0,1,3,5,10",
+) -> None:
+    """Accuracy and cost as the tool-call budget grows."""
+    _option_study("tool-calls", cfg, _ints(values, "--values"), out)
+
+
+@study_app.command("embedders")
+def embedders_cmd(
+    labels: Annotated[
+        Path, typer.Option("--labels", help="labelled frames (e.g. benchmarks/data/tum_labels.json)")
+    ],
+    images: Annotated[Path, typer.Option("--images", help="folder holding the labelled frame files")],
+    embedders: Annotated[
+        str, typer.Option("--embedders", help="comma-separated specs: offline,hf:PATH,...")
+    ] = "offline",
+    k: Annotated[int, typer.Option("--k", help="precision at k")] = 5,
+    min_positives: Annotated[
+        int, typer.Option("--min-positives", help="objects seen in fewer frames are left out")
+    ] = 3,
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="folder for study.json (then: eval report)")
+    ] = None,
+) -> None:
+    """Text->image and image->image retrieval quality (mAP, P@k) per embedder on labelled frames."""
+    from ..eval.retrieval import embedder_study
+
+    doc = embedder_study(
+        labels, images, _split_list(embedders, "--embedders"), k=k, min_positives=min_positives, out=out
     )
+    table = Table(title=f"retrieval on {doc['frames']} labelled frames, {len(doc['objects'])} objects")
+    for col in ("embedder", "direction", "mAP", "mAP small", f"P@{k}", "images/s"):
+        table.add_column(col)
+    for p in doc["points"]:
+        table.add_row(
+            p["embedder"],
+            p["direction"],
+            f"{p['mAP']:.3f}",
+            f"{p['mAP_small']:.3f}",
+            f"{p['P@k']:.3f}",
+            f"{p['images_per_s'] or 0:.1f}",
+        )
+    for direction, c in doc["chance"].items():
+        table.add_row("random ranking", direction, f"{c:.3f}", "", "", "")
+    out_console().print(table)
+    if out is not None:
+        console.print(
+            f"wrote {out / 'study.json'}; chart: ravenmem eval report {out} --out {out / 'report.md'}"
+        )
 
 
 def register(app: typer.Typer) -> None:

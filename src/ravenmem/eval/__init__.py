@@ -14,8 +14,20 @@ from .metrics import Thresholds, score_row, summarize
 from .runner import RunConfig, Runner, read_rows, run
 from .types import Episode, Question, Truth
 
-__all__ = ["Episode", "Question", "RunConfig", "Runner", "Thresholds", "Truth", "load_dataset", "read_rows", "run",
-           "score_row", "summarize", "write_report"]  # fmt: skip
+__all__ = [
+    "Episode",
+    "Question",
+    "RunConfig",
+    "Runner",
+    "Thresholds",
+    "Truth",
+    "load_dataset",
+    "read_rows",
+    "run",
+    "score_row",
+    "summarize",
+    "write_report",
+]
 
 
 def write_report(run_dir: Any, out: Any, **kw: Any) -> Any:

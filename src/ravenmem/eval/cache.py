@@ -80,8 +80,10 @@ class CachingEmbedder:
         if missing:
             vecs = np.asarray(self.inner.embed_images([images[i] for i in missing]), dtype=np.float32)
             with self._lock:
-                self._db.executemany("INSERT OR REPLACE INTO emb VALUES (?, ?)",
-                                     [(keys[i], vecs[j].tobytes()) for j, i in enumerate(missing)])  # fmt: skip
+                self._db.executemany(
+                    "INSERT OR REPLACE INTO emb VALUES (?, ?)",
+                    [(keys[i], vecs[j].tobytes()) for j, i in enumerate(missing)],
+                )
             for j, i in enumerate(missing):
                 found[keys[i]] = vecs[j]
         self.hits += len(keys) - len(missing)
@@ -121,17 +123,38 @@ class _Watch:
             yield f
 
 
-def memory_key(ep: Episode, embedder: str, keyframes: KeyframeConfig, ocr: bool, thumb_size: int,
-               extra: dict[str, Any] | None = None) -> str:  # fmt: skip
+def memory_key(
+    ep: Episode,
+    embedder: str,
+    keyframes: KeyframeConfig,
+    ocr: bool,
+    thumb_size: int,
+    extra: dict[str, Any] | None = None,
+) -> str:
     """A stable hash of everything that changes what the memory holds."""
-    doc = {"v": CACHE_VERSION, "episode": ep.key, "embedder": embedder, "keyframes": asdict(keyframes),
-           "ocr": ocr, "thumb_size": thumb_size, "extra": extra or {}}  # fmt: skip
+    doc = {
+        "v": CACHE_VERSION,
+        "episode": ep.key,
+        "embedder": embedder,
+        "keyframes": asdict(keyframes),
+        "ocr": ocr,
+        "thumb_size": thumb_size,
+        "extra": extra or {},
+    }
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 
-def build_memory(ep: Episode, cache_dir: Path, embedder: Embedder, keyframes: KeyframeConfig, ocr: bool = False,
-                 thumb_size: int = 320, source: Any = None, extra: dict[str, Any] | None = None,
-                 progress: bool = False) -> tuple[Memory, dict[str, Any]]:  # fmt: skip
+def build_memory(
+    ep: Episode,
+    cache_dir: Path,
+    embedder: Embedder,
+    keyframes: KeyframeConfig,
+    ocr: bool = False,
+    thumb_size: int = 320,
+    source: Any = None,
+    extra: dict[str, Any] | None = None,
+    progress: bool = False,
+) -> tuple[Memory, dict[str, Any]]:
     """Open the cached memory of an episode, building it first when absent.
 
     Returns the memory and its cache record (key, ingest report, first/last frame time). `source`
@@ -161,9 +184,20 @@ def build_memory(ep: Episode, cache_dir: Path, embedder: Embedder, keyframes: Ke
         report = ingest(watch, mem, keyframes=keyframes, progress=progress)  # type: ignore[arg-type]
     finally:
         mem.close()
-    info = {"key": key, "episode": ep.id, "embedder": embedder.name, "keyframes": asdict(keyframes), "ocr": ocr,
-            "thumb_size": thumb_size, "extra": extra or {}, "first_t": watch.first_t, "last_t": watch.last_t,
-            "frames": max(watch.n, report.frames_seen), "ingest": report.as_dict(), "built_at": time.time()}  # fmt: skip
+    info = {
+        "key": key,
+        "episode": ep.id,
+        "embedder": embedder.name,
+        "keyframes": asdict(keyframes),
+        "ocr": ocr,
+        "thumb_size": thumb_size,
+        "extra": extra or {},
+        "first_t": watch.first_t,
+        "last_t": watch.last_t,
+        "frames": max(watch.n, report.frames_seen),
+        "ingest": report.as_dict(),
+        "built_at": time.time(),
+    }
     (tmp / MARKER).write_text(json.dumps(info, indent=1, default=str), encoding="utf-8")
     tmp.rename(final)
     return ravenmem.open(final, embedder=embedder), info

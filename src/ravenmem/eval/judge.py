@@ -73,7 +73,14 @@ class Judge:
             return {"correct": None, "reason": f"judge failed: {e}", "model": self.name}
         v = parse_verdict(reply.content or "")
         if v is None:
-            return {"correct": None, "reason": f"unparsable judge reply: {(reply.content or '')[:200]!r}",
-                    "model": self.name}  # fmt: skip
-        return {"correct": v.correct, "reason": v.reason, "model": self.name,
-                "tokens": reply.prompt_tokens + reply.completion_tokens}  # fmt: skip
+            return {
+                "correct": None,
+                "reason": f"unparsable judge reply: {(reply.content or '')[:200]!r}",
+                "model": self.name,
+            }
+        return {
+            "correct": v.correct,
+            "reason": v.reason,
+            "model": self.name,
+            "tokens": reply.prompt_tokens + reply.completion_tokens,
+        }

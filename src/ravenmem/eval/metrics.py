@@ -12,6 +12,10 @@ can be re-scored with other thresholds without the dataset or the memory.
   accepted frame of goal j (FindingDory multi-goal answers in order; `[[-1]]` = nothing seen);
   `relaxed` is FindingDory's per-goal precision product.
 - binary: predicted yes/no equals the truth. text: an LLM judge's verdict, or not scored.
+
+Besides its type's criterion, every question whose truth names frames is also scored by frame
+(`frame_correct`) and every one with positions by position (`pos_correct`): RAVEN-QA's headline
+is frame accuracy with position accuracy beside it, swept over thresholds by `position_sweep`.
 """
 
 from __future__ import annotations
@@ -21,33 +25,18 @@ import math
 import re
 from collections import defaultdict
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
 from ..agent.schema import Answer
+from .config import Thresholds
 from .types import Episode, Question
 
 DEFAULT_POS_M = 1.0  # when neither the question, the dataset nor the user gives a threshold
-
-
-@dataclass
-class Thresholds:
-    """Scoring criteria; None means the question's or the dataset's own value."""
-
-    position_m: float | None = None
-    time_s: float = 30.0
-    duration_s: float = 30.0
-    frame_s: float | None = None
-    planar: bool = False
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> Thresholds:
-        return cls(**{k: v for k, v in (d or {}).items() if k in cls.__dataclass_fields__})
+SWEEP_M = (0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 15.0, 25.0)  # the position-threshold sweep (metres)
+BREAKDOWNS = ("type", "category", "horizon", "subset", "split")
+NOT_JUDGED = "text answer not judged (no LLM judge configured)"
 
 
 def goal_times(q: Question, ep: Episode) -> list[list[float]]:
@@ -116,8 +105,15 @@ def prediction(a: Answer, q: Question, ep: Episode) -> dict[str, Any]:
         goals = [[s] for s in seq[:k]]
         none = False
     frames = [ep.nearest_frame(s) for s in seq[:k]] if ep.frame_times else []
-    out: dict[str, Any] = {"position": a.position, "time": a.time, "duration": a.duration, "yes": yes,
-                           "found": a.found and not none, "goal_times": goals, "frames": frames}  # fmt: skip
+    out: dict[str, Any] = {
+        "position": a.position,
+        "time": a.time,
+        "duration": a.duration,
+        "yes": yes,
+        "found": a.found and not none,
+        "goal_times": goals,
+        "frames": frames,
+    }
     if ep.frame_files and frames:
         out["files"] = [ep.frame_files[i] for i in frames if i is not None]
     return out
@@ -147,33 +143,69 @@ def _frame_score(
     return strict, relaxed, err
 
 
+def _frame_tol(row: dict[str, Any], thr: Thresholds) -> float:
+    if thr.frame_s is not None:
+        return thr.frame_s
+    return float(row["truth"].get("time_tol") or row.get("frame_tol") or 0.5)
+
+
+def _position_part(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
+    """Position accuracy of an answer: within the threshold of an accepted position."""
+    t, p, failed = row["truth"], row["pred"], row["answer"].get("failed")
+    tol = t.get("pos_tol") or thr.position_m or row.get("pos_threshold") or DEFAULT_POS_M
+    out: dict[str, Any] = {"threshold_m": tol, "pos_correct": False}
+    if p.get("position") is not None:
+        out["pos_error_m"] = min(_dist(p["position"], g, thr.planar) for g in t["positions"])
+        out["pos_correct"] = out["pos_error_m"] <= tol and not failed
+    return out
+
+
+def _frame_part(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
+    """Frame accuracy (the answer names an accepted frame, goal by goal), relaxed score, time error."""
+    strict, relaxed, err = _frame_score(
+        row["truth"]["goal_times"], row["pred"].get("goal_times") or [], _frame_tol(row, thr)
+    )
+    out: dict[str, Any] = {"frame_correct": strict and not row["answer"].get("failed"), "relaxed": relaxed}
+    if err is not None:
+        out["frame_error_s"] = err
+    return out
+
+
 def score_row(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
-    """Score one answer row (see the module docstring). correct=None means 'not scored' with a reason."""
+    """Score one answer row (see the module docstring). correct=None means 'not scored' with a reason.
+
+    `correct` is the question type's own criterion (a RAVEN-QA question naming frames: the
+    frame). Whatever the type, a question with accepted frames also gets `frame_correct` and one
+    with accepted positions `pos_correct` (with `threshold_m` and `pos_error_m`), so a report
+    can show frame and position accuracy side by side."""
     qtype = row["question"]["type"]
     t = row["truth"]
     p = row["pred"]
-    ans = row["answer"]
+    failed = bool(row["answer"].get("failed"))
     s: dict[str, Any] = {"correct": None}
     if row["question"].get("meta", {}).get("unscorable"):
         s["skipped"] = row["question"]["meta"]["unscorable"]
         return s
-    if ans.get("failed"):
+    if failed:
         s["correct"] = False
         s["failed"] = True
     if t.get("none"):
-        s["correct"] = not p.get("found", True) and not ans.get("failed")
+        s["correct"] = not p.get("found", True) and not failed
         return s
+    if t.get("positions"):
+        s.update(_position_part(row, thr))
+    if t.get("goal_times"):
+        s.update(_frame_part(row, thr))
     if qtype == "position":
-        tol = t.get("pos_tol") or thr.position_m or row.get("pos_threshold") or DEFAULT_POS_M
-        s["threshold_m"] = tol
-        if p.get("position") is not None and t.get("positions"):
-            s["pos_error_m"] = min(_dist(p["position"], g, thr.planar) for g in t["positions"])
-            s["correct"] = s["pos_error_m"] <= tol and not ans.get("failed")
-        else:
-            s["correct"] = False
-        if t.get("goal_times") and p.get("goal_times"):
-            ftol = thr.frame_s if thr.frame_s is not None else row.get("frame_tol") or 0.5
-            s["frame_correct"] = _frame_score(t["goal_times"], p["goal_times"], ftol)[0]
+        s["correct"] = bool(s.get("pos_correct"))
+    elif qtype == "frame":
+        if not t.get("goal_times"):
+            s["skipped"] = "no accepted frame could be placed in time"
+            s["correct"] = None
+            return s
+        s["correct"] = s["frame_correct"]
+        if "frame_error_s" in s:
+            s["time_error_s"] = s["frame_error_s"]
     elif qtype == "time":
         tol = t.get("time_tol") or thr.time_s
         pt = p.get("time")
@@ -185,37 +217,26 @@ def score_row(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
                 lo, hi = t["window"]
                 errs.append(max(lo - pt, 0.0, pt - hi))
             s["time_error_s"] = min(errs)
-            s["correct"] = s["time_error_s"] <= tol and not ans.get("failed")
+            s["correct"] = s["time_error_s"] <= tol and not failed
         else:
             s["correct"] = False
     elif qtype == "duration":
         tol = t.get("time_tol") or thr.duration_s
         if p.get("duration") is not None and t.get("duration") is not None:
             s["duration_error_s"] = abs(float(p["duration"]) - float(t["duration"]))
-            s["correct"] = s["duration_error_s"] <= tol and not ans.get("failed")
+            s["correct"] = s["duration_error_s"] <= tol and not failed
         else:
             s["correct"] = False
-    elif qtype == "frame":
-        tol = thr.frame_s if thr.frame_s is not None else t.get("time_tol") or row.get("frame_tol") or 0.5
-        goals, pred = t.get("goal_times") or [], p.get("goal_times") or []
-        if not goals:
-            s["skipped"] = "no accepted frame could be placed in time"
-            s["correct"] = None
-            return s
-        strict, relaxed, err = _frame_score(goals, pred, tol)
-        s.update(correct=strict and not ans.get("failed"), relaxed=relaxed)
-        if err is not None:
-            s["time_error_s"] = err
     elif qtype == "binary":
-        s["correct"] = p.get("yes") is not None and p["yes"] == t.get("yes") and not ans.get("failed")
+        s["correct"] = p.get("yes") is not None and p["yes"] == t.get("yes") and not failed
     elif qtype == "text":
         verdict = row.get("judge")
-        if ans.get("failed"):
+        if failed:
             s["correct"] = False
         elif verdict and verdict.get("correct") is not None:
             s["correct"] = bool(verdict["correct"])
         else:
-            s["skipped"] = "text answer not judged (no LLM judge configured)"
+            s["skipped"] = NOT_JUDGED
     return s
 
 
@@ -227,17 +248,62 @@ def mean_std(vals: Iterable[float | None]) -> dict[str, Any]:
     return {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if v.size > 1 else 0.0, "n": int(v.size)}
 
 
-def _seed_accuracy(rows: list[dict[str, Any]], key: str = "correct") -> dict[str, Any]:
+def _with_median(vals: list[float]) -> dict[str, Any]:
+    out = mean_std(vals)
+    out["median"] = float(np.median(vals)) if vals else None
+    return out
+
+
+def seed_accuracy(rows: list[dict[str, Any]], key: str = "correct") -> dict[str, Any]:
     """Accuracy per seed, then mean +- std over seeds (n = scored rows over all seeds)."""
-    per_seed: dict[int, list[bool]] = defaultdict(list)
+    per_seed: dict[int, list[float]] = defaultdict(list)
     for r in rows:
         c = r["score"].get(key)
         if c is not None:
-            per_seed[int(r["seed"])].append(bool(c) if key != "relaxed" else c)
+            per_seed[int(r["seed"])].append(float(c))
     accs = [float(np.mean(v)) for v in per_seed.values() if v]
     out = mean_std(accs)
     out["n"] = sum(len(v) for v in per_seed.values())
     out["seeds"] = len(accs)
+    return out
+
+
+def stats(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Accuracy (the type's criterion), frame and position accuracy where the truth allows them,
+    FindingDory's relaxed score on frame questions, and error statistics, over some rows."""
+    out: dict[str, Any] = {"accuracy": seed_accuracy(rows), "rows": len(rows)}
+    for key, name in (("frame_correct", "frame_accuracy"), ("pos_correct", "position_accuracy")):
+        if any(key in r["score"] for r in rows):
+            out[name] = seed_accuracy(rows, key)
+    frames = [r for r in rows if r["question"]["type"] == "frame" and "relaxed" in r["score"]]
+    if frames:
+        out["relaxed"] = seed_accuracy(frames, "relaxed")
+    out["pos_error_m"] = _with_median(
+        [r["score"]["pos_error_m"] for r in rows if "pos_error_m" in r["score"]]
+    )
+    out["time_error_min"] = _with_median(
+        [r["score"]["time_error_s"] / 60 for r in rows if "time_error_s" in r["score"]]
+    )
+    out["duration_error_min"] = mean_std(
+        r["score"]["duration_error_s"] / 60 for r in rows if "duration_error_s" in r["score"]
+    )
+    return out
+
+
+def position_sweep(rows: list[dict[str, Any]], thresholds: Iterable[float] = SWEEP_M) -> dict[str, Any]:
+    """Position accuracy at each threshold (metres), mean +- std over seeds: the curve behind the
+    single-threshold column. A question without a predicted position is wrong at every threshold."""
+    pos = [r for r in rows if "pos_correct" in r["score"]]
+    per_seed: dict[int, list[float]] = defaultdict(list)
+    for r in pos:
+        err = r["score"].get("pos_error_m")
+        per_seed[int(r["seed"])].append(math.inf if err is None or r["score"].get("failed") else float(err))
+    out: dict[str, Any] = {"thresholds_m": [], "accuracy": []}
+    for thr in thresholds:
+        out["thresholds_m"].append(float(thr))
+        out["accuracy"].append(
+            mean_std(float(np.mean([e <= thr for e in errs])) for errs in per_seed.values())
+        )
     return out
 
 
@@ -246,11 +312,33 @@ def group_key(r: dict[str, Any]) -> tuple[str, str, str, str]:
     return (r["method"], r.get("embedder") or "-", r.get("vlm") or "-", r.get("variant") or "")
 
 
+def _breakdowns(rs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """stats per value of each question attribute, per subset/split pair and per horizon/type pair."""
+    by: dict[str, dict[str, Any]] = {}
+
+    def part(name: str, key: Any) -> None:
+        buckets: dict[str, list[dict[str, Any]]] = defaultdict(list)
+        for r in rs:
+            k = key(r["question"])
+            if k:
+                buckets[k].append(r)
+        if buckets:
+            by[name] = {k: stats(v) for k, v in sorted(buckets.items())}
+
+    for attr in BREAKDOWNS:
+        part(attr, lambda q, a=attr: q.get(a) or "")
+    part(
+        "subset_split", lambda q: f"{q['subset']}/{q['split']}" if q.get("subset") and q.get("split") else ""
+    )
+    part("horizon_type", lambda q: f"{q['horizon']}/{q['type']}" if q.get("horizon") else "")
+    return by
+
+
 def summarize(
     rows: list[dict[str, Any]], thr: Thresholds | None = None, rescore: bool = True
 ) -> dict[str, Any]:
-    """Per (method, embedder, VLM): accuracy overall / per type / category / horizon (mean +- std
-    over seeds), error statistics, alpha and cost per question."""
+    """Per (method, embedder, VLM, variant): `stats` overall and broken down by type, category,
+    horizon, subset and split; the position-threshold sweep; retrieval cost per question."""
     thr = thr or Thresholds()
     if rescore:
         for r in rows:
@@ -260,44 +348,41 @@ def summarize(
         groups[group_key(r)].append(r)
     out = []
     for (method, emb, vlm, variant), rs in sorted(groups.items()):
-        g: dict[str, Any] = {"method": method, "embedder": emb, "vlm": vlm, "variant": variant,
-                             "seeds": sorted({int(r["seed"]) for r in rs}), "rows": len(rs),
-                             "questions": len({r["qid"] for r in rs})}  # fmt: skip
-        g["accuracy"] = _seed_accuracy(rs)
-        for field, attr in (("by_type", "type"), ("by_category", "category"), ("by_horizon", "horizon")):
-            vals = sorted({r["question"].get(attr) or "" for r in rs} - {""})
-            g[field] = {v: _seed_accuracy([r for r in rs if r["question"].get(attr) == v]) for v in vals}
-        frames = [r for r in rs if r["question"]["type"] == "frame"]
-        if frames:
-            g["relaxed"] = _seed_accuracy(frames, "relaxed")
-        pos_frames = [r for r in rs if "frame_correct" in r["score"]]
-        if pos_frames:
-            g["frame_accuracy"] = _seed_accuracy(pos_frames, "frame_correct")
-        g["pos_error_m"] = mean_std(r["score"].get("pos_error_m") for r in rs)
-        g["pos_error_m"]["median"] = _median(r["score"].get("pos_error_m") for r in rs)
-        g["time_error_min"] = mean_std(
-            (r["score"]["time_error_s"] / 60.0) for r in rs if "time_error_s" in r["score"]
-        )
-        g["duration_error_min"] = mean_std(
-            (r["score"]["duration_error_s"] / 60.0) for r in rs if "duration_error_s" in r["score"]
-        )
+        g: dict[str, Any] = {
+            "method": method,
+            "embedder": emb,
+            "vlm": vlm,
+            "variant": variant,
+            "seeds": sorted({int(r["seed"]) for r in rs}),
+            "questions": len({r["qid"] for r in rs}),
+        }
+        g |= stats(rs)
+        g["by"] = _breakdowns(rs)
+        if "position_accuracy" in g:
+            g["pos_sweep"] = position_sweep(rs)
+            g["pos_thresholds_m"] = sorted(
+                {float(r["score"]["threshold_m"]) for r in rs if "threshold_m" in r["score"]}
+            )
         costs = [r["answer"].get("cost", {}) for r in rs]
         g["alpha"] = mean_std(c.get("alpha") for c in costs)
+        g["memories_shown"] = mean_std(c.get("memories_shown") for c in costs)
         g["images_per_q"] = mean_std(c.get("images") for c in costs)
         g["tokens_per_q"] = mean_std(
             (c.get("prompt_tokens", 0) + c.get("completion_tokens", 0)) for c in costs
         )
         g["tool_calls_per_q"] = mean_std(c.get("tool_calls") for c in costs)
         g["seconds_per_q"] = mean_std(r.get("wall_s") for r in rs)
-        g["not_judged"] = sum(
-            1 for r in rs if str(r["score"].get("skipped", "")).startswith("text answer not judged")
-        )
+        g["not_judged"] = sum(1 for r in rs if r["score"].get("skipped") == NOT_JUDGED)
         g["unscorable"] = sum(1 for r in rs if r["score"].get("correct") is None) - g["not_judged"]
         g["failed"] = sum(1 for r in rs if r["answer"].get("failed"))
+        g["ran_other"] = sorted(
+            {r["ran"]["method"] for r in rs if r.get("ran") and r["ran"]["method"] != method}
+        )
         out.append(g)
-    return {"thresholds": thr.to_dict(), "groups": out, "rows": len(rows)}
-
-
-def _median(vals: Iterable[float | None]) -> float | None:
-    v = [x for x in vals if x is not None]
-    return float(np.median(v)) if v else None
+    rules = sorted({(r.get("dataset", ""), r["time_rule"]) for r in rows if r.get("time_rule")})
+    return {
+        "thresholds": thr.to_dict(),
+        "groups": out,
+        "rows": len(rows),
+        "time_rules": [{"dataset": d, "rule": rule} for d, rule in rules],
+    }

@@ -1,6 +1,12 @@
-"""Reports: markdown tables laid out like the papers' (method x embedder x VLM, per category and
-horizon) and PNG plots (accuracy per category, error CDFs, accuracy vs alpha, and the studies'
-accuracy vs keyframe sparsification / coverage), from one run folder or a folder of runs.
+"""Reports: markdown tables laid out like the papers' and PNG plots, from one run folder or a
+folder of runs (and the studies in it).
+
+Tables: overall (accuracy by the question type's criterion, RAVEN-QA's frame accuracy and the
+position accuracy beside it with its threshold, per type, errors), retrieval cost, accuracy per
+category, per RAVEN-QA subset and split, NaVQA's per-horizon accuracy and errors, FindingDory's
+strict and relaxed accuracy per category, the position-threshold sweep, and each study. Plots:
+accuracy per category, error CDFs, position accuracy against the threshold, accuracy against
+retrieval cost (alpha, images, tokens: the paper's central comparison) and each study's curve.
 
 Rows are re-scored with the thresholds given (default: the run's own), so a report can apply a
 stricter criterion to answers already collected.
@@ -8,17 +14,18 @@ stricter criterion to answers already collected.
 
 from __future__ import annotations
 
-import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
-from .metrics import Thresholds, summarize
-from .runner import read_rows
+from .config import Thresholds
+from .metrics import SWEEP_M, group_key, summarize
+from .runner import read_json, read_rows, run_thresholds
 
 TYPE_COLS = ("position", "time", "duration", "frame", "binary", "text")
+HORIZONS = ("short", "medium", "long")
 
 
 def _pct(d: dict[str, Any] | None) -> str:
@@ -43,8 +50,7 @@ def _label(g: dict[str, Any]) -> str:
     return " | ".join(parts)
 
 
-def _used_thresholds(rows: list[dict[str, Any]]) -> str:
-    vals = sorted({float(r["score"]["threshold_m"]) for r in rows if "threshold_m" in r["score"]})
+def _metres(vals: list[float]) -> str:
     return ", ".join(f"{v:g} m" for v in vals) if vals else "n/a"
 
 
@@ -54,56 +60,176 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(out)
 
 
-def _thresholds_of(run_dir: Path) -> Thresholds:
-    cfg = run_dir / "config.json"
-    if cfg.exists():
-        return Thresholds.from_dict(json.loads(cfg.read_text(encoding="utf-8")).get("thresholds"))
-    return Thresholds()
+def _ident(g: dict[str, Any]) -> list[str]:
+    return [_method(g), g["embedder"], g["vlm"]]
 
 
-def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], figs: dict[str, str],
-             studies: list[dict[str, Any]]) -> str:  # fmt: skip
-    groups = summary["groups"]
-    datasets = sorted({r.get("dataset", "") for r in rows})
-    thr = summary["thresholds"]
-    lines = ["# Evaluation report", "",
-             f"{len(rows)} answers, {len({r['qid'] for r in rows})} questions, dataset(s): "
-             + ", ".join(f"`{d}`" for d in datasets), "",
-             "Accuracy in % (mean ± std over seeds where there are several); errors mean ± std over answered "
-             f"questions. Position threshold(s): {_used_thresholds(rows)}; time {thr['time_s'] / 60:g} min, "
-             f"duration {thr['duration_s'] / 60:g} min.", "",
-             "## Overall", ""]  # fmt: skip
-    types = [t for t in TYPE_COLS if any(t in g["by_type"] for g in groups)]
-    head = ["Method", "Embedder", "VLM", "Q", "Seeds", "Accuracy", *[t.capitalize() for t in types],
-            "Pos. err (m)", "Time err (min)", "α", "Images/q", "Tokens/q", "s/q"]  # fmt: skip
+def _by(g: dict[str, Any], attr: str) -> dict[str, Any]:
+    return g.get("by", {}).get(attr, {})
+
+
+def _breakdown(
+    groups: list[dict[str, Any]], attr: str, metric: str, keys: list[str] | None = None
+) -> str | None:
+    """One table: a line per group, a column per value of `attr`, cells = `metric` there."""
+    keys = keys or sorted({k for g in groups for k in _by(g, attr)})
+    if not keys or not any(metric in s for g in groups for s in _by(g, attr).values()):
+        return None
+    body = [_ident(g) + [_pct(_by(g, attr).get(k, {}).get(metric)) for k in keys] for g in groups]
+    return _table(["Method", "Embedder", "VLM", *keys], body)
+
+
+# ------------------------------------------------------------------------------------ sections
+def _overall(groups: list[dict[str, Any]]) -> list[str]:
+    types = [t for t in TYPE_COLS if any(t in _by(g, "type") for g in groups)]
+    frame = any("frame_accuracy" in g for g in groups)
+    pos = any("position_accuracy" in g for g in groups)
+    head = ["Method", "Embedder", "VLM", "Q", "Seeds", "Accuracy"]
+    head += (["Frame acc."] if frame else []) + (["Pos. acc."] if pos else [])
+    head += [t.capitalize() for t in types] + ["Pos. err (m)", "Time err (min)"]
     body = []
     for g in groups:
-        body.append([_method(g), g["embedder"], g["vlm"], str(g["questions"]), str(len(g["seeds"])),
-                     _pct(g["accuracy"]), *[_pct(g["by_type"].get(t)) for t in types], _num(g["pos_error_m"]),
-                     _num(g["time_error_min"]), _num(g["alpha"], 3), _num(g["images_per_q"], 1),
-                     _num(g["tokens_per_q"], 0), _num(g["seconds_per_q"], 2)])  # fmt: skip
-    lines += [_table(head, body), ""]
-    for field, title in (("by_category", "Accuracy per category"), ("by_horizon", "Accuracy per horizon")):
-        keys = sorted({k for g in groups for k in g[field]})
-        if field == "by_horizon":
-            keys = [h for h in ("short", "medium", "long") if h in keys]
-        if not keys:
+        line = _ident(g) + [str(g["questions"]), str(len(g["seeds"])), _pct(g["accuracy"])]
+        line += ([_pct(g.get("frame_accuracy"))] if frame else []) + (
+            [_pct(g.get("position_accuracy"))] if pos else []
+        )
+        line += [_pct(_by(g, "type").get(t, {}).get("accuracy")) for t in types]
+        line += [_num(g["pos_error_m"]), _num(g["time_error_min"])]
+        body.append(line)
+    out = ["## Overall", "", _table(head, body), ""]
+    if frame or pos:
+        thr = sorted({v for g in groups for v in g.get("pos_thresholds_m", [])})
+        out += [
+            "Frame acc.: the answer names an accepted frame (RAVEN-QA's target retrieval accuracy, the "
+            f"headline there). Pos. acc.: the answer's position within {_metres(thr)} of an accepted "
+            "position (the threshold sweep is below).",
+            "",
+        ]
+    return out
+
+
+def _cost(groups: list[dict[str, Any]]) -> list[str]:
+    head = [
+        "Method",
+        "Embedder",
+        "VLM",
+        "Accuracy",
+        "α",
+        "Memories shown/q",
+        "Images/q",
+        "Tokens/q",
+        "Tool calls/q",
+        "s/q",
+    ]
+    body = [
+        _ident(g)
+        + [
+            _pct(g["accuracy"]),
+            _num(g["alpha"], 3),
+            _num(g["memories_shown"], 1),
+            _num(g["images_per_q"], 1),
+            _num(g["tokens_per_q"], 0),
+            _num(g["tool_calls_per_q"], 1),
+            _num(g["seconds_per_q"], 2),
+        ]
+        for g in groups
+    ]
+    return [
+        "## Retrieval cost",
+        "",
+        "α = memories shown to the method / memories held (the paper's retrieval efficiency), per question.",
+        "",
+        _table(head, body),
+        "",
+    ]
+
+
+def _breakdowns(groups: list[dict[str, Any]]) -> list[str]:
+    out: list[str] = []
+    specs = [
+        ("category", "accuracy", "Accuracy per category", None),
+        ("category", "frame_accuracy", "Frame accuracy per category", None),
+        ("category", "position_accuracy", "Position accuracy per category", None),
+        ("category", "relaxed", "Relaxed accuracy per category (FindingDory)", None),
+        ("subset_split", "frame_accuracy", "Frame accuracy per subset and split (RAVEN-QA)", None),
+        ("subset_split", "position_accuracy", "Position accuracy per subset and split (RAVEN-QA)", None),
+        ("subset", "frame_accuracy", "Frame accuracy per subset", None),
+        ("subset", "position_accuracy", "Position accuracy per subset", None),
+        ("split", "frame_accuracy", "Frame accuracy per split", None),
+        ("split", "position_accuracy", "Position accuracy per split", None),
+        (
+            "horizon",
+            "accuracy",
+            "Accuracy per horizon",
+            [h for h in HORIZONS if any(h in _by(g, "horizon") for g in groups)],
+        ),
+    ]
+    for attr, metric, title, keys in specs:
+        if attr == "subset" and any(_by(g, "subset_split") for g in groups):
+            continue  # the subset/split table already says it
+        if keys == []:
             continue
-        lines += [f"## {title}", "",
-                  _table(["Method", "Embedder", "VLM", *keys],
-                         [[_method(g), g["embedder"], g["vlm"], *[_pct(g[field].get(k)) for k in keys]] for g in groups]),
-                  ""]  # fmt: skip
-    extra = [g for g in groups if g.get("relaxed") or g.get("frame_accuracy")]
-    if extra:
-        lines += ["## Frame answers", "",
-                  _table(["Method", "Embedder", "VLM", "Frame accuracy (position questions)", "Relaxed (frame questions, FindingDory style)"],
-                         [[_method(g), g["embedder"], g["vlm"], _pct(g.get("frame_accuracy")), _pct(g.get("relaxed"))]
-                          for g in extra]), ""]  # fmt: skip
-    notes = []
+        t = _breakdown(groups, attr, metric, keys)
+        if t is not None:
+            out += [f"## {title}", "", t, ""]
+    return out
+
+
+def _horizon_types(groups: list[dict[str, Any]]) -> list[str]:
+    """NaVQA's tables: per horizon, accuracy and error of each question type."""
+    hts = {k for g in groups for k in _by(g, "horizon_type")}
+    types = [t for t in TYPE_COLS if any(k.endswith("/" + t) for k in hts)]
+    horizons = [h for h in HORIZONS if any(k.startswith(h + "/") for k in hts)]
+    if not horizons or len(hts) < 2:
+        return []
+    head = ["Method", "Embedder", "VLM", "Horizon"]
+    for t in types:
+        head.append(f"{t.capitalize()} acc.")
+        if t == "position":
+            head.append("Pos. err (m)")
+        if t in ("time", "frame"):
+            head.append("Time err (min)")
+        if t == "duration":
+            head.append("Duration err (min)")
+    body = []
+    for g in groups:
+        for h in horizons:
+            line = _ident(g) + [h]
+            for t in types:
+                s = _by(g, "horizon_type").get(f"{h}/{t}", {})
+                line.append(_pct(s.get("accuracy")))
+                if t == "position":
+                    line.append(_num(s.get("pos_error_m")))
+                if t in ("time", "frame"):
+                    line.append(_num(s.get("time_error_min")))
+                if t == "duration":
+                    line.append(_num(s.get("duration_error_min")))
+            body.append(line)
+    return ["## Per horizon: accuracy and errors (NaVQA)", "", _table(head, body), ""]
+
+
+def _sweep(groups: list[dict[str, Any]]) -> list[str]:
+    gs = [g for g in groups if g.get("pos_sweep")]
+    if not gs:
+        return []
+    thr = gs[0]["pos_sweep"]["thresholds_m"]
+    body = [_ident(g) + [_pct(a) for a in g["pos_sweep"]["accuracy"]] for g in gs]
+    return [
+        "## Position accuracy against the threshold",
+        "",
+        _table(["Method", "Embedder", "VLM", *[f"≤ {t:g} m" for t in thr]], body),
+        "",
+    ]
+
+
+def _notes(groups: list[dict[str, Any]], summary: dict[str, Any]) -> list[str]:
+    notes = [f"- `{r['dataset']}`: {r['rule']}." for r in summary.get("time_rules", [])]
     for g in groups:
         if g["not_judged"]:
-            notes.append(f"- {_label(g)}: {g['not_judged']} text answer(s) not scored: no LLM judge was configured "
-                         "(run with --judge MODEL).")  # fmt: skip
+            notes.append(
+                f"- {_label(g)}: {g['not_judged']} text answer(s) not scored: no LLM judge was configured "
+                "(run with --judge MODEL)."
+            )
         if g["failed"]:
             notes.append(
                 f"- {_label(g)}: {g['failed']} answer(s) failed (counted wrong; see `error` in answers.jsonl)."
@@ -112,19 +238,100 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], figs: dict[str
             notes.append(
                 f"- {_label(g)}: {g['unscorable']} question(s) without usable ground truth were not scored."
             )
-    if notes:
-        lines += ["## Notes", "", *notes, ""]
+        if g.get("ran_other"):
+            notes.append(
+                f"- {_label(g)}: some answers came from another method: {', '.join(g['ran_other'])}."
+            )
+    return ["## Notes", "", *notes, ""] if notes else []
+
+
+def _study_value(st: dict[str, Any], p: dict[str, Any]) -> str:
+    if st["study"] == "compression":
+        return str(p["stride"])
+    if st["study"] == "coverage":
+        return f"{100 * p['coverage']:.0f}%"
+    return str(p["value"])
+
+
+def _study(st: dict[str, Any]) -> list[str]:
+    title = f"## {st['study'].capitalize()} study"
+    if st["study"] == "embedders":
+        head = ["Embedder", "Direction", "mAP", "mAP small objects", f"P@{st['k']}", "Images/s"]
+        body = [
+            [
+                p["embedder"],
+                p["direction"],
+                f"{p['mAP']:.3f}",
+                f"{p['mAP_small']:.3f}",
+                f"{p['P@k']:.3f}",
+                f"{p['images_per_s'] or 0:.1f}",
+            ]
+            for p in st["points"]
+        ]
+        body += [["random ranking", d, f"{c:.3f}", "", "", ""] for d, c in st["chance"].items()]
+        return [
+            f"{title} (`{st['labels']}`, {st['frames']} frames, {len(st['objects'])} objects)",
+            "",
+            _table(head, body),
+            "",
+        ]
+    first = {"compression": "Stride", "coverage": "Coverage"}.get(st["study"], st.get("option", "value"))
+    head = [
+        first,
+        "Method",
+        "Accuracy",
+        "Frame acc.",
+        "Pos. acc.",
+        "α",
+        "Images/q",
+        "Tokens/q",
+        "Tool calls/q",
+    ]
+    if st["study"] in ("compression", "coverage"):
+        head[1:1] = ["Memories", "Frames"]
+    body = []
+    for p in st["points"]:
+        line = [_study_value(st, p)]
+        if st["study"] in ("compression", "coverage"):
+            line += [str(p["memories"]), str(p["frames"])]
+        line += [
+            p["method"],
+            _pct(p["accuracy"]),
+            _pct(p.get("frame_accuracy")),
+            _pct(p.get("position_accuracy")),
+        ]
+        line += [
+            _num(p["alpha"], 3),
+            _num(p["images_per_q"], 1),
+            _num(p["tokens_per_q"], 0),
+            _num(p["tool_calls_per_q"], 1),
+        ]
+        body.append(line)
+    return [f"{title} (`{st.get('dataset', '')}`)", "", _table(head, body), ""]
+
+
+def markdown(
+    summary: dict[str, Any], rows: list[dict[str, Any]], figs: dict[str, str], studies: list[dict[str, Any]]
+) -> str:
+    groups = summary["groups"]
+    thr = summary["thresholds"]
+    lines = ["# Evaluation report", ""]
+    if rows:
+        datasets = sorted({r.get("dataset", "") for r in rows})
+        used = sorted({float(r["score"]["threshold_m"]) for r in rows if "threshold_m" in r["score"]})
+        lines += [
+            f"{len(rows)} answers, {len({r['qid'] for r in rows})} questions, dataset(s): "
+            + ", ".join(f"`{d}`" for d in datasets),
+            "",
+            "Accuracy in % (mean ± std over seeds where there are several); errors mean ± std over answered "
+            f"questions. Position threshold(s): {_metres(used)}; time {thr['time_s'] / 60:g} min, "
+            f"duration {thr['duration_s'] / 60:g} min.",
+            "",
+        ]
+        lines += _overall(groups) + _cost(groups) + _breakdowns(groups) + _horizon_types(groups)
+        lines += _sweep(groups) + _notes(groups, summary)
     for st in studies:
-        lines += [f"## {st['study'].capitalize()} study (`{st.get('dataset', '')}`)", ""]
-        if st["study"] == "compression":
-            head = ["Stride", "Memories", "Frames", "Frames per memory", "Method", "Accuracy"]
-            body = [[str(p["stride"]), str(p["memories"]), str(p["frames"]), f"{p['sparsification']:.1f}", p["method"],
-                     _pct(p["accuracy"])] for p in st["points"]]  # fmt: skip
-        else:
-            head = ["Coverage", "Memories", "Method", "Accuracy"]
-            body = [[f"{100 * p['coverage']:.0f}%", str(p["memories"]), p["method"], _pct(p["accuracy"])]
-                    for p in st["points"]]  # fmt: skip
-        lines += [_table(head, body), ""]
+        lines += _study(st)
     if figs:
         lines += ["## Figures", ""] + [f"![{name}]({rel})" for name, rel in figs.items()] + [""]
     return "\n".join(lines)
@@ -140,8 +347,19 @@ def _plt() -> Any:
     return plt
 
 
+def _save(fig: Any, path: Path) -> bool:
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    _plt().close(fig)
+    return True
+
+
+def _legend(ax: Any) -> None:
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+
+
 def plot_categories(groups: list[dict[str, Any]], path: Path) -> bool:
-    cats = sorted({k for g in groups for k in g["by_category"]})
+    cats = sorted({k for g in groups for k in _by(g, "category")})
     if not cats:
         return False
     plt = _plt()
@@ -149,24 +367,25 @@ def plot_categories(groups: list[dict[str, Any]], path: Path) -> bool:
     w = 0.8 / len(groups)
     x = np.arange(len(cats))
     for i, g in enumerate(groups):
-        vals = [100 * (g["by_category"].get(c, {}).get("mean") or 0.0) for c in cats]
-        errs = [100 * (g["by_category"].get(c, {}).get("std") or 0.0) for c in cats]
+        accs = [_by(g, "category").get(c, {}).get("accuracy", {}) for c in cats]
+        vals = [100 * (a.get("mean") or 0.0) for a in accs]
+        errs = [100 * (a.get("std") or 0.0) for a in accs]
         ax.bar(x + (i - (len(groups) - 1) / 2) * w, vals, w, yerr=errs, capsize=3, label=_label(g))
     ax.set_xticks(x, cats, rotation=20, ha="right")
     ax.set_ylabel("accuracy (%)")
     ax.set_ylim(0, 105)
     ax.set_title("Accuracy per category")
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    _legend(ax)
     ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return True
+    return _save(fig, path)
+
+
+def _errors(rows: list[dict[str, Any]], g: dict[str, Any], key: str) -> np.ndarray:
+    gk = (g["method"], g["embedder"], g["vlm"], g.get("variant") or "")
+    return np.sort([r["score"][key] for r in rows if group_key(r) == gk and key in r["score"]])
 
 
 def plot_error_cdfs(groups: list[dict[str, Any]], rows: list[dict[str, Any]], path: Path) -> bool:
-    from .metrics import group_key
-
     kinds = [("pos_error_m", "position error (m)", 1.0), ("time_error_s", "time error (min)", 1 / 60)]
     have = [k for k in kinds if any(k[0] in r["score"] for r in rows)]
     if not have:
@@ -175,104 +394,167 @@ def plot_error_cdfs(groups: list[dict[str, Any]], rows: list[dict[str, Any]], pa
     fig, axes = plt.subplots(1, len(have), figsize=(5.5 * len(have), 4.0), squeeze=False)
     for ax, (key, title, scale) in zip(axes[0], have):
         for g in groups:
-            gk = (g["method"], g["embedder"], g["vlm"], g.get("variant") or "")
-            errs = np.sort(
-                [r["score"][key] * scale for r in rows if group_key(r) == gk and key in r["score"]]
-            )
+            errs = _errors(rows, g, key) * scale
             if errs.size:
                 ax.step(errs, np.arange(1, errs.size + 1) / errs.size, where="post", label=_label(g))
         ax.set_xlabel(title)
-        ax.set_ylabel("fraction of questions")
+        ax.set_ylabel("fraction of answered questions")
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
         ax.set_title(f"CDF of {title}")
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return True
+    return _save(fig, path)
 
 
-def plot_alpha(groups: list[dict[str, Any]], path: Path) -> bool:
-    pts = [(g["alpha"]["mean"], g["accuracy"]["mean"], g) for g in groups
-           if g["alpha"]["mean"] is not None and g["accuracy"]["mean"] is not None]  # fmt: skip
-    if not pts:
+def plot_position_sweep(groups: list[dict[str, Any]], rows: list[dict[str, Any]], path: Path) -> bool:
+    """Position accuracy as the threshold grows (all seeds pooled; a missing position never counts)."""
+    gs = [g for g in groups if g.get("pos_sweep")]
+    if not gs:
         return False
     plt = _plt()
     fig, ax = plt.subplots(figsize=(8.5, 4.2))
-    for a, acc, g in pts:
-        ax.errorbar(
-            [a], [100 * acc], yerr=[100 * (g["accuracy"]["std"] or 0.0)], fmt="o", capsize=3, label=_label(g)
-        )
-    if all(a > 0 for a, _, _ in pts) and max(a for a, _, _ in pts) / min(a for a, _, _ in pts) > 20:
-        ax.set_xscale("log")
-    ax.set_xlabel("α (fraction of memory shown per question)")
-    ax.set_ylabel("accuracy (%)")
+    top = max(SWEEP_M[-1], *(v for g in gs for v in g.get("pos_thresholds_m", [])))
+    xs = np.linspace(0, top, 400)
+    for g in gs:
+        gk = (g["method"], g["embedder"], g["vlm"], g.get("variant") or "")
+        pos = [r for r in rows if group_key(r) == gk and "pos_correct" in r["score"]]
+        errs = np.array([r["score"].get("pos_error_m", np.inf) for r in pos], dtype=float)
+        ax.plot(xs, [100 * float(np.mean(errs <= x)) for x in xs], label=_label(g))
+    for v in sorted({v for g in gs for v in g.get("pos_thresholds_m", [])}):
+        ax.axvline(v, color="grey", ls="--", lw=0.8)
+    ax.set_xlabel("position threshold (m); dashed: the threshold of the Pos. acc. column")
+    ax.set_ylabel("position accuracy (%)")
     ax.set_ylim(0, 105)
     ax.grid(alpha=0.3)
-    ax.set_title("Accuracy vs memory shown")
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return True
+    ax.set_title("Position accuracy against the threshold")
+    _legend(ax)
+    return _save(fig, path)
+
+
+COSTS = (
+    ("alpha", "α (memories shown / memories held)"),
+    ("images_per_q", "images sent per question"),
+    ("tokens_per_q", "tokens per question"),
+)
+
+
+def plot_cost(groups: list[dict[str, Any]], path: Path) -> bool:
+    """Accuracy against retrieval cost, one point per method (a line through a study's settings)."""
+    pts = [g for g in groups if g["accuracy"]["mean"] is not None and g["alpha"]["mean"] is not None]
+    if not pts:
+        return False
+    plt = _plt()
+    fig, axes = plt.subplots(1, len(COSTS), figsize=(15.0, 4.4), squeeze=False)
+    lines: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    for g in pts:
+        lines.setdefault((g["method"], g["embedder"], g["vlm"]), []).append(g)
+    for ax, (key, title) in zip(axes[0], COSTS):
+        xs_all = []
+        for (method, emb, vlm), gs in sorted(lines.items()):
+            gs = sorted(gs, key=lambda g: g[key]["mean"] or 0.0)
+            xs = [g[key]["mean"] or 0.0 for g in gs]
+            ys = [100 * g["accuracy"]["mean"] for g in gs]
+            es = [100 * (g["accuracy"]["std"] or 0.0) for g in gs]
+            label = " | ".join([method, emb.rsplit("/", 1)[-1]] + ([vlm] if vlm != "-" else []))
+            ax.errorbar(xs, ys, yerr=es, marker="o", capsize=3, label=label)
+            xs_all += xs
+        pos = [x for x in xs_all if x > 0]
+        if pos and len(pos) == len(xs_all) and max(pos) / min(pos) > 20:
+            ax.set_xscale("log")
+        ax.set_xlabel(title)
+        ax.set_ylabel("accuracy (%)")
+        ax.set_ylim(0, 105)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_title("Accuracy against retrieval cost")
+    _legend(axes[0][-1])
+    return _save(fig, path)
 
 
 def plot_study(st: dict[str, Any], path: Path) -> bool:
     if not st.get("points"):
         return False
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.0, 4.2))
-    xkey = "sparsification" if st["study"] == "compression" else "coverage"
+    if st["study"] == "embedders":
+        return _plot_embedders(st, path)
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    xkey = {"compression": "sparsification", "coverage": "coverage"}.get(st["study"], "value")
+    raw = [p[xkey] for p in st["points"]]
+    numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in raw)
+    order = list(dict.fromkeys(str(v) for v in raw))
     for m in sorted({p["method"] for p in st["points"]}):
-        pts = sorted((p[xkey], p["accuracy"]) for p in st["points"] if p["method"] == m)
-        xs = [x * (100 if xkey == "coverage" else 1) for x, _ in pts]
-        ys = [100 * (a.get("mean") or 0.0) for _, a in pts]
-        es = [100 * (a.get("std") or 0.0) for _, a in pts]
+        ps = [p for p in st["points"] if p["method"] == m]
+        ps.sort(key=lambda p: p[xkey] if numeric else order.index(str(p[xkey])))
+        xs = [
+            p[xkey] * (100 if xkey == "coverage" else 1) if numeric else order.index(str(p[xkey])) for p in ps
+        ]
+        ys = [100 * (p["accuracy"].get("mean") or 0.0) for p in ps]
+        es = [100 * (p["accuracy"].get("std") or 0.0) for p in ps]
         ax.errorbar(xs, ys, yerr=es, marker="o", capsize=3, label=m)
     if xkey == "sparsification":
         ax.set_xscale("log")
         ax.set_xlabel("frames per memory (keyframe sparsification, log)")
         ax.set_title("Accuracy vs keyframe rate")
-    else:
+    elif xkey == "coverage":
         ax.set_xlabel("exploration coverage (%)")
         ax.set_title("Accuracy vs coverage")
+    else:
+        if not numeric:
+            ax.set_xticks(range(len(order)), order)
+        ax.set_xlabel(st.get("option", "value"))
+        ax.set_title(f"Accuracy vs {st.get('option', 'value')} ({st['study']} study)")
     ax.set_ylabel("accuracy (%)")
     ax.set_ylim(0, 105)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return True
+    return _save(fig, path)
+
+
+def _plot_embedders(st: dict[str, Any], path: Path) -> bool:
+    plt = _plt()
+    embs = list(dict.fromkeys(p["embedder"] for p in st["points"]))
+    dirs = list(st["chance"])
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(embs) + 2), 4.2))
+    w = 0.8 / len(dirs)
+    x = np.arange(len(embs))
+    for i, d in enumerate(dirs):
+        vals = [
+            next((p["mAP"] for p in st["points"] if p["embedder"] == e and p["direction"] == d), 0.0)
+            for e in embs
+        ]
+        ax.bar(x + (i - (len(dirs) - 1) / 2) * w, vals, w, label=f"{d} (random {st['chance'][d]:.2f})")
+    ax.set_xticks(x, [e.rsplit("/", 1)[-1] for e in embs], rotation=15, ha="right")
+    ax.set_ylabel("mAP")
+    ax.set_ylim(0, 1.05)
+    ax.set_title("Retrieval quality per embedder")
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    return _save(fig, path)
 
 
 def find_studies(root: Path) -> list[dict[str, Any]]:
-    out = []
-    for p in sorted(root.rglob("study.json")) if root.is_dir() else []:
-        try:
-            out.append(json.loads(p.read_text(encoding="utf-8")))
-        except json.JSONDecodeError as e:
-            raise InputError(f"{p}: not JSON ({e})") from e
-    return out
+    return [read_json(p) for p in (sorted(root.rglob("study.json")) if root.is_dir() else [])]
 
 
 def write_report(run_dir: str | Path, out: str | Path, thresholds: Thresholds | None = None) -> Path:
     """Write `out` (markdown) and its PNGs in `<out stem>_figs/` beside it; returns the markdown path."""
     root, out = Path(run_dir), Path(out)
-    rows = read_rows(root)
-    thr = thresholds or _thresholds_of(root)
-    summary = summarize(rows, thr)
     studies = find_studies(root)
+    only_embedders = bool(studies) and all(st["study"] == "embedders" for st in studies)
+    rows = [] if only_embedders else read_rows(root)
+    summary = summarize(rows, thresholds or run_thresholds(root))
     figdir = out.parent / f"{out.stem}_figs"
     figdir.mkdir(parents=True, exist_ok=True)
     figs: dict[str, str] = {}
     groups = summary["groups"]
-    for name, ok in (("accuracy per category", lambda p: plot_categories(groups, p)),
-                     ("error CDFs", lambda p: plot_error_cdfs(groups, rows, p)),
-                     ("accuracy vs alpha", lambda p: plot_alpha(groups, p))):  # fmt: skip
+    plots: list[tuple[str, Callable[[Path], bool]]] = [
+        ("accuracy per category", lambda p: plot_categories(groups, p)),
+        ("error CDFs", lambda p: plot_error_cdfs(groups, rows, p)),
+        ("position accuracy vs threshold", lambda p: plot_position_sweep(groups, rows, p)),
+        ("accuracy vs retrieval cost", lambda p: plot_cost(groups, p)),
+    ]
+    for name, draw in plots if rows else []:
         path = figdir / (name.replace(" ", "_") + ".png")
-        if ok(path):
+        if draw(path):
             figs[name] = f"{figdir.name}/{path.name}"
     for i, st in enumerate(studies):
         path = figdir / f"study_{st['study']}_{i}.png"

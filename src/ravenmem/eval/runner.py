@@ -15,14 +15,12 @@ import hashlib
 import json
 import os
 import queue
-import re
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from fnmatch import fnmatch
 from pathlib import Path
@@ -35,75 +33,32 @@ from ..agent.schema import Answer
 from ..errors import InputError
 from ..fsio import atomic_open, atomic_write, atomic_write_json
 from ..imageio import read_image
-from ..ingest.keyframes import KeyframeConfig, parse_keyframes
+from ..ingest.keyframes import KeyframeConfig
 from .cache import CachingEmbedder, build_memory
+from .config import IDENTITY, RunConfig, Thresholds
 from .datasets import load_dataset
-from .metrics import Thresholds, prediction, score_row, summarize, truth_row
+from .metrics import prediction, score_row, summarize, truth_row
 from .types import Episode, Question, horizon_of
 
-VLM_METHODS = ("raven", "vlm-only", "caption")
-METHOD_NAMES = ("raven", "offline", "embedder-only", "vlm-only", "caption", "random")
-# Settings that change answers: a run folder holds one value of each (methods and seeds may grow).
-IDENTITY = ("dataset", "queries", "embedder", "vlm", "vlm_base_url", "keyframes", "ocr", "thumb_size", "method_opts",
-            "dataset_opts")  # fmt: skip
+# Options of the contract between the evaluator and the VLM agent: checked against the agent's
+# signature before a run, so a study never varies an option this version would silently drop.
+AGENT_OPTIONS = ("show_scores", "time_mode", "preset", "temperature")
 
 
-@dataclass
-class RunConfig:
-    dataset: str
-    methods: list[str]
-    queries: str | None = None
-    embedder: str = "offline"
-    vlm: str | None = None
-    vlm_base_url: str | None = None
-    seeds: int = 1
-    out: str | None = None
-    runs_dir: str = "runs"
-    name: str | None = None
-    cache_dir: str = ".ravenmem-cache/eval"
-    workers: int = 4
-    keyframes: str | None = None
-    ocr: bool = False
-    thumb_size: int = 320
-    method_opts: dict[str, Any] = field(default_factory=dict)
-    dataset_opts: dict[str, Any] = field(default_factory=dict)
-    thresholds: dict[str, Any] = field(default_factory=dict)
-    judge_model: str | None = None
-    judge_base_url: str | None = None
-    limit: int | None = None
-    episodes: str | None = None  # glob over episode ids
-    retry_failed: bool = False
-    progress: bool | None = None
-    variant: str = ""  # a label that separates rows of otherwise equal settings in reports (studies)
+def method_names() -> list[str]:
+    """Every method the registry can build (built-ins and entry points), without importing them."""
+    from ..agent.base import METHODS
 
-    def validate(self, known: tuple[str, ...] | None = METHOD_NAMES) -> None:
-        """Check options; `known` = the method names allowed (None when a custom factory decides)."""
-        if not self.methods:
-            raise InputError("--method: give at least one method")
-        bad = [m for m in self.methods if known is not None and m not in known]
-        if bad:
-            raise InputError(f"--method: unknown {', '.join(bad)}; choose from {', '.join(known or ())}")
-        if self.seeds < 1 or self.workers < 1:
-            raise InputError(f"--seeds and --workers must be >= 1 (got {self.seeds}, {self.workers})")
-        if self.limit is not None and self.limit < 1:
-            raise InputError(f"--limit must be >= 1, got {self.limit}")
-        parse_keyframes(self.keyframes)
-        if isinstance(self.method_opts.get("top_k"), dict) and not per_tool_top_k_supported():
-            raise InputError("--top-k per tool (e.g. time=200,text=30,position=1) is not supported by this version's "
-                             "methods; give one number")  # fmt: skip
+    return METHODS.names()
 
-    def run_dir(self) -> Path:
-        if self.out:
-            return Path(self.out)
-        kind = self.dataset.partition(":")[0]
-        emb = self.embedder.rsplit("/", 1)[-1]
-        name = self.name or "_".join(p for p in (kind, "+".join(self.methods), emb, self.vlm or "") if p)
-        day = datetime.now(timezone.utc).strftime("%Y-%m-%d")
-        return Path(self.runs_dir) / day / re.sub(r"[^A-Za-z0-9._+-]+", "-", name)
 
-    def identity(self) -> dict[str, Any]:
-        d = asdict(self)
-        return {k: d[k] for k in IDENTITY}
+def agent_takes(option: str) -> bool:
+    """Whether this version's VLM agent takes `option` (its constructor's signature says so)."""
+    import inspect
+
+    from ..agent.loop import Agent
+
+    return option in inspect.signature(Agent.__init__).parameters
 
 
 def per_tool_top_k_supported() -> bool:
@@ -115,6 +70,26 @@ def per_tool_top_k_supported() -> bool:
 
     ann = inspect.signature(Agent.__init__).parameters.get("top_k")
     return ann is not None and "dict" in str(ann.annotation)
+
+
+def check_methods(cfg: RunConfig) -> None:
+    """Refuse unknown method names and agent options this version's agent does not take."""
+    known = method_names()
+    bad = [m for m in cfg.methods.names if m not in known]
+    if bad:
+        raise InputError(f"--method: unknown {', '.join(bad)}; choose from {', '.join(known)}")
+    if "raven" not in cfg.methods.names:
+        return
+    opts = cfg.methods.options()
+    if isinstance(opts.get("top_k"), dict) and not per_tool_top_k_supported():
+        raise InputError(
+            "--top-k per tool (e.g. time=200,text=30,position=1) is not supported by this version's "
+            "methods; give one number"
+        )
+    missing = [o for o in AGENT_OPTIONS if o in opts and not agent_takes(o)]
+    if missing:
+        flags = ", ".join("--" + o.replace("_", "-") for o in missing)
+        raise InputError(f"{flags}: this version's raven method does not take {', '.join(missing)}")
 
 
 # ------------------------------------------------------------------------------------ rows on disk
@@ -198,20 +173,34 @@ def _default_factory(name: str, memory: Any, **opts: Any) -> Any:
     return create_method(name, memory, **opts)
 
 
+def _needs_vlm(name: str) -> bool:
+    from ..agent.base import METHODS, needs_vlm
+
+    return name in METHODS.names() and needs_vlm(name)
+
+
 class Runner:
     """Run a RunConfig (see `run`). `method_factory(name, memory, **opts)` and `embedder` may be
-    given for tests or custom methods; by default the agent's `create_method` and `--embedder`."""
+    given for tests or custom methods; by default the agent's `create_method` and the config's
+    embedder. A method that needs a VLM stops the run before any question when none is set."""
 
-    def __init__(self, cfg: RunConfig, method_factory: MethodFactory | None = None, embedder: Any = None,
-                 episodes: list[Episode] | None = None, log: Callable[[str], None] | None = None) -> None:  # fmt: skip
-        cfg.validate(None if method_factory is not None else METHOD_NAMES)
+    def __init__(
+        self,
+        cfg: RunConfig,
+        method_factory: MethodFactory | None = None,
+        embedder: Any = None,
+        episodes: list[Episode] | None = None,
+        log: Callable[[str], None] | None = None,
+    ) -> None:
+        if method_factory is None:
+            check_methods(cfg)
         self.cfg = cfg
         self.factory = method_factory or _default_factory
         self._embedder = embedder
         self._episodes = episodes
         self.log = log or (lambda msg: print(msg, file=sys.stderr))
-        self.thresholds = Thresholds.from_dict(cfg.thresholds)
-        self.embedder_label = str(getattr(embedder, "name", "")) or cfg.embedder
+        self.thresholds = cfg.thresholds
+        self.embedder_label = str(getattr(embedder, "name", "")) or cfg.models.embedder
         self.dir = cfg.run_dir()
         self.judge: Any = None
         self.vlm_cfg: Any = None
@@ -221,48 +210,60 @@ class Runner:
         self.dir.mkdir(parents=True, exist_ok=True)
         cfg_path = self.dir / "config.json"
         log = AnswerLog(self.dir / "answers.jsonl")
+        ident = self.cfg.identity()
+        doc = self.cfg.to_json()
         if cfg_path.exists():
-            old = json.loads(cfg_path.read_text(encoding="utf-8"))
-            diff = [k for k in IDENTITY if old.get(k) != self.cfg.identity()[k]]
+            old = read_json(cfg_path)
+            diff = [k for k in IDENTITY if old.get(k) != ident[k]]
             if diff and log.path.exists() and log.rows():
-                raise InputError(f"{self.dir} holds a run with other settings ({', '.join(diff)}); "
-                                 f"use another --out/--name, or delete the folder")  # fmt: skip
-            methods = list(dict.fromkeys(list(old.get("methods", [])) + self.cfg.methods))
-            seeds = max(int(old.get("seeds", 1)), self.cfg.seeds)
-        else:
-            methods, seeds = self.cfg.methods, self.cfg.seeds
-        doc = asdict(self.cfg) | {"methods": methods, "seeds": seeds, "updated": _now()}
-        atomic_write_json(cfg_path, doc, indent=2, default=str)
+                raise InputError(
+                    f"{self.dir} holds a run with other settings ({', '.join(diff)}); "
+                    "use another --out/--name, or delete the folder"
+                )
+            doc["methods"] = list(dict.fromkeys(list(old.get("methods", [])) + doc["methods"]))
+            doc["seeds"] = max(int(old.get("seeds", 1)), self.cfg.seeds)
+        atomic_write_json(cfg_path, doc | {"updated": _now()}, indent=2, default=str)
         return log
 
     def _make_embedder(self) -> CachingEmbedder:
         from ..embed.base import create_embedder
 
-        inner = self._embedder if self._embedder is not None else create_embedder(self.cfg.embedder)
-        return CachingEmbedder(inner, Path(self.cfg.cache_dir) / "embeddings")
+        inner = self._embedder if self._embedder is not None else create_embedder(self.cfg.models.embedder)
+        self.embedder_label = str(getattr(inner, "name", "")) or self.embedder_label
+        return CachingEmbedder(inner, Path(self.cfg.memory.cache_dir) / "embeddings")
 
     def _setup_models(self) -> None:
+        """Resolve the VLM (and judge); refuse methods that need a VLM when none is configured."""
         from ..agent.config import VLMConfig
 
-        if any(m in VLM_METHODS for m in self.cfg.methods) or self.cfg.vlm:
-            self.vlm_cfg = VLMConfig.resolve(model=self.cfg.vlm, base_url=self.cfg.vlm_base_url)
-        if self.cfg.judge_model:
+        models = self.cfg.models
+        wanting = [m for m in self.cfg.methods.names if _needs_vlm(m)]
+        if wanting or models.vlm:
+            self.vlm_cfg = VLMConfig.resolve(model=models.vlm, base_url=models.vlm_base_url)
+        if wanting and not self.vlm_cfg.configured:
+            raise InputError(
+                f"--method {', '.join(wanting)} needs a VLM and none is configured: give --vlm MODEL "
+                "(and --vlm-base-url URL) or set RAVENMEM_VLM_MODEL / RAVENMEM_VLM_BASE_URL"
+            )
+        if models.judge:
             from .judge import Judge
 
-            jc = VLMConfig.resolve(
-                model=self.cfg.judge_model, base_url=self.cfg.judge_base_url or self.cfg.vlm_base_url
-            )
+            jc = VLMConfig.resolve(model=models.judge, base_url=models.judge_base_url or models.vlm_base_url)
             self.judge = Judge(jc)
 
     def episodes(self) -> list[Episode]:
-        eps = self._episodes if self._episodes is not None else load_dataset(
-            self.cfg.dataset, queries=self.cfg.queries, **self.cfg.dataset_opts)  # fmt: skip
-        if self.cfg.episodes:
-            eps = [e for e in eps if fnmatch(e.id, self.cfg.episodes)]
+        ds = self.cfg.dataset
+        eps = (
+            self._episodes
+            if self._episodes is not None
+            else load_dataset(ds.spec, queries=ds.queries, **ds.options())
+        )
+        if ds.episodes:
+            eps = [e for e in eps if fnmatch(e.id, ds.episodes)]
             if not eps:
-                raise InputError(f"--episodes {self.cfg.episodes!r} matches no episode")
-        if self.cfg.limit is not None:
-            left, out = self.cfg.limit, []
+                raise InputError(f"--episodes {ds.episodes!r} matches no episode")
+        if ds.limit is not None:
+            left, out = ds.limit, []
             for e in eps:
                 if left <= 0:
                     break
@@ -273,20 +274,36 @@ class Runner:
         return eps
 
     # -------------------------------------------------------------- main loop
-    def run(self, source_for: Callable[[Episode], Any] | None = None, keyframes: KeyframeConfig | None = None,
-            extra_key: dict[str, Any] | None = None) -> dict[str, Any]:  # fmt: skip
+    def run(
+        self,
+        source_for: Callable[[Episode], Any] | None = None,
+        keyframes: KeyframeConfig | None = None,
+        extra_key: dict[str, Any] | None = None,
+    ) -> dict[str, Any]:
         """Answer every pending (question, method, seed); write rows; return the summary."""
+        self._setup_models()
         log = self._open_dir()
         done = {r["key"] for r in log.rows() if not (self.cfg.retry_failed and r["answer"].get("failed"))}
         eps = self.episodes()
-        todo = [(e, [(q, m, s) for q in e.questions for m in self.cfg.methods for s in range(self.cfg.seeds)
-                     if row_key(e, q, m, s) not in done]) for e in eps]  # fmt: skip
+        names, seeds = self.cfg.methods.names, range(self.cfg.seeds)
+        todo = [
+            (
+                e,
+                [
+                    (q, m, s)
+                    for q in e.questions
+                    for m in names
+                    for s in seeds
+                    if row_key(e, q, m, s) not in done
+                ],
+            )
+            for e in eps
+        ]
         total = sum(len(t) for _, t in todo)
-        kf = keyframes or parse_keyframes(self.cfg.keyframes)
+        kf = keyframes or self.cfg.memory.keyframe_config()
         self.log(f"eval: {len(eps)} episode(s), {total} answer(s) to run ({len(done)} already in {self.dir})")
         show = sys.stderr.isatty() if self.cfg.progress is None else self.cfg.progress
         if total:
-            self._setup_models()
             emb = self._make_embedder()
             bar = tqdm(total=total, desc="eval", unit="q", disable=not show, file=sys.stderr)
             try:
@@ -302,12 +319,29 @@ class Runner:
         atomic_write_json(self.dir / "summary.json", summary, indent=2, default=_json_default)
         return summary
 
-    def _run_episode(self, ep: Episode, items: list[tuple[Question, str, int]], emb: CachingEmbedder,
-                     kf: KeyframeConfig, log: AnswerLog, bar: Any, source_for: Callable[[Episode], Any] | None,
-                     extra_key: dict[str, Any] | None) -> None:  # fmt: skip
+    def _run_episode(
+        self,
+        ep: Episode,
+        items: list[tuple[Question, str, int]],
+        emb: CachingEmbedder,
+        kf: KeyframeConfig,
+        log: AnswerLog,
+        bar: Any,
+        source_for: Callable[[Episode], Any] | None,
+        extra_key: dict[str, Any] | None,
+    ) -> None:
         src = source_for(ep) if source_for is not None else None
-        mem, info = build_memory(ep, Path(self.cfg.cache_dir), emb, kf, ocr=self.cfg.ocr,
-                                 thumb_size=self.cfg.thumb_size, source=src, extra=extra_key)  # fmt: skip
+        mcfg = self.cfg.memory
+        mem, info = build_memory(
+            ep,
+            Path(mcfg.cache_dir),
+            emb,
+            kf,
+            ocr=mcfg.ocr,
+            thumb_size=mcfg.thumb_size,
+            source=src,
+            extra=extra_key,
+        )
         try:
             n_mem = mem.count()
             if n_mem == 0:
@@ -327,8 +361,10 @@ class Runner:
                     if m != "random":  # build one up front: first-time work (captions) runs once, here
                         pools[(m, s)].put(self._method(m, mem, s))
             with ThreadPoolExecutor(max_workers=self.cfg.workers) as pool:
-                futs = [pool.submit(self._answer_one, ep, q, m, s, mem, pools[(m, s)], mem_info)
-                        for q, m, s in items]  # fmt: skip
+                futs = [
+                    pool.submit(self._answer_one, ep, q, m, s, mem, pools[(m, s)], mem_info)
+                    for q, m, s in items
+                ]
                 for fut in as_completed(futs):
                     log.append(fut.result())
                     bar.update(1)
@@ -336,9 +372,8 @@ class Runner:
             mem.close()
 
     def _method(self, name: str, mem: Any, seed: int) -> Any:
-        opts = dict(self.cfg.method_opts)
-        opts["seed"] = seed
-        if name in VLM_METHODS and self.vlm_cfg is not None:
+        opts = self.cfg.methods.options() | {"seed": seed}
+        if self.vlm_cfg is not None and _needs_vlm(name):
             opts["vlm"] = self.vlm_cfg
         try:
             return self.factory(name, mem, **opts)
@@ -360,8 +395,16 @@ class Runner:
         finally:
             pool.put(inst)
 
-    def _answer_one(self, ep: Episode, q: Question, method: str, seed: int, mem: Any, pool: queue.Queue[Any],
-                    mem_info: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
+    def _answer_one(
+        self,
+        ep: Episode,
+        q: Question,
+        method: str,
+        seed: int,
+        mem: Any,
+        pool: queue.Queue[Any],
+        mem_info: dict[str, Any],
+    ) -> dict[str, Any]:
         start = time.perf_counter()
         try:
             image = read_image(q.image) if q.image is not None else None
@@ -374,26 +417,78 @@ class Runner:
                 question=q.text, method=method, failed=True, found=False, error=f"{type(e).__name__}: {e}"
             )
         wall = time.perf_counter() - start
-        uses_vlm = method in VLM_METHODS and self.vlm_cfg is not None and self.vlm_cfg.configured
         verdict = None
         if q.type == "text" and self.judge is not None and not ans.failed:
             verdict = self.judge.grade(q.text, q.truth.text, ans.text)
-        return build_row(ep, q, method, seed, ans, thr=self.thresholds, dataset=self.cfg.dataset,
-                         embedder=self.embedder_label, vlm=self.vlm_cfg.model if uses_vlm else None, run=self.dir.name,
-                         mem_info=mem_info, wall_s=wall, judge=verdict, variant=self.cfg.variant)  # fmt: skip
+        return build_row(
+            ep,
+            q,
+            method,
+            seed,
+            ans,
+            thr=self.thresholds,
+            dataset=self.cfg.dataset.spec,
+            ran=self._ran(method, ans),
+            run=self.dir.name,
+            mem_info=mem_info,
+            wall_s=wall,
+            judge=verdict,
+            variant=self.cfg.variant,
+        )
+
+    def _ran(self, method: str, ans: Answer) -> dict[str, Any]:
+        """The method, model and embedder that actually produced the answer: the answer's own
+        record where it has one (`Answer.model`, `Answer.embedder`), else the run's settings."""
+        uses_vlm = self.vlm_cfg is not None and self.vlm_cfg.configured and _needs_vlm(method)
+        model = getattr(ans, "model", None) or (self.vlm_cfg.model if uses_vlm else None)
+        embedder = getattr(ans, "embedder", None) or self.embedder_label
+        return {"method": ans.method or method, "model": model, "embedder": embedder}
 
 
-def build_row(ep: Episode, q: Question, method: str, seed: int, ans: Answer, thr: Thresholds, dataset: str = "",
-              embedder: str = "", vlm: str | None = None, run: str = "", mem_info: dict[str, Any] | None = None,
-              wall_s: float = 0.0, judge: dict[str, Any] | None = None, variant: str = "") -> dict[str, Any]:  # fmt: skip
-    """One answers.jsonl row: the question, its truth, the full answer, the prediction and its score."""
+def build_row(
+    ep: Episode,
+    q: Question,
+    method: str,
+    seed: int,
+    ans: Answer,
+    thr: Thresholds,
+    dataset: str = "",
+    ran: dict[str, Any] | None = None,
+    run: str = "",
+    mem_info: dict[str, Any] | None = None,
+    wall_s: float = 0.0,
+    judge: dict[str, Any] | None = None,
+    variant: str = "",
+) -> dict[str, Any]:
+    """One answers.jsonl row: the question, its truth, the full answer, the prediction and its score.
+
+    `method` is the method asked for (the row's key); `ran` what actually answered (method,
+    model, embedder), also copied to the row's `embedder` and `vlm` that reports group by."""
+    ran = ran or {"method": ans.method or method, "model": None, "embedder": ""}
     row: dict[str, Any] = {
-        "key": row_key(ep, q, method, seed), "run": run, "dataset": dataset, "episode": ep.id, "qid": q.id,
-        "method": method, "seed": seed, "embedder": embedder, "vlm": vlm, "question": q.to_dict(),
-        "truth": truth_row(q, ep), "pred": prediction(ans, q, ep), "answer": ans.model_dump(mode="json"),
-        "pos_threshold": ep.pos_threshold, "frame_tol": ep.frame_tol, "memory": mem_info or {},
-        "wall_s": round(wall_s, 4), "finished": _now(), "variant": variant,
-    }  # fmt: skip
+        "key": row_key(ep, q, method, seed),
+        "run": run,
+        "dataset": dataset,
+        "episode": ep.id,
+        "qid": q.id,
+        "method": method,
+        "seed": seed,
+        "embedder": ran["embedder"],
+        "vlm": ran["model"],
+        "ran": ran,
+        "question": q.to_dict(),
+        "truth": truth_row(q, ep),
+        "pred": prediction(ans, q, ep),
+        "answer": ans.model_dump(mode="json"),
+        "pos_threshold": ep.pos_threshold,
+        "frame_tol": ep.frame_tol,
+        "memory": mem_info or {},
+        "wall_s": round(wall_s, 4),
+        "finished": _now(),
+        "variant": variant,
+    }
+    if ep.meta.get("time_rule"):
+        row["time_rule"] = ep.meta["time_rule"]
     if judge is not None:
         row["judge"] = judge
     row["score"] = score_row(row, thr)
@@ -409,6 +504,25 @@ def run(cfg: RunConfig, **kwargs: Any) -> dict[str, Any]:
     return Runner(cfg, **kwargs).run()
 
 
+def read_json(path: Path) -> dict[str, Any]:
+    """A run folder's JSON file (config.json, study.json); a damaged one is a one-line error."""
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:  # ValueError: not UTF-8, not JSON
+        raise InputError(f"{path}: cannot read ({e})") from e
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a JSON object")
+    return doc
+
+
+def run_thresholds(run_dir: Path) -> Thresholds:
+    """The thresholds a run folder was scored with (its config.json), else the defaults."""
+    cfg = run_dir / "config.json"
+    if cfg.exists():
+        return Thresholds.from_dict(read_json(cfg).get("thresholds"))
+    return Thresholds()
+
+
 def rejudge(run_dir: str | Path, judge: Any, thresholds: Thresholds | None = None) -> int:
     """Judge the text answers of a run that have no verdict yet (e.g. run without --judge);
     rewrites answers.jsonl atomically and refreshes summary.json. Returns how many were judged."""
@@ -416,9 +530,7 @@ def rejudge(run_dir: str | Path, judge: Any, thresholds: Thresholds | None = Non
     path = root / "answers.jsonl"
     if not path.exists():
         raise InputError(f"{root}: no answers.jsonl (give one run folder)")
-    cfg = root / "config.json"
-    thr = thresholds or Thresholds.from_dict(json.loads(cfg.read_text(encoding="utf-8")).get("thresholds")
-                                             if cfg.exists() else None)  # fmt: skip
+    thr = thresholds or run_thresholds(root)
     rows = AnswerLog(path).rows()
     n = 0
     for r in rows:

@@ -1,16 +1,19 @@
-"""Studies as commands: accuracy vs keyframe sparsification and vs exploration coverage.
+"""Studies as commands: the same questions under one changed setting, as a table and a curve.
 
-Compression: the same questions over memories built with keyframe stride 1, 2, 5, ... (other
-keyframe rules kept), plotting accuracy against frames per stored memory (the paper's
-sparsification curve, up to 250x). Coverage: each episode's recording cut where the robot has
-passed through a given fraction of the grid cells (default 1 m) its full trajectory visits, so
-questions about places not yet explored become unanswerable; meant for simulated episodes
-(exported in RAVEN-QA layout) but works on any dataset with poses.
+- compression: keyframe stride 1, 2, 5, ... (other keyframe rules kept), plotted against frames
+  per stored memory (the paper's sparsification curve, up to 250x);
+- coverage: each recording cut where the robot has passed through a fraction of the grid cells
+  (default 1 m) its whole trajectory visits, so questions about places not yet explored become
+  unanswerable; meant for simulated episodes (exported in RAVEN-QA layout), works on any
+  dataset with poses;
+- the agent ablations, one method option swept (`option_study`): `top-k` (memories per tool
+  call), `scores` (similarity scores shown to the model or hidden), `time-mode` (the time tool
+  looking forward from the asked time, or centred on it) and `tool-calls` (the tool-call budget).
 
-Every point is an ordinary run folder (`<out>/stride-5/`, `<out>/coverage-50/`) with its rows
-labelled by a variant, and `<out>/study.json` lists the points; `ravenmem eval report <out>`
-draws the curve. Embeddings are cached, so each extra point costs ingest and answers, not
-embedding.
+Every point is an ordinary run folder (`<out>/stride-5/`, `<out>/top_k-10/`, ...) with its rows
+labelled by a variant, and `<out>/study.json` lists the points with accuracy and retrieval cost;
+`ravenmem eval report <out>` draws the curve. Embeddings are cached, so each extra point costs
+ingest and answers, not embedding.
 """
 
 from __future__ import annotations
@@ -23,11 +26,20 @@ from typing import Any
 
 from ..errors import InputError
 from ..fsio import atomic_write_json
-from ..ingest.keyframes import KeyframeConfig, parse_keyframes
+from ..ingest.keyframes import KeyframeConfig
+from .config import OutputConfig, RunConfig
 from .datasets import load_dataset
 from .datasets.frames import Subsampled
-from .runner import RunConfig, Runner, read_rows
+from .runner import Runner, read_rows
 from .types import Episode
+
+# study name -> the method option it sweeps
+OPTION_STUDIES = {
+    "top-k": "top_k",
+    "scores": "show_scores",
+    "time-mode": "time_mode",
+    "tool-calls": "max_tool_calls",
+}
 
 
 def keyframe_spec(cfg: KeyframeConfig) -> str:
@@ -41,8 +53,33 @@ def _memory_totals(run_dir: Path) -> tuple[int, int]:
     per_ep: dict[str, dict[str, Any]] = {}
     for r in read_rows(run_dir):
         per_ep[r["episode"]] = r.get("memory") or {}
-    return (sum(int(m.get("memories") or 0) for m in per_ep.values()),
-            sum(int(m.get("frames") or 0) for m in per_ep.values()))  # fmt: skip
+    return (
+        sum(int(m.get("memories") or 0) for m in per_ep.values()),
+        sum(int(m.get("frames") or 0) for m in per_ep.values()),
+    )
+
+
+def _point(g: dict[str, Any], **extra: Any) -> dict[str, Any]:
+    """One method's result at one study setting: accuracy (and frame/position accuracy) and cost."""
+    p = {
+        "method": g["method"],
+        "embedder": g["embedder"],
+        "vlm": g["vlm"],
+        "questions": g["questions"],
+        "accuracy": g["accuracy"],
+        "alpha": g["alpha"],
+        "images_per_q": g["images_per_q"],
+        "tokens_per_q": g["tokens_per_q"],
+        "tool_calls_per_q": g["tool_calls_per_q"],
+    }
+    for key in ("frame_accuracy", "position_accuracy"):
+        if key in g:
+            p[key] = g[key]
+    return extra | p
+
+
+def _at(base: RunConfig, out: Path, variant: str, **changes: Any) -> RunConfig:
+    return replace(base, output=OutputConfig(out=str(out)), variant=variant, **changes)
 
 
 def _write(out: Path, doc: dict[str, Any]) -> None:
@@ -57,18 +94,19 @@ def compression_study(
     if not strides or any(s < 1 for s in strides):
         raise InputError(f"--strides: give whole numbers >= 1, got {strides}")
     out = Path(out)
-    kf = parse_keyframes(base.keyframes)
+    kf = base.memory.keyframe_config()
     points = []
     for s in sorted(set(strides)):
-        cfg = replace(base, out=str(out / f"stride-{s}"), keyframes=keyframe_spec(replace(kf, stride=s)),
-                      variant=f"stride={s}")  # fmt: skip
+        memory = replace(base.memory, keyframes=keyframe_spec(replace(kf, stride=s)))
+        cfg = _at(base, out / f"stride-{s}", f"stride={s}", memory=memory)
         summary = Runner(cfg, **runner_kw).run()
-        memories, frames = _memory_totals(Path(cfg.out or ""))
+        memories, frames = _memory_totals(out / f"stride-{s}")
+        sparsification = frames / memories if memories else math.nan
         for g in summary["groups"]:
-            points.append({"stride": s, "memories": memories, "frames": frames,
-                           "sparsification": frames / memories if memories else math.nan, "method": g["method"],
-                           "embedder": g["embedder"], "vlm": g["vlm"], "accuracy": g["accuracy"]})  # fmt: skip
-    doc = {"study": "compression", "dataset": base.dataset, "keyframes": asdict(kf), "points": points}
+            points.append(
+                _point(g, stride=s, memories=memories, frames=frames, sparsification=sparsification)
+            )
+    doc = {"study": "compression", "dataset": base.dataset.spec, "keyframes": asdict(kf), "points": points}
     _write(out, doc)
     return doc
 
@@ -91,31 +129,68 @@ def _cutter(cuts: dict[str, int]) -> Callable[[Episode], Subsampled]:
     return lambda e: Subsampled(e.frames(), 1, cuts[e.id])
 
 
-def coverage_study(base: RunConfig, fractions: list[float], out: str | Path, cell: float = 1.0,
-                   episodes: list[Episode] | None = None, **runner_kw: Any) -> dict[str, Any]:  # fmt: skip
+def coverage_study(
+    base: RunConfig,
+    fractions: list[float],
+    out: str | Path,
+    cell: float = 1.0,
+    episodes: list[Episode] | None = None,
+    **runner_kw: Any,
+) -> dict[str, Any]:
     """Run `base` on recordings cut at each coverage fraction; returns (and writes) the points."""
     if not fractions or any(not 0 < f <= 1 for f in fractions):
         raise InputError(f"--fractions: give numbers in (0, 1], got {fractions}")
     if cell <= 0:
         raise InputError(f"--cell must be > 0 metres, got {cell}")
     out = Path(out)
-    eps = (
-        episodes
-        if episodes is not None
-        else load_dataset(base.dataset, queries=base.queries, **base.dataset_opts)
-    )
+    ds = base.dataset
+    eps = episodes if episodes is not None else load_dataset(ds.spec, queries=ds.queries, **ds.options())
     points = []
     for f in sorted(set(fractions)):
         cuts = {e.id: coverage_cut(e, f, cell) for e in eps}
         pct = round(100 * f)
-        cfg = replace(base, out=str(out / f"coverage-{pct}"), variant=f"coverage={pct}%")
-        runner = Runner(cfg, episodes=eps, **runner_kw)
-        summary = runner.run(source_for=_cutter(cuts),
-                             extra_key={"coverage": f, "cell": cell})  # fmt: skip
-        memories, frames = _memory_totals(Path(cfg.out or ""))
+        cfg = _at(base, out / f"coverage-{pct}", f"coverage={pct}%")
+        summary = Runner(cfg, episodes=eps, **runner_kw).run(
+            source_for=_cutter(cuts), extra_key={"coverage": f, "cell": cell}
+        )
+        memories, frames = _memory_totals(out / f"coverage-{pct}")
         for g in summary["groups"]:
-            points.append({"coverage": f, "memories": memories, "frames": frames, "method": g["method"],
-                           "embedder": g["embedder"], "vlm": g["vlm"], "accuracy": g["accuracy"]})  # fmt: skip
-    doc = {"study": "coverage", "dataset": base.dataset, "cell_m": cell, "points": points}
+            points.append(_point(g, coverage=f, memories=memories, frames=frames))
+    doc = {"study": "coverage", "dataset": ds.spec, "cell_m": cell, "points": points}
+    _write(out, doc)
+    return doc
+
+
+def _slug(value: Any) -> str:
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return str(value).replace("/", "-")
+
+
+def option_study(
+    base: RunConfig, study: str, values: list[Any], out: str | Path, **runner_kw: Any
+) -> dict[str, Any]:
+    """Run `base` once per value of the method option a study sweeps (see OPTION_STUDIES); every
+    method gets the value, and methods that do not use the option stay flat across the study."""
+    if study not in OPTION_STUDIES:
+        raise InputError(f"unknown study {study!r}; choose from {', '.join(OPTION_STUDIES)}")
+    if not values:
+        raise InputError(f"study {study}: give at least one value")
+    option = OPTION_STUDIES[study]
+    out = Path(out)
+    points = []
+    for value in dict.fromkeys(values):
+        methods = replace(base.methods, **{option: value})
+        cfg = _at(base, out / f"{option}-{_slug(value)}", f"{option}={_slug(value)}", methods=methods)
+        summary = Runner(cfg, **runner_kw).run()
+        for g in summary["groups"]:
+            points.append(_point(g, value=value))
+    doc = {
+        "study": study,
+        "option": option,
+        "dataset": base.dataset.spec,
+        "values": list(values),
+        "points": points,
+    }
     _write(out, doc)
     return doc

@@ -74,11 +74,21 @@ class Question:
     category: str = ""
     horizon: str = ""  # short / medium / long; filled from the episode length when empty
     image: Path | None = None  # query image ("where did I see this?")
+    subset: str = ""  # RAVEN-QA: the recording's source (web, self-recorded, sim, real_world, ...)
+    split: str = ""  # RAVEN-QA: simple / hard
     meta: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"id": self.id, "text": self.text, "type": self.type, "category": self.category,
-             "horizon": self.horizon, "image": str(self.image) if self.image else None}  # fmt: skip
+        d: dict[str, Any] = {
+            "id": self.id,
+            "text": self.text,
+            "type": self.type,
+            "category": self.category,
+            "horizon": self.horizon,
+            "subset": self.subset,
+            "split": self.split,
+            "image": str(self.image) if self.image else None,
+        }
         if self.meta:
             d["meta"] = self.meta
         return d

@@ -31,6 +31,7 @@ from .frames import BASE_DAY, VideoSource, natural_key, video_frame_count
 
 FRAMES_PER_MINUTE = 4.168
 START_S = 6 * 3600.0  # 06:00 in-game
+TIME_RULE = f"frame i at in-game time 06:00 + i / {FRAMES_PER_MINUTE} min (frame = round((t - 06:00) x {FRAMES_PER_MINUTE}/min))"
 
 
 def frame_time(i: int) -> float:
@@ -70,7 +71,7 @@ def read_rows(root: Path, split: str) -> tuple[list[dict[str, Any]], Path]:
                 return (data if isinstance(data, list) else data.get("data", [])), p
             with open(p, newline="", encoding="utf-8") as f:
                 return list(csv.DictReader(f)), p
-        except (OSError, json.JSONDecodeError) as e:
+        except (OSError, ValueError) as e:  # ValueError: not UTF-8, not JSON
             raise InputError(f"{p}: cannot read ({e})") from e
     raise InputError(f"{root}: no {split} rows (expected data/{split}-*.parquet or {split}.jsonl/.json/.csv)")
 
@@ -83,8 +84,11 @@ def parse_answer(text: Any, where: str) -> list[list[int]]:
         raise InputError(f"{where}: answer {text!r} is not a JSON list of lists") from None
     if isinstance(val, list) and val and all(isinstance(v, int) for v in val):
         val = [val]
-    if not (isinstance(val, list) and val and all(isinstance(g, list) and g and all(isinstance(i, int) for i in g)
-                                                   for g in val)):  # fmt: skip
+    if not (
+        isinstance(val, list)
+        and val
+        and all(isinstance(g, list) and g and all(isinstance(i, int) for i in g) for g in val)
+    ):
         raise InputError(f"{where}: answer {text!r} is not a list of lists of frame indices")
     return [list(g) for g in val]
 
@@ -124,15 +128,32 @@ def load(path: str, split: str = "validation", **_: Any) -> list[Episode]:
             none = goals == [[-1]]
             truth = Truth(frames=[] if none else goals, none=none)
             qid = f"{row.get('ep_id', Path(video).stem)}:{row.get('task_id', n)}:{n}"
-            qs.append(Question(id=qid, text=str(row["question"]).strip(), type="frame", truth=truth,
-                               category=str(row.get("high_level_category") or "").lower(),
-                               horizon=horizon_of(times[-1] - times[0] if n_frames > 1 else None),
-                               meta={"low_level_category": row.get("low_level_category"), "task_id": row.get("task_id"),
-                                     "goals": len(goals)}))  # fmt: skip
-        episodes.append(Episode(
-            id=name, dataset="findingdory", key=f"findingdory:{vpath.resolve()}", questions=qs,
-            frames=_video(name, vpath),
-            frame_times=times, has_poses=False, frame_tol=0.5 * 60.0 / FRAMES_PER_MINUTE,
-            meta={"video": video, "frames": n_frames},
-        ))  # fmt: skip
+            qs.append(
+                Question(
+                    id=qid,
+                    text=str(row["question"]).strip(),
+                    type="frame",
+                    truth=truth,
+                    category=str(row.get("high_level_category") or "").lower(),
+                    horizon=horizon_of(times[-1] - times[0] if n_frames > 1 else None),
+                    meta={
+                        "low_level_category": row.get("low_level_category"),
+                        "task_id": row.get("task_id"),
+                        "goals": len(goals),
+                    },
+                )
+            )
+        episodes.append(
+            Episode(
+                id=name,
+                dataset="findingdory",
+                key=f"findingdory:{vpath.resolve()}",
+                questions=qs,
+                frames=_video(name, vpath),
+                frame_times=times,
+                has_poses=False,
+                frame_tol=0.5 * 60.0 / FRAMES_PER_MINUTE,
+                meta={"video": video, "frames": n_frames, "time_rule": TIME_RULE},
+            )
+        )
     return episodes

@@ -57,15 +57,22 @@ class RefSource:
                 continue
             self.stats.raw_bytes += int(img.nbytes)
             self.stats.frames_yielded += 1
-            yield Frame(image=img, t=ref.t, pose=ref.pose, source=self.name, index=ref.index,
-                        path=str(ref.path) if ref.path else None)  # fmt: skip
+            yield Frame(
+                image=img,
+                t=ref.t,
+                pose=ref.pose,
+                source=self.name,
+                index=ref.index,
+                path=str(ref.path) if ref.path else None,
+            )
 
 
 class VideoSource:
     """Decode a video file frame by frame; frame i gets time `times[i]` and pose `poses[i]`."""
 
-    def __init__(self, name: str, path: Path, time_of: Callable[[int], float],
-                 pose_of: Callable[[int], Pose | None]) -> None:  # fmt: skip
+    def __init__(
+        self, name: str, path: Path, time_of: Callable[[int], float], pose_of: Callable[[int], Pose | None]
+    ) -> None:
         self.name = name
         self.path = path
         self.time_of = time_of
@@ -137,8 +144,10 @@ def natural_key(name: str) -> list[object]:
 
 
 def list_images(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTS and p.is_file()),
-                  key=lambda p: natural_key(p.name))  # fmt: skip
+    return sorted(
+        (p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTS and p.is_file()),
+        key=lambda p: natural_key(p.name),
+    )
 
 
 def parse_hms(text: str, where: str) -> float:

@@ -30,11 +30,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from ...errors import InputError
 from ...types import Pose
-from ..types import EVAL_TYPES, Episode, Question, Truth
+from ..types import EVAL_TYPES, Episode, EvalType, Question, Truth
 
 SOURCE_FORMATS = ("tum", "video", "folder", "rosbag", "bag", "mcap", "memory")
 
@@ -78,8 +78,10 @@ class FrameIndex:
         try:
             return float(Path(f).stem)
         except ValueError:
-            raise InputError(f"{where}: frame {f!r} is not in {self.root}'s frame index "
-                             f"(rgb.txt / poses.csv) and its name is not a Unix time") from None  # fmt: skip
+            raise InputError(
+                f"{where}: frame {f!r} is not in {self.root}'s frame index "
+                f"(rgb.txt / poses.csv) and its name is not a Unix time"
+            ) from None
 
     def pose(self, f: str, where: str) -> Pose:
         for key in (f, f.lstrip("./"), Path(f).name, f"rgb/{Path(f).name}"):
@@ -122,8 +124,11 @@ def parse_question(
     a = q.get("answer")
     if not isinstance(a, dict):
         raise InputError(f"{where}: 'answer' must be an object")
-    tr = Truth(pos_tol=a.get("tolerance_m", defaults.get("pos_tolerance_m")),
-               time_tol=a.get("tolerance_s", defaults.get("time_tolerance_s")), none=bool(a.get("none", False)))  # fmt: skip
+    tr = Truth(
+        pos_tol=a.get("tolerance_m", defaults.get("pos_tolerance_m")),
+        time_tol=a.get("tolerance_s", defaults.get("time_tolerance_s")),
+        none=bool(a.get("none", False)),
+    )
     if "position" in a:
         pos = a["position"]
         items = pos if pos and isinstance(pos[0], list) else [pos]
@@ -154,8 +159,14 @@ def parse_question(
         tr.text = [a["text"]] if isinstance(a["text"], str) else [str(t) for t in a["text"]]
     if "duration_s" in a:
         tr.duration = float(a["duration_s"])
-    needed = {"position": tr.positions, "time": tr.times or tr.rel_times or tr.rel_window, "frame": tr.times,
-              "binary": tr.yes is not None, "text": tr.text, "duration": tr.duration is not None}[qtype]  # fmt: skip
+    needed = {
+        "position": tr.positions,
+        "time": tr.times or tr.rel_times or tr.rel_window,
+        "frame": tr.times,
+        "binary": tr.yes is not None,
+        "text": tr.text,
+        "duration": tr.duration is not None,
+    }[qtype]
     if not needed and not tr.none:
         raise InputError(
             f"{where}: a {qtype} question needs an answer of its kind (see docs/evaluation.md, 'Datasets and their exact layouts')"
@@ -165,12 +176,20 @@ def parse_question(
         image = (base / str(q["image"])).resolve()
         if not image.is_file():
             raise InputError(f"{where}: query image {image} not found")
-    return Question(id=str(q.get("id", f"q{n}")), text=text.strip(), type=qtype, truth=tr,  # type: ignore[arg-type]
-                    category=str(q.get("category", "")).lower(), horizon=str(q.get("horizon", "")), image=image)  # fmt: skip
+    return Question(
+        id=str(q.get("id", f"q{n}")),
+        text=text.strip(),
+        type=cast(EvalType, qtype),
+        truth=tr,
+        category=str(q.get("category", "")).lower(),
+        horizon=str(q.get("horizon", "")),
+        image=image,
+    )
 
 
-def load(path: str, fmt: str, queries: str | None = None, source_opts: dict[str, Any] | None = None,
-         **_: Any) -> list[Episode]:  # fmt: skip
+def load(
+    path: str, fmt: str, queries: str | None = None, source_opts: dict[str, Any] | None = None, **_: Any
+) -> list[Episode]:
     """One episode: the recording at `path` (format `fmt`) and the questions of `queries`."""
     qfile = Path(queries) if queries else (Path(path) if fmt == "queries" else None)
     if qfile is None:
@@ -179,7 +198,7 @@ def load(path: str, fmt: str, queries: str | None = None, source_opts: dict[str,
         )
     try:
         doc = json.loads(qfile.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
+    except (OSError, ValueError) as e:  # ValueError: not UTF-8, not JSON
         raise InputError(f"{qfile}: cannot read JSON ({e})") from e
     if not isinstance(doc, dict) or not isinstance(doc.get("questions"), list):
         raise InputError(f"{qfile}: expected an object with a 'questions' list")
@@ -210,11 +229,21 @@ def load(path: str, fmt: str, queries: str | None = None, source_opts: dict[str,
 
         return open_source(str(rec), None if fmt == "bag" else fmt, **opts)
 
-    return [Episode(
-        id=name, dataset=fmt, key=f"{fmt}:{rec.resolve()}:{json.dumps(opts, sort_keys=True, default=str)}",
-        frames=frames, questions=qs, t0=index.first_time(), frame_tol=doc.get("time_tolerance_s"),
-        trajectory=sorted((index.times[f], p.x, p.y) for f, p in index.poses.items()), has_poses=bool(index.poses),
-        frame_times=[t for t, _ in index.ordered()], frame_files=[f for _, f in index.ordered()],
-        memory_path=rec if fmt == "memory" else None, pos_threshold=doc.get("pos_tolerance_m"),
-        meta={"queries": str(qfile)},
-    )]  # fmt: skip
+    return [
+        Episode(
+            id=name,
+            dataset=fmt,
+            key=f"{fmt}:{rec.resolve()}:{json.dumps(opts, sort_keys=True, default=str)}",
+            frames=frames,
+            questions=qs,
+            t0=index.first_time(),
+            frame_tol=doc.get("time_tolerance_s"),
+            trajectory=sorted((index.times[f], p.x, p.y) for f, p in index.poses.items()),
+            has_poses=bool(index.poses),
+            frame_times=[t for t, _ in index.ordered()],
+            frame_files=[f for _, f in index.ordered()],
+            memory_path=rec if fmt == "memory" else None,
+            pos_threshold=doc.get("pos_tolerance_m"),
+            meta={"queries": str(qfile)},
+        )
+    ]

@@ -32,7 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 from zoneinfo import ZoneInfo
 
 import numpy as np
@@ -40,7 +40,7 @@ import numpy as np
 from ...errors import InputError
 from ...ingest.poses import read_pose_table
 from ...types import Pose
-from ..types import Episode, Question, Truth, horizon_of
+from ..types import Episode, EvalType, Question, Truth, horizon_of
 from .frames import FrameRef, RefSource, natural_key
 
 POS_THRESHOLD = 15.0  # metres, NaVQA's position criterion
@@ -58,10 +58,17 @@ _COLS = {
 
 
 class _NumpyOnly(pickle.Unpickler):
-    ALLOWED = {("numpy", "dtype"), ("numpy", "ndarray"), ("numpy.core.multiarray", "_reconstruct"),
-               ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "scalar"),
-               ("numpy._core.multiarray", "scalar"), ("numpy.core.numeric", "_frombuffer"),
-               ("numpy._core.numeric", "_frombuffer"), ("_codecs", "encode")}  # fmt: skip
+    ALLOWED = {
+        ("numpy", "dtype"),
+        ("numpy", "ndarray"),
+        ("numpy.core.multiarray", "_reconstruct"),
+        ("numpy._core.multiarray", "_reconstruct"),
+        ("numpy.core.multiarray", "scalar"),
+        ("numpy._core.multiarray", "scalar"),
+        ("numpy.core.numeric", "_frombuffer"),
+        ("numpy._core.numeric", "_frombuffer"),
+        ("_codecs", "encode"),
+    }
 
     def find_class(self, module: str, name: str) -> Any:
         if (module, name) not in self.ALLOWED:
@@ -248,13 +255,21 @@ def _truth_from_json(item: dict[str, Any], where: str) -> Truth:
 
 
 def _scorable(qtype: str, t: Truth) -> bool:
-    return {"position": bool(t.positions), "time": bool(t.times), "duration": t.duration is not None,
-            "binary": t.yes is not None, "text": bool(t.text)}.get(qtype, False)  # fmt: skip
+    return {
+        "position": bool(t.positions),
+        "time": bool(t.times),
+        "duration": t.duration is not None,
+        "binary": t.yes is not None,
+        "text": bool(t.text),
+    }.get(qtype, False)
 
 
 def _find_human_qa(root: Path, seq: str) -> Path | None:
-    for cand in (root / "questions" / seq / "human_qa.json", root / seq / "human_qa.json",
-                 root / "human_qa" / f"{seq}.json"):  # fmt: skip
+    for cand in (
+        root / "questions" / seq / "human_qa.json",
+        root / seq / "human_qa.json",
+        root / "human_qa" / f"{seq}.json",
+    ):
         if cand.exists():
             return cand
     return None
@@ -275,8 +290,12 @@ def load(path: str, tz: str = "America/Chicago", context: bool = True, **_: Any)
         raise InputError(f"unknown time zone {tz!r} ({e})") from e
     csv_rows = read_data_csv(root / "data.csv") if (root / "data.csv").exists() else []
     by_uuid = {r["uuid"]: r for r in csv_rows}
-    seqs = sorted({r["seq"] for r in csv_rows} | {p.parent.name for p in root.glob("questions/*/human_qa.json")}
-                  | {p.parent.name for p in root.glob("*/human_qa.json")}, key=natural_key)  # fmt: skip
+    seqs = sorted(
+        {r["seq"] for r in csv_rows}
+        | {p.parent.name for p in root.glob("questions/*/human_qa.json")}
+        | {p.parent.name for p in root.glob("*/human_qa.json")},
+        key=natural_key,
+    )
     if not seqs:
         raise InputError(f"{root}: no data.csv and no questions/<seq>/human_qa.json (NaVQA layout)")
     episodes: list[Episode] = []
@@ -292,8 +311,9 @@ def load(path: str, tz: str = "America/Chicago", context: bool = True, **_: Any)
     return episodes
 
 
-def _clip_episodes(root: Path, seq: str, hq: Path, frames: SeqFrames, by_uuid: dict[str, dict[str, str]],
-                   context: bool) -> list[Episode]:  # fmt: skip
+def _clip_episodes(
+    root: Path, seq: str, hq: Path, frames: SeqFrames, by_uuid: dict[str, dict[str, str]], context: bool
+) -> list[Episode]:
     try:
         items = json.loads(hq.read_text(encoding="utf-8"))["data"]
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
@@ -316,9 +336,15 @@ def _clip_episodes(root: Path, seq: str, hq: Path, frames: SeqFrames, by_uuid: d
             raise InputError(f"{where}: no frames of sequence {seq} between {t0} and {t1}")
         if context and clip[-1].pose is not None:
             text = _context(text, clip[-1].pose)
-        q = Question(id=qid, text=text, type=qtype, truth=truth, category=row.get("category", "").lower(),  # type: ignore[arg-type]
-                     horizon=_horizon(qid, item.get("length_category")),
-                     meta={} if _scorable(qtype, truth) else {"unscorable": "no parsable ground truth"})  # fmt: skip
+        q = Question(
+            id=qid,
+            text=text,
+            type=cast(EvalType, qtype),
+            truth=truth,
+            category=row.get("category", "").lower(),
+            horizon=_horizon(qid, item.get("length_category")),
+            meta={} if _scorable(qtype, truth) else {"unscorable": "no parsable ground truth"},
+        )
         clips.setdefault((t0, t1), []).append(q)
     out = []
     for (t0, t1), qs in sorted(clips.items()):
@@ -328,8 +354,9 @@ def _clip_episodes(root: Path, seq: str, hq: Path, frames: SeqFrames, by_uuid: d
     return out
 
 
-def _sequence_episode(root: Path, seq: str, frames: SeqFrames, rows: list[dict[str, str]], zone: ZoneInfo,
-                      context: bool) -> Episode:  # fmt: skip
+def _sequence_episode(
+    root: Path, seq: str, frames: SeqFrames, rows: list[dict[str, str]], zone: ZoneInfo, context: bool
+) -> Episode:
     qs = []
     last = frames.refs[-1].pose
     for row in rows:
@@ -339,9 +366,17 @@ def _sequence_episode(root: Path, seq: str, frames: SeqFrames, rows: list[dict[s
             raise InputError(f"{where}: type {qtype!r} is not one of {', '.join(TYPES)}")
         truth = _truth_from_csv(row, frames, zone, where)
         text = _context(row["question"], last) if context and last is not None else row["question"]
-        qs.append(Question(id=row["uuid"], text=text, type=qtype, truth=truth,  # type: ignore[arg-type]
-                           category=row.get("category", "").lower(), horizon=_horizon(row["uuid"], None),
-                           meta={} if _scorable(qtype, truth) else {"unscorable": "no parsable ground truth"}))  # fmt: skip
+        qs.append(
+            Question(
+                id=row["uuid"],
+                text=text,
+                type=cast(EvalType, qtype),
+                truth=truth,
+                category=row.get("category", "").lower(),
+                horizon=_horizon(row["uuid"], None),
+                meta={} if _scorable(qtype, truth) else {"unscorable": "no parsable ground truth"},
+            )
+        )
     return _episode(root, f"navqa/{seq}", f"{seq}:all", frames.refs, qs)
 
 
@@ -350,5 +385,13 @@ def _episode(root: Path, name: str, key: str, refs: list[FrameRef], qs: list[Que
     for q in qs:
         q.horizon = q.horizon or horizon_of(times[-1] - times[0] if len(times) > 1 else None)
     traj = [(r.t, r.pose.x, r.pose.y) for r in refs if r.pose is not None]
-    return Episode(id=name, dataset="navqa", key=f"navqa:{root.resolve()}:{key}", frames=lambda: RefSource(name, refs),
-                   questions=qs, frame_times=times, trajectory=traj, pos_threshold=POS_THRESHOLD)  # fmt: skip
+    return Episode(
+        id=name,
+        dataset="navqa",
+        key=f"navqa:{root.resolve()}:{key}",
+        frames=lambda: RefSource(name, refs),
+        questions=qs,
+        frame_times=times,
+        trajectory=traj,
+        pos_threshold=POS_THRESHOLD,
+    )

@@ -1,9 +1,14 @@
 """RAVEN-QA: a folder per video with `frames/*.jpg` and a `questions.json`; also our export format.
 
-Layout (`raven-qa:PATH`, where PATH is a split folder, a folder of splits, or one video folder):
+Layout (`raven-qa:PATH`; PATH is the dataset folder, a subset folder, a split folder or one video):
 
-    PATH/<split>/<video>/frames/frame_0001.jpg ...      frames, ordered by natural sort
-    PATH/<split>/<video>/questions.json
+    PATH/<subset>/[simple|hard/]<video>/frames/frame_0001.jpg ...   frames, ordered by natural sort
+    PATH/<subset>/[simple|hard/]<video>/questions.json
+
+Every folder under PATH holding a questions.json is a video. Its subset (the paper's web,
+self-recorded, sim and real-robot videos) is the nearest folder above it that is not named
+simple/hard; its split (simple / hard) is such a folder right above it (or the one above that),
+else a top-level `"split"` in questions.json, else an optional fifth element of a question row.
 
 `questions.json` keys (all but the question list optional):
 
@@ -16,17 +21,23 @@ Layout (`raven-qa:PATH`, where PATH is a split folder, a folder of splits, or on
 An answer is a filename, an [x, y, z], a `[[x, y, z], filename]` pair, or a list of those (any
 one of them is right). Categories: dominant, secondary, reasoning, information recall, spatial.
 
+Scoring: a question whose answer names frames of the video is a `frame` question, right when
+the answer names one of them (the paper's target retrieval accuracy; the nearest frame to the
+answer's time, so exactly that frame by default); its position accuracy is reported beside it
+when the frames have positions. A question answered by a position only is a `position` question.
+
 Frame times: frames named in `timestamp_to_filename` get that time of day; the others are
 interpolated by frame order between them (and continue at the neighbouring rate outside);
 without any, frame i is at i / `rate` seconds (default 1 fps). Times of day are placed on
 2000-01-01 UTC. Poses: `filename_to_position`, else `timestamp_to_position` interpolated in
 time, else interpolated by frame order between known frames; a video with no position at all
-is ingested at the origin and its questions are scored by frame (file) instead of position.
+is ingested at the origin and its questions are scored by frame only.
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -53,26 +64,36 @@ QUESTION_KEYS = (
     "questions",
 )
 CATEGORIES = ("dominant", "secondary", "reasoning", "information recall", "spatial")
-# Position threshold (m) per split when the user gives none: our defaults, not the paper's values
-# (RAVEN-QA files do not carry them). Override with --pos-threshold or pos_threshold={split: m}.
+SPLITS = ("simple", "hard", "easy")
+# Position threshold (m) when the user gives none: our default, not the paper's (RAVEN-QA files do
+# not carry one). Override with --pos-threshold M, or per subset pos_threshold={subset: m}.
 DEFAULT_POS_THRESHOLD = 2.0
 
 
-def find_videos(root: Path) -> list[tuple[str, Path]]:
-    """(split, video folder) for every folder under root that holds a questions.json."""
+def _subset_split(vdir: Path) -> tuple[str, str]:
+    """(subset, split) of a video folder: the nearest folder above it that is not a split name,
+    and a `simple` / `hard` folder among the two folders right above it ("" when none)."""
+    above = list(vdir.resolve().parent.parts)[::-1]
+    split = next((p.lower() for p in above[:2] if p.lower() in SPLITS), "")
+    subset = next((p for p in above if p.lower() not in SPLITS), "")
+    return subset, split
+
+
+def find_videos(root: Path) -> list[tuple[str, str, Path]]:
+    """(subset, split, video folder) for every folder at or under root holding a questions.json."""
     if not root.is_dir():
         raise InputError(f"RAVEN-QA folder {root} does not exist")
     if (root / "questions.json").exists():
-        return [(root.parent.name, root)]
-    found = [(root.name, d) for d in root.iterdir() if (d / "questions.json").exists()]
-    if not found:
-        found = [(s.name, d) for s in root.iterdir() if s.is_dir()
-                 for d in s.iterdir() if (d / "questions.json").exists()]  # fmt: skip
-    if not found:
+        vdirs = [root]
+    else:
+        vdirs = sorted({q.parent for q in root.rglob("questions.json")})
+    if not vdirs:
         raise InputError(
-            f"{root}: no <video>/questions.json found (RAVEN-QA layout: <split>/<video>/frames, questions.json)"
+            f"{root}: no <video>/questions.json found (RAVEN-QA layout: <subset>/[simple|hard/]<video>/frames, "
+            "questions.json)"
         )
-    return sorted(found, key=lambda sv: (natural_key(sv[0]), natural_key(sv[1].name)))
+    found = [(*_subset_split(v), v) for v in vdirs]
+    return sorted(found, key=lambda f: (natural_key(f[0]), f[1], natural_key(str(f[2]))))
 
 
 def _is_xyz(v: Any) -> bool:
@@ -94,12 +115,14 @@ def parse_answer(ans: Any, where: str) -> list[tuple[list[float] | None, str | N
     )
 
 
-def load_video(split: str, vdir: Path, rate: float = 1.0, pos_threshold: float | None = None) -> Episode:
+def load_video(
+    subset: str, vdir: Path, rate: float = 1.0, pos_threshold: float | None = None, split: str = ""
+) -> Episode:
     """One RAVEN-QA video folder as an Episode."""
     qpath = vdir / "questions.json"
     try:
         data = json.loads(qpath.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
+    except (OSError, ValueError) as e:  # ValueError: not UTF-8, not JSON
         raise InputError(f"{qpath}: cannot read JSON ({e})") from e
     if not isinstance(data, dict):
         raise InputError(f"{qpath}: top level must be an object")
@@ -145,35 +168,70 @@ def load_video(split: str, vdir: Path, rate: float = 1.0, pos_threshold: float |
     positions = interpolate_positions(len(files), known)
     has_poses = bool(known)
 
-    refs = [FrameRef(t=t, pose=Pose(p[0], p[1], p[2]) if p else Pose(0.0, 0.0), path=f, index=i)
-            for i, (f, t, p) in enumerate(zip(files, times, positions))]  # fmt: skip
-    name = f"{split}/{vdir.name}"
+    refs = [
+        FrameRef(t=t, pose=Pose(p[0], p[1], p[2]) if p else Pose(0.0, 0.0), path=f, index=i)
+        for i, (f, t, p) in enumerate(zip(files, times, positions))
+    ]
+    split = str(data.get("split") or split).lower()
+    name = "/".join(x for x in (subset, split, vdir.name) if x)
     duration = times[-1] - times[0] if len(times) > 1 else None
-    questions = _questions(data, qpath, vdir, name, positions, index, has_poses, horizon_of(duration))
+    where = _Where(qpath, vdir, name, subset, split, horizon_of(duration))
+    questions = _questions(data, where, positions, index, has_poses)
     period = float(np.median(np.diff(times))) if len(times) > 1 else 1.0 / rate
+    rule = (
+        "frame times from timestamp_to_filename, interpolated by frame order in between"
+        if anchors
+        else f"frame i at i / {rate:g} s (no timestamp_to_filename; --rate)"
+    )
     return Episode(
-        id=name, dataset="raven-qa", key=f"raven-qa:{vdir.resolve()}:rate={rate}",
-        frames=lambda: RefSource(name, refs), questions=questions, frame_times=times, frame_files=names,
+        id=name,
+        dataset="raven-qa",
+        key=f"raven-qa:{vdir.resolve()}:rate={rate}",
+        frames=lambda: RefSource(name, refs),
+        questions=questions,
+        frame_times=times,
+        frame_files=names,
         trajectory=[(t, p[0], p[1]) for t, p in zip(times, positions) if p is not None],
-        has_poses=has_poses, pos_threshold=pos_threshold or DEFAULT_POS_THRESHOLD, frame_tol=1.5 * period,
-        meta={"split": split, "frames": len(files)},
-    )  # fmt: skip
+        has_poses=has_poses,
+        pos_threshold=pos_threshold or DEFAULT_POS_THRESHOLD,
+        frame_tol=0.5 * period,  # the named frame itself: the nearest frame to the answer's time
+        meta={"subset": subset, "split": split, "frames": len(files), "time_rule": rule},
+    )
 
 
-def _questions(data: dict[str, Any], qpath: Path, vdir: Path, name: str, positions: list[list[float] | None],
-               index: dict[str, int], has_poses: bool, horizon: str) -> list[Question]:  # fmt: skip
+@dataclass
+class _Where:
+    """Where a video's questions come from and what every one of them shares."""
+
+    qpath: Path
+    vdir: Path
+    name: str
+    subset: str
+    split: str
+    horizon: str
+
+
+def _questions(
+    data: dict[str, Any],
+    w: _Where,
+    positions: list[list[float] | None],
+    index: dict[str, int],
+    has_poses: bool,
+) -> list[Question]:
     key = next((k for k in QUESTION_KEYS if k in data), None)
     if key is None:
-        raise InputError(f"{qpath}: no question list (expected key {QUESTION_KEYS[0]!r})")
+        raise InputError(f"{w.qpath}: no question list (expected key {QUESTION_KEYS[0]!r})")
     rows = data[key]
     if not isinstance(rows, list):
-        raise InputError(f"{qpath}: {key!r} must be a list")
+        raise InputError(f"{w.qpath}: {key!r} must be a list")
     f2p = {Path(k).name: v for k, v in (data.get("filename_to_position") or {}).items() if _is_xyz(v)}
     out: list[Question] = []
     for n, row in enumerate(rows):
-        where = f"{qpath} question {n}"
+        where = f"{w.qpath} question {n}"
         if not isinstance(row, list) or len(row) < 2 or not isinstance(row[0], str):
-            raise InputError(f"{where}: expected [question, answer, (category, query_img)], got {row!r}")
+            raise InputError(
+                f"{where}: expected [question, answer, (category, query_img, split)], got {row!r}"
+            )
         truth = Truth()
         for pos, fname in parse_answer(row[1], where):
             if fname is not None:
@@ -186,12 +244,15 @@ def _questions(data: dict[str, Any], qpath: Path, vdir: Path, name: str, positio
             if pos is not None:
                 truth.positions.append(list(pos) + [0.0] * (3 - len(pos)))
         category = str(row[2]).strip().lower() if len(row) > 2 and row[2] else ""
-        image = _query_image(row[3], vdir, where) if len(row) > 3 and row[3] else None
-        qtype: EvalType = "position" if truth.positions else "frame"
-        if qtype == "frame" and not truth.files:
-            raise InputError(f"{where}: answer has neither a position nor a frame file")
-        out.append(Question(id=f"{name}#{n}", text=row[0].strip(), type=qtype, truth=truth,
-                            category=category, horizon=horizon, image=image))  # fmt: skip
+        image = _query_image(row[3], w.vdir, where) if len(row) > 3 and row[3] else None
+        split = str(row[4]).strip().lower() if len(row) > 4 and row[4] else w.split
+        # the paper's target retrieval: the answer names the right frame; a position only when no frame is named
+        qtype: EvalType = "frame" if any(f in index for f in truth.files) else "position"
+        if qtype == "position" and not truth.positions:
+            raise InputError(f"{where}: answer names no frame of this video and no position")
+        q = Question(id=f"{w.name}#{n}", text=row[0].strip(), type=qtype, truth=truth, category=category)
+        q.horizon, q.image, q.subset, q.split = w.horizon, image, w.subset, split
+        out.append(q)
     return out
 
 
@@ -206,15 +267,16 @@ def _query_image(ref: Any, vdir: Path, where: str) -> Path:
     raise InputError(f"{where}: query image {rel!r} not found under {vdir}")
 
 
-def load(path: str, rate: float = 1.0, pos_threshold: float | dict[str, float] | None = None,
-         **_: Any) -> list[Episode]:  # fmt: skip
+def load(
+    path: str, rate: float = 1.0, pos_threshold: float | dict[str, float] | None = None, **_: Any
+) -> list[Episode]:
     """All videos under a RAVEN-QA folder (see the module docstring for the layout)."""
     if rate <= 0:
         raise InputError(f"rate must be > 0 frames per second, got {rate}")
     eps = []
-    for split, vdir in find_videos(Path(path)):
-        thr = pos_threshold.get(split) if isinstance(pos_threshold, dict) else pos_threshold
-        eps.append(load_video(split, vdir, rate=rate, pos_threshold=thr))
+    for subset, split, vdir in find_videos(Path(path)):
+        thr = pos_threshold.get(subset) if isinstance(pos_threshold, dict) else pos_threshold
+        eps.append(load_video(subset, vdir, rate=rate, pos_threshold=thr, split=split))
     return eps
 
 

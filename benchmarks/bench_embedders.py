@@ -5,7 +5,9 @@ objects visible). For every design, each labelled object's query ("a computer ke
 ranks the 91 frames; we report mean average precision (mAP) over all queries and over the
 small-object queries (mug, game controller, mouse, telephone), mean precision@5, the expected AP of a
 random ranking, and images/s of the whole embed_images call (tiling + one batched forward pass +
-pooling) with torch limited to --threads threads.
+pooling) with torch limited to --threads threads. The metrics and the labels reader are
+`ravenmem.eval.retrieval`, shared with `ravenmem eval study embedders` (which compares whole
+embedders, text->image and image->image; this script compares the offline designs).
 
     PYTHONPATH=src python benchmarks/bench_embedders.py --threads 2
 """
@@ -13,7 +15,6 @@ pooling) with torch limited to --threads threads.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
@@ -21,45 +22,39 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from ravenmem.embed.offline import OfflineConfig, OfflineEmbedder  # noqa: E402
+from ravenmem.eval.retrieval import (  # noqa: E402
+    MIN_POSITIVES,
+    average_precision,
+    load_images,
+    load_labels,
+    summarize_direction,
+    text_to_image,
+)
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "tum_fr1_rpy"
 LABELS = ROOT / "benchmarks" / "data" / "tum_labels.json"
-MIN_POSITIVES = 3
-
-
-def average_precision(scores: np.ndarray, relevant: np.ndarray) -> float:
-    order = np.argsort(-scores, kind="stable")
-    rel = relevant[order]
-    hits = np.cumsum(rel)
-    precision_at_hit = hits[rel] / (np.flatnonzero(rel) + 1)
-    return float(precision_at_hit.mean())
 
 
 def evaluate(
     img_vecs: np.ndarray, txt_vecs: np.ndarray, truth: np.ndarray, small: np.ndarray
 ) -> dict[str, float]:
     """truth: (n_queries, n_images) bool; small: (n_queries,) bool, the small-object queries."""
-    sims = txt_vecs @ img_vecs.T
-    aps = np.array([average_precision(s, t) for s, t in zip(sims, truth)])
-    p5 = [float(t[np.argsort(-s, kind="stable")[:5]].mean()) for s, t in zip(sims, truth)]
-    m, sm = float(aps.mean()), float(aps[small].mean())
-    return {"mAP": m, "small": sm, "bal": (m + sm) / 2, "P@5": float(np.mean(p5))}
+    m = summarize_direction(text_to_image(img_vecs, txt_vecs, truth, k=5), small)
+    return {"mAP": m["mAP"], "small": m["mAP_small"], "bal": (m["mAP"] + m["mAP_small"]) / 2, "P@5": m["P@k"]}
 
 
 def load(data: Path) -> tuple[list[str], list[np.ndarray], list[str], list[str], np.ndarray, np.ndarray]:
-    doc = json.loads(LABELS.read_text())
-    names = list(doc["frames"])
-    images = [np.asarray(Image.open(data / "rgb" / n).convert("RGB")) for n in names]
-    objects = [o for o in doc["queries"] if sum(o in v for v in doc["frames"].values()) >= MIN_POSITIVES]
-    truth = np.array([[o in doc["frames"][n] for n in names] for o in objects])
-    small = np.array([o in doc["small_objects"] for o in objects])
-    return names, images, objects, [doc["queries"][o] for o in objects], truth, small
+    labels = load_labels(LABELS)
+    objects = labels.objects(MIN_POSITIVES)
+    truth = labels.truth(objects)
+    small = np.array([o in labels.small for o in objects])
+    images = load_images(labels, data / "rgb")
+    return list(labels.frames), images, objects, [labels.queries[o] for o in objects], truth, small
 
 
 def time_embed(

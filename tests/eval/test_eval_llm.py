@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from ravenmem.agent.schema import Answer
 from ravenmem.eval.config import RunConfig
@@ -137,3 +138,32 @@ def test_raven_agent_through_the_runner(scoring_root: Path, tmp_path: Path) -> N
     assert all(
         r["ran"] == {"method": "raven", "model": "scripted", "embedder": "test-color-eval"} for r in rows
     )
+
+
+def test_top_k_study_against_the_scripted_model(scoring_root: Path, tmp_path: Path) -> None:
+    """A study end to end: the raven agent over real HTTP, once per k; the model sees k memories."""
+    from ravenmem.eval.studies import option_study
+
+    with ScriptedModel(default=vlm_reply) as srv:
+        base = run_cfg(
+            f"raven-qa:{scoring_root / 'sim' / 'simple'}",
+            ["raven"],
+            tmp_path,
+            vlm="scripted",
+            vlm_base_url=srv.base_url,
+            method_opts={"max_tool_calls": 2},
+        )
+        doc = option_study(
+            base, "top-k", [1, 4], tmp_path / "topk", embedder=CountingColorEmbedder(), log=lambda _: None
+        )
+        tool_results = [m["content"] for b in srv.requests for m in b["messages"] if m["role"] == "tool"]
+    assert len(srv.requests) == 12  # 3 questions x 2 settings x (search, answer)
+    shown = sorted(len(re.findall(r"^\[m\d+\]", c, re.M)) for c in tool_results)
+    assert shown == [1, 1, 1, 4, 4, 4]
+    pts = {p["value"]: p for p in doc["points"]}
+    assert pts[1]["alpha"]["mean"] == pytest.approx(1 / 40) and pts[4]["alpha"]["mean"] == pytest.approx(
+        4 / 40
+    )
+    assert pts[1]["images_per_q"]["mean"] == 1 and pts[4]["images_per_q"]["mean"] == 4
+    assert pts[1]["frame_accuracy"]["mean"] == 1.0 == pts[4]["frame_accuracy"]["mean"]
+    assert pts[4]["tokens_per_q"]["mean"] > pts[1]["tokens_per_q"]["mean"]

@@ -67,7 +67,10 @@ def test_random_cannot_pass_and_naming_the_frame_scores_everything(
     assert "## Frame accuracy per subset and split (RAVEN-QA)" in text
     assert "| Method | Embedder | VLM | real_world/hard | sim/hard | sim/simple |" in text
     assert "## Position accuracy per subset and split (RAVEN-QA)" in text
-    assert "## Frame accuracy per category" in text and "information recall" in text
+    assert "## Position accuracy per category" in text and "information recall" in text
+    assert (
+        "## Accuracy per category" in text and "## Frame accuracy per category" not in text
+    )  # the same here
     assert "## Position accuracy against the threshold" in text and "| ≤ 0.25 m |" in text
     assert "## Retrieval cost" in text and "α = memories shown" in text
     cost = line_of(text.split("## Retrieval cost")[1], "| embedder-only |")

@@ -1,7 +1,7 @@
 """Benchmarks: NaVQA, FindingDory, RAVEN-QA and our own questions, scored the papers' way.
 
-from ravenmem.eval import RunConfig, run, write_report
-summary = run(RunConfig(dataset="raven-qa:/data/RAVEN_QA/real_world", methods=["offline", "random"]))
+from ravenmem.eval import DatasetConfig, MethodConfig, RunConfig, run, write_report
+summary = run(RunConfig(DatasetConfig("raven-qa:/data/RAVEN_QA"), MethodConfig(["offline", "random"])))
 write_report(summary["run_dir"], "report.md")
 """
 
@@ -9,13 +9,27 @@ from __future__ import annotations
 
 from typing import Any
 
+from .config import (
+    DatasetConfig,
+    MemoryConfig,
+    MethodConfig,
+    ModelConfig,
+    OutputConfig,
+    RunConfig,
+    Thresholds,
+)
 from .datasets import load_dataset
-from .metrics import Thresholds, score_row, summarize
-from .runner import RunConfig, Runner, read_rows, run
+from .metrics import score_row, summarize
+from .runner import Runner, read_rows, run
 from .types import Episode, Question, Truth
 
 __all__ = [
+    "DatasetConfig",
     "Episode",
+    "MemoryConfig",
+    "MethodConfig",
+    "ModelConfig",
+    "OutputConfig",
     "Question",
     "RunConfig",
     "Runner",

@@ -358,6 +358,14 @@ def summarize(
         }
         g |= stats(rs)
         g["by"] = _breakdowns(rs)
+        g["is_accuracy"] = {  # frame / position accuracy is every question's own criterion
+            "frame_accuracy": all(
+                r["question"]["type"] == "frame" for r in rs if "frame_correct" in r["score"]
+            ),
+            "position_accuracy": all(
+                r["question"]["type"] == "position" for r in rs if "pos_correct" in r["score"]
+            ),
+        }
         if "position_accuracy" in g:
             g["pos_sweep"] = position_sweep(rs)
             g["pos_thresholds_m"] = sorted(

@@ -169,10 +169,17 @@ def _breakdowns(groups: list[dict[str, Any]]) -> list[str]:
             continue  # the subset/split table already says it
         if keys == []:
             continue
+        if attr == "category" and metric != "accuracy" and _same_as_accuracy(groups, metric):
+            continue  # e.g. FindingDory: every question is a frame question, the table would repeat
         t = _breakdown(groups, attr, metric, keys)
         if t is not None:
             out += [f"## {title}", "", t, ""]
     return out
+
+
+def _same_as_accuracy(groups: list[dict[str, Any]], metric: str) -> bool:
+    """Whether `metric` is every question's own criterion (so its table would repeat accuracy's)."""
+    return all(g.get("is_accuracy", {}).get(metric, False) for g in groups)
 
 
 def _horizon_types(groups: list[dict[str, Any]]) -> list[str]:
@@ -180,7 +187,7 @@ def _horizon_types(groups: list[dict[str, Any]]) -> list[str]:
     hts = {k for g in groups for k in _by(g, "horizon_type")}
     types = [t for t in TYPE_COLS if any(k.endswith("/" + t) for k in hts)]
     horizons = [h for h in HORIZONS if any(k.startswith(h + "/") for k in hts)]
-    if not horizons or len(hts) < 2:
+    if len(horizons) < 2:  # one horizon: the overall table says it all
         return []
     head = ["Method", "Embedder", "VLM", "Horizon"]
     for t in types:

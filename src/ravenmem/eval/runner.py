@@ -53,12 +53,14 @@ def method_names() -> list[str]:
 
 
 def agent_takes(option: str) -> bool:
-    """Whether this version's VLM agent takes `option` (its constructor's signature says so)."""
+    """Whether this version's VLM agent takes `option`: its constructor's or `create_method`'s
+    signature names it (a preset is applied by `create_method`, the rest by the agent)."""
     import inspect
 
     from ..agent.loop import Agent
+    from ..agent.methods import create_method
 
-    return option in inspect.signature(Agent.__init__).parameters
+    return any(option in inspect.signature(fn).parameters for fn in (Agent.__init__, create_method))
 
 
 def per_tool_top_k_supported() -> bool:

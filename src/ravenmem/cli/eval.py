@@ -95,7 +95,12 @@ RUN_OPTIONS: list[tuple[str, Any, Any, Any]] = [
         None,
         _opt("--keyframes", help="e.g. 'stride=5,fps=2,max_similarity=0.95' (default: all frames)"),
     ),
-    ("ocr", bool, False, _opt("--ocr/--no-ocr", help="read text in keyframes while building memories (slower)")),
+    (
+        "ocr",
+        bool,
+        False,
+        _opt("--ocr/--no-ocr", help="read text in keyframes while building memories (slower)"),
+    ),
     ("thumb_size", int, 320, _opt("--thumb-size", help="thumbnail longer side (px) in built memories")),
     (
         "top_k",

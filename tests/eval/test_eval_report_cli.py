@@ -236,7 +236,7 @@ def test_navqa_per_horizon_and_findingdory_relaxed_reports(tmp_path: Path) -> No
         **QUIET,
     ).run()
     text = write_report(tmp_path / "fdrun", tmp_path / "fd.md").read_text()
-    assert "## Relaxed accuracy per category (FindingDory)" in text
+    assert "## Relaxed frame accuracy per category (FindingDory's relaxed score)" in text
     assert "frame i at in-game time 06:00 + i / 4.168 min" in text
     assert "multi-goal tasks" in line_of(text, "| Method | Embedder | VLM | multi-goal tasks")
 

@@ -97,14 +97,20 @@ def _overall(groups: list[dict[str, Any]]) -> list[str]:
         line += [_num(g["pos_error_m"]), _num(g["time_error_min"])]
         body.append(line)
     out = ["## Overall", "", _table(head, body), ""]
-    if frame or pos:
+    notes = []
+    if frame:
+        notes.append(
+            "Frame acc.: the answer names an accepted frame (RAVEN-QA's target retrieval accuracy, the headline "
+            "there), over every question whose truth names frames."
+        )
+    if pos:
         thr = sorted({v for g in groups for v in g.get("pos_thresholds_m", [])})
-        out += [
-            "Frame acc.: the answer names an accepted frame (RAVEN-QA's target retrieval accuracy, the "
-            f"headline there). Pos. acc.: the answer's position within {_metres(thr)} of an accepted "
-            "position (the threshold sweep is below).",
-            "",
-        ]
+        notes.append(
+            f"Pos. acc.: the answer's position within {_metres(thr)} of an accepted position, over every "
+            "question with positions (the threshold sweep is below)."
+        )
+    if notes:
+        out += [" ".join(notes), ""]
     return out
 
 
@@ -150,7 +156,7 @@ def _breakdowns(groups: list[dict[str, Any]]) -> list[str]:
         ("category", "accuracy", "Accuracy per category", None),
         ("category", "frame_accuracy", "Frame accuracy per category", None),
         ("category", "position_accuracy", "Position accuracy per category", None),
-        ("category", "relaxed", "Relaxed accuracy per category (FindingDory)", None),
+        ("category", "relaxed", "Relaxed frame accuracy per category (FindingDory's relaxed score)", None),
         ("subset_split", "frame_accuracy", "Frame accuracy per subset and split (RAVEN-QA)", None),
         ("subset_split", "position_accuracy", "Position accuracy per subset and split (RAVEN-QA)", None),
         ("subset", "frame_accuracy", "Frame accuracy per subset", None),

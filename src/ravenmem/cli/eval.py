@@ -28,7 +28,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ..errors import InputError
-from ._console import out_console
+from ._console import esc, out_console
 
 eval_app = typer.Typer(
     help="Benchmarks (RAVEN-QA, NaVQA, FindingDory, your own questions), reports and studies.",
@@ -304,7 +304,7 @@ def build_run_config(**o: Any) -> Any:
 
 
 def _log(msg: str) -> None:
-    console.print(msg, highlight=False)
+    console.print(esc(msg), highlight=False)
 
 
 def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
@@ -313,7 +313,7 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
         return
     from ..eval.report import _num, _pct
 
-    table = Table(title=f"{summary['rows']} answers in {summary.get('run_dir', '')}")
+    table = Table(title=esc(f"{summary['rows']} answers in {summary.get('run_dir', '')}"))
     cols = [
         "method",
         "embedder",
@@ -329,9 +329,9 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
         table.add_column(col)
     for g in summary["groups"]:
         table.add_row(
-            g["method"] + (f" [{g['variant']}]" if g.get("variant") else ""),
-            g["embedder"],
-            g["vlm"],
+            esc(g["method"] + (f" [{g['variant']}]" if g.get("variant") else "")),
+            esc(g["embedder"]),
+            esc(g["vlm"]),
             str(g["questions"]),
             _pct(g["accuracy"]),
             _pct(g.get("frame_accuracy")),
@@ -347,7 +347,7 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
     for g in summary["groups"]:
         if g["not_judged"]:
             console.print(
-                f"{g['method']}: {g['not_judged']} text answer(s) not scored (no LLM judge; use --judge MODEL)"
+                f"{esc(g['method'])}: {g['not_judged']} text answer(s) not scored (no LLM judge; use --judge MODEL)"
             )
 
 
@@ -373,7 +373,9 @@ def eval_main(
     if not json_out:
         run_dir = summary["run_dir"]
         console.print(
-            f"rows: {Path(run_dir) / 'answers.jsonl'}; report: ravenmem eval report {run_dir} --out report.md"
+            esc(
+                f"rows: {Path(run_dir) / 'answers.jsonl'}; report: ravenmem eval report {run_dir} --out report.md"
+            )
         )
 
 
@@ -404,7 +406,7 @@ def report_cmd(
     if time_threshold is not None:
         thr = replace(thr, time_s=60.0 * time_threshold)
     path = write_report(run_dir, out, thresholds=thr)
-    console.print(f"wrote {path} (figures in {path.parent / (path.stem + '_figs')})")
+    console.print(esc(f"wrote {path} (figures in {path.parent / (path.stem + '_figs')})"))
 
 
 @eval_app.command("judge")
@@ -421,7 +423,7 @@ def judge_cmd(
     from ..eval.runner import rejudge
 
     n = rejudge(run_dir, Judge(VLMConfig.resolve(model=judge, base_url=judge_base_url)))
-    console.print(f"judged {n} text answer(s) in {run_dir}")
+    console.print(esc(f"judged {n} text answer(s) in {run_dir}"))
 
 
 # ------------------------------------------------------------------------------------ studies
@@ -451,9 +453,9 @@ def _print_study(doc: dict[str, Any], out: Path) -> None:
     for p in doc["points"]:
         value = f"{100 * p['coverage']:.0f}%" if "coverage" in p else str(p.get("stride", p.get("value")))
         table.add_row(
-            value,
+            esc(value),
             str(p.get("memories", "")),
-            p["method"],
+            esc(p["method"]),
             _pct(p["accuracy"]),
             _pct(p.get("frame_accuracy")),
             _pct(p.get("position_accuracy")),
@@ -463,7 +465,9 @@ def _print_study(doc: dict[str, Any], out: Path) -> None:
             _num(p["tool_calls_per_q"], 1),
         )
     out_console().print(table)
-    console.print(f"wrote {out / 'study.json'}; curve: ravenmem eval report {out} --out {out / 'report.md'}")
+    console.print(
+        esc(f"wrote {out / 'study.json'}; curve: ravenmem eval report {out} --out {out / 'report.md'}")
+    )
 
 
 @study_app.command("compression")
@@ -567,7 +571,7 @@ def embedders_cmd(
         table.add_column(col)
     for p in doc["points"]:
         table.add_row(
-            p["embedder"],
+            esc(p["embedder"]),
             p["direction"],
             f"{p['mAP']:.3f}",
             f"{p['mAP_small']:.3f}",
@@ -579,7 +583,7 @@ def embedders_cmd(
     out_console().print(table)
     if out is not None:
         console.print(
-            f"wrote {out / 'study.json'}; chart: ravenmem eval report {out} --out {out / 'report.md'}"
+            esc(f"wrote {out / 'study.json'}; chart: ravenmem eval report {out} --out {out / 'report.md'}")
         )
 
 

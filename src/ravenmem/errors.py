@@ -20,6 +20,10 @@ class EmptyMemoryError(RavenmemError):
     """A query needs memories and the memory has none."""
 
 
+class MemoryBusyError(RavenmemError):
+    """Another process (or another Memory object) holds the memory's writer lock (ravenmem.lock)."""
+
+
 class MissingDependencyError(RavenmemError):
     """An optional extra is not installed; the message says which `pip install` fixes it."""
 

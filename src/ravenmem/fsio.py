@@ -4,17 +4,30 @@ A writer gets a temporary file in the target's folder; on success the data is fl
 fsynced, the temporary file is renamed over the target and the folder is fsynced, so a crash at
 any point leaves either the old file or the new one, never a mix. On an exception the
 temporary file is removed and the target is untouched.
+
+A killed writer leaves its temporary file behind (`.NAME.<12 hex>.tmp`). The writer holds an
+exclusive `flock` on it while it writes, which the OS drops when the process dies, so
+`remove_stale_temp_files` can tell a leftover from a file another process is writing right now.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import time
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: temp files are then never reported stale
+    fcntl = None  # type: ignore[assignment]
+
+_TEMP_NAME = re.compile(r"\..+\.[0-9a-f]{12}\.tmp")
 
 
 def fsync_dir(folder: str | os.PathLike[str]) -> None:
@@ -45,6 +58,8 @@ def atomic_open(
     if "b" not in mode and encoding is None:
         encoding = "utf-8"
     f = open(tmp, mode, encoding=encoding)  # noqa: SIM115 - closed below on every path
+    if fcntl is not None:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)  # "in use" until closed or killed
     try:
         yield f
         f.flush()
@@ -70,5 +85,42 @@ def atomic_write_json(path: str | os.PathLike[str], obj: Any, **dumps: Any) -> N
 
 
 def is_temp_file(path: Path) -> bool:
-    """True for a temporary file `atomic_open` leaves behind when the process is killed."""
-    return path.name.startswith(".") and path.name.endswith(".tmp")
+    """True for a name `atomic_open` gives its temporary files (`.NAME.<12 hex>.tmp`)."""
+    return _TEMP_NAME.fullmatch(path.name) is not None
+
+
+def remove_stale_temp_files(
+    folder: str | os.PathLike[str], min_age: float = 2.0, target: str = ""
+) -> list[Path]:
+    """Delete the temporary files killed writers left in `folder` (not recursive); return them.
+    `target` limits it to the temporary files of one file name (e.g. "index.faiss").
+
+    Only files named like `atomic_open`'s that no process holds locked (a killed writer's lock
+    is gone) and that are older than `min_age` seconds (the instant between creating a file and
+    locking it) are removed: never another running process's file, never anything else.
+    """
+    removed: list[Path] = []
+    if fcntl is None:  # pragma: no cover
+        return removed
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    now = time.time()
+    for e in entries:
+        p = Path(e.path)
+        if not is_temp_file(p) or not p.name.startswith(f".{target}") or not e.is_file(follow_symlinks=False):
+            continue
+        try:
+            if now - e.stat(follow_symlinks=False).st_mtime < min_age:
+                continue
+            with open(p, "rb") as f:
+                try:
+                    fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    continue  # a live writer holds it
+                p.unlink()
+                removed.append(p)
+        except OSError:
+            continue
+    return removed

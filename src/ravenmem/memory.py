@@ -26,10 +26,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from . import recovery
 from .embed.base import Embedder, create_embedder
 from .embed.ocr import OCR_WEIGHT, ocr_terms
-from .errors import EmbedderMismatchError, EmptyMemoryError, InputError
+from .errors import EmbedderMismatchError, EmptyMemoryError, InputError, MemoryBusyError
 from .imageio import read_image, write_jpeg
+from .lock import LOCK_FILE, WriterLock
 from .manifest import FORMAT_VERSION, MANIFEST, Manifest, confine, store_for_create
 from .store.base import Store, open_store
 from .timeparse import TimeContext, parse_time
@@ -73,6 +75,7 @@ class Memory:
         self._span: tuple[float, float] | None = None
         self._created: _Created | None = None
         self._closed = False
+        self._writer = WriterLock(path)
 
     # ---------------------------------------------------------------- properties
     @property
@@ -100,10 +103,12 @@ class Memory:
         """Embed, OCR, thumbnail and store frames; durable when this returns.
 
         `embeddings` may be passed when the caller already computed them (the ingest pipeline
-        does, for novelty filtering), so that frames are never embedded twice.
+        does, for novelty filtering), so that frames are never embedded twice. The first write
+        takes the writer lock (`acquire_writer`) without waiting.
         """
         if not frames:
             return []
+        self._require_writer()
         for f in frames:
             _validate_frame(f)
         if embeddings is None:
@@ -114,23 +119,37 @@ class Memory:
                 f"embeddings have shape {embeddings.shape}, expected ({len(frames)}, {self.dim})"
             )
         texts = [self._read_text(f.image) for f in frames] if self.ocr_enabled else [""] * len(frames)
-        records = []
-        for f, text in zip(frames, texts):
-            assert f.pose is not None
-            records.append(
-                MemoryRecord(
-                    id=-1,
-                    t=float(f.t),
-                    pose=f.pose,
-                    source=f.source,
-                    frame_index=int(f.index),
-                    image_path=self._write_thumb(f),
-                    ocr_text=text,
+        paths = [self._thumb_name(f) for f in frames]
+        # thumbnails go to disk before their records commit; the journal lets the next writer
+        # delete them if this process dies in between (ravenmem.recovery)
+        journal = None
+        if self.thumb_size > 0:
+            entries = [(p or "", f.source, int(f.index), float(f.t)) for p, f in zip(paths, frames)]
+            journal = recovery.begin(self.path, entries)
+        try:
+            records = []
+            for f, text, rel in zip(frames, texts, paths):
+                assert f.pose is not None
+                records.append(
+                    MemoryRecord(
+                        id=-1,
+                        t=float(f.t),
+                        pose=f.pose,
+                        source=f.source,
+                        frame_index=int(f.index),
+                        image_path=self._write_thumb(f, rel),
+                        ocr_text=text,
+                    )
                 )
-            )
-        with self._lock:
-            ids = self.store.add(records, embeddings)
-            self._span = None
+            with self._lock:
+                ids = self.store.add(records, embeddings)
+                self._span = None
+        except BaseException:
+            if journal is not None:  # delete what the store did not take (it may have: check)
+                recovery.settle(self.path, self.store, journal)
+            raise
+        if journal is not None:
+            recovery.end(journal)
         return ids
 
     def _read_text(self, image: np.ndarray) -> str:
@@ -140,10 +159,15 @@ class Memory:
             self._ocr = OcrReader()
         return str(self._ocr.read(image))
 
-    def _write_thumb(self, f: Frame) -> str | None:
+    def _thumb_name(self, f: Frame) -> str | None:
+        """The thumbnail's path relative to the folder (None when thumbnails are off)."""
         if self.thumb_size <= 0:
+            return None
+        return f"thumbs/{int(f.t * 1000):015d}_{uuid.uuid4().hex[:8]}.jpg"
+
+    def _write_thumb(self, f: Frame, rel: str | None) -> str | None:
+        if rel is None:
             return str(Path(f.path).resolve()) if f.path else None
-        rel = f"thumbs/{int(f.t * 1000):015d}_{uuid.uuid4().hex[:8]}.jpg"
         write_jpeg(
             self.path / rel,
             f.image,
@@ -154,9 +178,63 @@ class Memory:
 
     def record_ingest(self, report: dict[str, Any]) -> None:
         """Append an ingest run's counts to the manifest (frames seen/kept, raw bytes)."""
+        self._require_writer()
         with self._lock:
             self.manifest.ingests.append(report)
             self._save_manifest()
+
+    # ---------------------------------------------------------------- the writer lock
+    def acquire_writer(self, wait: bool | float = False) -> None:
+        """Become the one writer of this memory folder (see `ravenmem.lock`), and clean up after
+        a writer that was killed (`ravenmem.recovery`: unreferenced thumbnails, temp files).
+
+        Writes take the lock by themselves, without waiting, the first time they run; call
+        this first to wait for another writer (`wait=True`, or seconds), to fail before any
+        work rather than at the first write, or to hold a memory for a service's lifetime.
+        Held until `close()` or `release_writer()`; readers never need it. A refusal raises
+        `MemoryBusyError` naming the holder's pid and command.
+        """
+        with self._lock:
+            if self._writer.held:
+                return
+            if self._closed:
+                raise InputError(f"memory {self.path} is closed")
+            writer = WriterLock(self.path)
+            writer.acquire(wait)
+            try:
+                # what this Memory read at open may be stale: another writer may have added
+                # memories (the store hands out ids from its own count) or ingest records since.
+                # Closed first: Milvus Lite serves one client per file.
+                self.store.close()
+                fresh = _open(self.path, None, self.external_images)
+                self.store, self.manifest, self._span = fresh.store, fresh.manifest, None
+            except BaseException:
+                writer.release()
+                raise
+            self._adopt_writer(writer)
+
+    def _adopt_writer(self, writer: WriterLock) -> None:
+        """Hold `writer` (acquired before this Memory read the store) and clean up after a
+        writer that was killed."""
+        self._writer = writer
+        try:
+            recovery.recover(self.path, self.store)
+        except BaseException:
+            writer.release()
+            raise
+
+    def release_writer(self) -> None:
+        """Let another process write (this Memory takes the lock again at its next write)."""
+        with self._lock:
+            self._writer.release()
+
+    @property
+    def is_writer(self) -> bool:
+        return self._writer.held
+
+    def _require_writer(self) -> None:
+        if not self._writer.held:
+            self.acquire_writer(wait=False)
 
     def _save_manifest(self) -> None:
         self.manifest.save(self.path)
@@ -454,9 +532,12 @@ class Memory:
 
     # ---------------------------------------------------------------- lifecycle
     def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self.store.close()
+        try:
+            if not self._closed:
+                self._closed = True
+                self.store.close()
+        finally:
+            self._writer.release()
 
     @contextmanager
     def undo_create_on_error(self) -> Iterator[Memory]:
@@ -585,8 +666,12 @@ def create(
     ocr: bool = True,
     exist_ok: bool = False,
     external_images: bool = False,
+    wait: bool | float = False,
 ) -> Memory:
     """Create a new memory folder (or open it when `exist_ok` and it exists with the same embedder).
+
+    The memory is returned holding its writer lock (`Memory.acquire_writer`; `wait` says
+    whether to wait for another process writing or creating it).
 
     A memory is only created in a new or an empty folder: ravenmem never writes into a folder
     that holds something else. The embedder is resolved before anything is written, and if
@@ -597,11 +682,11 @@ def create(
     if _is_memory(p):
         if not exist_ok:
             raise InputError(f"{p} already holds a memory; open it, or choose another folder")
-        return open(p, embedder=embedder, external_images=external_images)
+        return open(p, embedder=embedder, external_images=external_images, writable=True, wait=wait)
     if p.exists():
         if not p.is_dir():
             raise InputError(f"{p} exists and is not a folder")
-        if any(p.iterdir()):
+        if any(e.name != LOCK_FILE for e in p.iterdir()):  # the lock: another creator is at work
             raise InputError(
                 f"{p} is a folder with other files and no {MANIFEST}: ravenmem creates a memory only "
                 "in a new or empty folder (nothing was written)"
@@ -620,29 +705,68 @@ def create(
         created=time.time(),
     )
     made = _Created(p)
+    writer = WriterLock(p)
     try:
         p.mkdir(parents=True, exist_ok=True)
+        writer.acquire(wait)
+    except MemoryBusyError:
+        raise  # another process is creating it: what is there is not ours to remove
+    except BaseException:
+        made.undo()
+        raise
+    if _is_memory(p):  # the other process finished creating it while this one waited
+        writer.release()
+        if not exist_ok:
+            raise InputError(f"{p} already holds a memory; open it, or choose another folder")
+        return open(p, embedder=emb, external_images=external_images, writable=True, wait=wait)
+    try:
         manifest.save(p)  # first: from here on the folder is recognisably a ravenmem memory
         st = open_store(manifest.store_uri(p), dim=manifest.dim)
     except BaseException:
         made.undo()
+        writer.release()
         raise
     mem = Memory(p, manifest, st, emb, external_images=external_images)
     mem._created = made
+    mem._writer = writer
     return mem
 
 
 def open(  # noqa: A001
-    path: str | os.PathLike[str], embedder: str | Embedder | None = None, external_images: bool = False
+    path: str | os.PathLike[str],
+    embedder: str | Embedder | None = None,
+    external_images: bool = False,
+    writable: bool = False,
+    wait: bool | float = False,
 ) -> Memory:
     """Open an existing memory folder.
 
     The manifest is checked before the store is touched (`ravenmem.manifest`). Passing an
     embedder other than the one it was built with is a clear error (its vectors would not be
     comparable); a spec such as `offline` is resolved to its full name before comparing.
-    `external_images`: see `Memory`.
+    `external_images`: see `Memory`. `writable=True` takes the writer lock first (`wait` as in
+    `Memory.acquire_writer`), so the store is read after any other writer finished; a Memory
+    opened for reading can write too (its first write takes the lock and re-reads the store).
     """
     p = Path(path)
+    if not writable or not _is_memory(p):
+        return _open(p, embedder, external_images)
+    writer = WriterLock(p)
+    writer.acquire(wait)
+    try:
+        mem = _open(p, embedder, external_images)
+    except BaseException:
+        writer.release()
+        raise
+    try:
+        mem._adopt_writer(writer)
+    except BaseException:
+        mem.close()
+        raise
+    return mem
+
+
+def _open(p: Path, embedder: str | Embedder | None, external_images: bool) -> Memory:
     if not _is_memory(p):
         what = "does not exist" if not p.exists() else "is not a ravenmem memory (no memory.json)"
         raise InputError(f"memory {p} {what}")

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import av
@@ -10,7 +14,7 @@ import pytest
 
 from ravenmem.errors import InputError
 from ravenmem.ingest.poses import SKIP_OUTSIDE
-from ravenmem.ingest.video import SKIP_CORRUPT, SKIP_FPS, VideoSource
+from ravenmem.ingest.video import SKIP_CORRUPT, SKIP_ENDED_EARLY, SKIP_FPS, VideoSource
 
 W, H, N, RATE = 64, 48, 30, 10
 COLOURS = [(200, 30, 30), (30, 200, 30), (30, 30, 200)]
@@ -145,3 +149,75 @@ def test_unreadable_files_are_clear_errors(tmp_path: Path, poses: Path) -> None:
         VideoSource(tmp_path / "plain.mp4", poses=poses, start_time="creation_time")
     with pytest.raises(InputError, match="start time 'yesterday'"):
         VideoSource(tmp_path / "plain.mp4", poses=poses, start_time="yesterday")
+
+
+def write_long_video(path: Path, n: int = 120, faststart: bool = True) -> None:
+    """n frames of noise at RATE fps (so that every frame costs bytes), index at the front."""
+    rng = np.random.default_rng(3)
+    with av.open(str(path), "w", options={"movflags": "faststart"} if faststart else {}) as c:
+        s = c.add_stream("mpeg4", rate=RATE)
+        s.width, s.height, s.pix_fmt = W, H, "yuv420p"
+        for i in range(n):
+            f = av.VideoFrame.from_ndarray(rng.integers(0, 256, (H, W, 3), dtype=np.uint8), format="rgb24")
+            f.pts = i
+            for p in s.encode(f):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+
+
+def truncate(path: Path, fraction: float) -> Path:
+    data = path.read_bytes()
+    out = path.with_name("cut_" + path.name)
+    out.write_bytes(data[: int(len(data) * fraction)])
+    return out
+
+
+def test_truncated_mkv_is_noticed_by_its_duration(tmp_path: Path) -> None:
+    """No frame count in a Matroska file: the container's duration says how long it should be."""
+    whole = tmp_path / "long.mkv"
+    write_long_video(whole)
+    p = tmp_path / "p.csv"
+    p.write_text("t,x,y\n0,0,0\n20,1,0\n")
+    full = VideoSource(whole, poses=p)
+    assert len(list(full)) == 120 and full.stats.warnings == [] and full.frame_count == 120
+    cut = VideoSource(truncate(whole, 0.45), poses=p)
+    n = len(list(cut))
+    assert 20 < n < 100 and cut.frame_count == 120
+    missing = cut.stats.skipped[SKIP_ENDED_EARLY]
+    assert abs(n + missing - 120) <= 2  # an estimate from the duration
+    assert len(cut.stats.warnings) == 1 and f"{n} of about 120 frames" in cut.stats.warnings[0]
+
+
+def test_truncated_faststart_mp4_warns_and_still_stores(tmp_path: Path) -> None:
+    """The issue's case: a faststart mp4 cut in half ingests what it has, says it ended early
+    (stderr and JSON) and exits 0; the whole file gives no warning."""
+    whole = tmp_path / "long.mp4"
+    write_long_video(whole)
+    cut = truncate(whole, 0.45)
+    (tmp_path / "p.csv").write_text("t,x,y\n0,0,0\n20,1,0\n")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2] / "src"))
+
+    def ingest(video: Path, mem: str) -> subprocess.CompletedProcess[str]:
+        opts = (
+            f"--poses {tmp_path / 'p.csv'} --no-ocr --keyframes stride=20 --embedder offline:tiles=1:res=128"
+        )
+        cmd = [sys.executable, "-m", "ravenmem.cli.main", "ingest", str(video), "--json", *opts.split()]
+        cmd += ["--memory", str(tmp_path / mem)]
+        return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+
+    r = ingest(cut, "cut.mem")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    decoded = rep["frames_seen"]
+    assert 20 < decoded < 100 and rep["kept"] == len(range(0, decoded, 20))
+    assert rep["skipped"][SKIP_ENDED_EARLY] == 120 - decoded
+    assert len(rep["warnings"]) == 1 and f"{decoded} of 120 frames decoded" in rep["warnings"][0]
+    warning = [line for line in r.stderr.splitlines() if line.startswith("warning:")]
+    assert len(warning) == 1 and "ended early" in warning[0] and "cut_long.mp4" in warning[0]
+
+    r = ingest(whole, "whole.mem")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    assert rep["frames_seen"] == 120 and rep["warnings"] == [] and "warning" not in r.stderr
+    assert SKIP_ENDED_EARLY not in rep["skipped"]

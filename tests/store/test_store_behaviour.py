@@ -207,3 +207,38 @@ def test_empty_store_and_bad_input(open_fn: StoreOpener) -> None:
         assert store.count() == 0
     finally:
         store.close()
+
+
+def test_source_frames(filled: Data) -> None:
+    """Every memory of one source, sorted by (frame_index, id), with exact timestamps."""
+    store, recs, _ = filled
+    for source in ("cam0", "cam1"):
+        got = store.source_frames(source)
+        want = sorted((r.frame_index, r.id, r.t) for r in recs if r.source == source)
+        assert list(zip(got.frame_index.tolist(), got.ids.tolist(), got.t.tolist())) == want
+        assert got.t.dtype == np.float64 and got.ids.dtype == np.int64
+    assert len(store.source_frames("cam")) == 0 and len(store.source_frames("")) == 0  # exact match only
+    with pytest.raises(InputError, match="source"):
+        store.source_frames(None)  # type: ignore[arg-type]
+
+
+def test_source_frames_odd_names_and_repeats(open_fn: StoreOpener) -> None:
+    """Source strings are data, never syntax: quotes, backslashes, accents, emoji; a frame stored
+    twice (as appends did before ingest became idempotent) is listed twice."""
+    names = ['tum:a"b', "video:c\\d.mp4", "folder:é ü/😀", "o'k", "tab\tx"]
+    store = open_fn(dim=DIM)
+    try:
+        recs = make_records(3 * len(names))
+        for i, r in enumerate(recs):
+            r.source, r.frame_index = names[i % len(names)], 10 - i // len(names)
+        ids = store.add(recs, robot_stream(len(recs), DIM, seed=4))
+        again = store.add([recs[0]], robot_stream(1, DIM, seed=5))  # frame 10 of names[0], once more
+        for j, name in enumerate(names):
+            got = store.source_frames(name)
+            mine = [(recs[i].frame_index, ids[i]) for i in range(j, len(recs), len(names))]
+            if j == 0:
+                mine.append((10, again[0]))
+            assert list(zip(got.frame_index.tolist(), got.ids.tolist())) == sorted(mine)
+        assert store.source_frames(names[0]).frame_index.tolist() == [8, 9, 10, 10]
+    finally:
+        store.close()

@@ -34,3 +34,10 @@ def print_error(message: object) -> None:
     """`error: <message>` on stderr, on one line, never parsed as markup and never wrapped."""
     err = Console(stderr=True, soft_wrap=True, highlight=False)
     err.print(Text.assemble(("error:", "red"), " ", one_line(message)))
+
+
+def print_warning(message: object) -> None:
+    """`warning: <message>` on stderr, like `print_error` (something the user must hear about
+    while the command still succeeds, e.g. a video that ended early)."""
+    err = Console(stderr=True, soft_wrap=True, highlight=False)
+    err.print(Text.assemble(("warning:", "yellow"), " ", one_line(message)))

@@ -21,7 +21,7 @@ from rich.table import Table
 
 from ..errors import InputError, RavenmemError
 from ..timeparse import fmt_time
-from ._console import esc, out_console, print_error
+from ._console import esc, out_console, print_error, print_warning
 
 os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # model-loading bars are noise in a CLI
 os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
@@ -128,11 +128,16 @@ def ingest(
     ocr: Annotated[bool, typer.Option(help="read text in keyframes (slower)")] = True,
     thumb_size: Annotated[int, typer.Option(help="thumbnail longer side in px (0 = off)")] = 320,
     batch_size: Annotated[int, typer.Option(help="frames embedded per batch")] = 16,
+    wait: Annotated[
+        bool, typer.Option("--wait", help="wait while another process writes this memory")
+    ] = False,
     json_out: JsonOpt = False,
 ) -> None:
-    """Build (or extend) a memory from a recording."""
+    """Build (or extend) a memory from a recording. Frames already in it are skipped, so running
+    the same command again after an interruption resumes where it stopped."""
     import ravenmem
     from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
+    from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
 
@@ -148,22 +153,25 @@ def ingest(
     }
     src = open_source(source, format, **kwargs)
     mem = ravenmem.create(
-        memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True
+        memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True, wait=wait
     )
     with mem, mem.undo_create_on_error():  # a failed first ingest leaves no folder behind
-        rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size)
+        rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size, wait=wait)
         total = mem.count()
+    for w in rep.warnings:
+        print_warning(w)
     out = rep.as_dict() | {"memory": str(memory), "memories_total": total}
     if json_out:
         print_json(out)
         return
+    ratio = f", 1 in {rep.keyframe_ratio:.1f}" if rep.keyframe_ratio else ""
     console.print(
-        f"[bold]{esc(rep.source)}[/]: {rep.frames_seen} frames seen, {rep.kept} kept "
+        f"[bold]{esc(rep.source)}[/]: {rep.frames_seen} frames seen, {rep.kept} kept{ratio} "
         f"({rep.keyframes_per_s:.1f} keyframes/s, {rep.seconds:.1f} s); memory now holds {total}"
     )
     for reason, n in sorted(rep.skipped.items()):
         console.print(f"  skipped {n}: {esc(reason)}")
-    if rep.kept == 0:
+    if rep.kept == 0 and not rep.skipped.get(ALREADY):
         raise InputError(f"no frame of {source} was kept: nothing was added to {memory}")
 
 

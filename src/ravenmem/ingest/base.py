@@ -2,7 +2,13 @@
 
 A source must never load a whole recording into RAM: it yields frames one at a time.
 It counts what it had to drop (unreadable frames, frames outside the pose track) in
-`stats` so that `ravenmem ingest` and `info` can report them instead of guessing.
+`stats` so that `ravenmem ingest` and `info` can report them instead of guessing, and puts
+what the user must hear about (a video that ended early) in `stats.warnings`.
+
+Two optional members, which every built-in source has: `identity()`, the recording's identity
+independent of its path (see `ingest.identity`; ingest uses it to skip frames already stored),
+and `frame_count`, the number of frames the recording says it holds (None when it cannot tell
+cheaply), for the progress bar's total and ETA.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ class SourceStats:
     frames_yielded: int = 0
     skipped: dict[str, int] = field(default_factory=dict)
     raw_bytes: int = 0  # decoded RGB bytes of every frame seen (for the compression factor)
+    warnings: list[str] = field(default_factory=list)
 
     def skip(self, reason: str, n: int = 1) -> None:
         self.skipped[reason] = self.skipped.get(reason, 0) + n

@@ -17,6 +17,7 @@ Frames come out in time order.
 
 from __future__ import annotations
 
+import contextlib
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,6 +27,7 @@ from ..errors import InputError
 from ..types import Frame, Pose
 from ._util import IMAGE_EXTS, build, existing, parse_start_time, read_rgb
 from .base import SOURCES, SourceStats
+from .identity import file_head, make_identity
 from .poses import PoseTable, PoseTrack, check_match_mode, read_pose_table
 
 SKIP_NO_ROW = "no pose row for image"
@@ -88,6 +90,24 @@ class FolderSource:
         else:
             self.track = PoseTrack.from_table(table, sort=sort_poses)
         self.items = self._timed(names, fps, start)
+
+    @property
+    def frame_count(self) -> int:
+        return len(self.items)
+
+    def identity(self) -> str:
+        """The folder's name, the names and sizes of its first 256 images in playback order,
+        and the first image's first 64 KiB."""
+        parts: list[bytes | str] = []
+        for name, _ in self.items[:256]:
+            try:
+                size = (self.root / name).stat().st_size
+            except OSError:
+                size = -1
+            parts.append(f"{name}\0{size}")
+        with contextlib.suppress(OSError):
+            parts.append(file_head(self.root / self.items[0][0], 1 << 16))
+        return make_identity("folder", self.root.name, parts)
 
     def _pose_file(self, poses: str | Path | None) -> Path:
         if poses is not None:

@@ -27,6 +27,7 @@ from ..types import Frame
 from ._tf import TfTree
 from ._util import build, existing, pil_to_rgb
 from .base import SOURCES, SourceStats
+from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -123,6 +124,8 @@ class RosbagSource:
             topics = {c.topic: c.msgtype for c in reader.connections}
             images = {t: m for t, m in topics.items() if m in (IMAGE, COMPRESSED)}
             self.image_topic = _pick("image", images, image_topic, "image_topic")
+            counts = [c.msgcount for c in reader.connections if c.topic == self.image_topic]
+            self.frame_count: int | None = sum(counts) if all(n > 0 for n in counts) else None
             tf_topics = [t for t, m in topics.items() if m == TF]
             poses = {t: m for t, m in topics.items() if m in POSE_TYPES}
             if pose_topic is None and not poses and tf_topics:
@@ -133,6 +136,13 @@ class RosbagSource:
             else:
                 self.pose_topic = _pick("pose", poses | {t: TF for t in tf_topics}, pose_topic, "pose_topic")
                 self.track = self._pose_track(reader, self.pose_topic)
+
+    def identity(self) -> str:
+        """The bag's name and image topic, and the first MiB of its (first) storage file."""
+        files = sorted(f for f in self.path.iterdir() if f.is_file()) if self.path.is_dir() else [self.path]
+        data = [f for f in files if f.suffix in (".db3", ".mcap", ".bag")] or files
+        head = file_head(data[0]) if data else b""
+        return make_identity("rosbag", f"{self.path.name}{self.image_topic}", [self.image_topic, head])
 
     @contextmanager
     def _reader(self) -> Iterator[AnyReader]:

@@ -21,6 +21,7 @@ from ..errors import InputError
 from ..types import Frame
 from ._util import build, existing, pose_track_arg, read_rgb
 from .base import SOURCES, SourceStats
+from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
 
 DEPTH_SCALE = 5000.0
@@ -93,6 +94,14 @@ class TumSource:
         if depth and (self.root / "depth.txt").is_file():
             self.depth_entries = read_index(self.root / "depth.txt")
         self.depth_max_gap = depth_max_gap
+
+    @property
+    def frame_count(self) -> int:
+        return len(self.entries)
+
+    def identity(self) -> str:
+        """The folder's name and the start of its rgb.txt (timestamps and file names)."""
+        return make_identity("tum", self.root.name, [file_head(self.root / "rgb.txt", 1 << 16)])
 
     def _depth_index(self) -> np.ndarray:
         """For each rgb entry, the index of the nearest depth entry within the gap, else -1."""

@@ -22,6 +22,7 @@ from ..errors import InputError
 from ..types import Frame
 from ._util import build, existing, parse_start_time, pose_track_arg
 from .base import SOURCES, SourceStats
+from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
 
 VIDEO_EXTS = (".mp4", ".mkv", ".avi", ".mov", ".webm", ".m4v")
@@ -29,6 +30,7 @@ VIDEO_EXTS = (".mp4", ".mkv", ".avi", ".mov", ".webm", ".m4v")
 SKIP_CORRUPT = "corrupt video frame"
 SKIP_TRUNCATED = "unreadable video data (decoding stopped)"
 SKIP_FPS = "above source fps"
+SKIP_ENDED_EARLY = "missing from the file (it ended early)"
 
 
 def _open(path: Path) -> Any:
@@ -74,6 +76,9 @@ class VideoSource:
         self.track = None if poses is None else pose_track_arg(poses, sort=sort_poses)
         container = _open(self.path)
         try:
+            self.frame_count = _expected_frames(container)
+            self.exact_count = bool(container.streams.video[0].frames)
+            self.duration = container.duration / av.time_base if container.duration else None
             if isinstance(start_time, str) and start_time.strip().lower() == "creation_time":
                 tag = container.metadata.get("creation_time") or container.streams.video[0].metadata.get(
                     "creation_time"
@@ -85,6 +90,36 @@ class VideoSource:
                 self.start_time = parse_start_time(start_time)
         finally:
             container.close()
+
+    def identity(self) -> str:
+        """The file's name and first MiB (which, for an mp4, holds its index), so a fuller copy
+        of a truncated file is the same recording and two clips with one name are not."""
+        return make_identity("video", self.path.name, [file_head(self.path)])
+
+    def _ended_early(self, last_t: float | None, rate: float) -> None:
+        """Compare what was decoded with what the container promised: a cut-off download or a
+        recording still being written decodes cleanly up to where it stops, without an error.
+        A shortfall of one or two frames is not reported (edit lists may hide a frame or two)."""
+        seen, expected = self.stats.frames_seen, self.frame_count
+        missing = 0
+        if self.exact_count and expected is not None:
+            missing = expected - seen
+        elif last_t is not None and self.duration is not None:
+            # no frame count in the container (mkv, webm): the duration says how long it should be
+            gap = self.duration - (last_t - self.start_time) - 1.0 / rate
+            missing = int(round(gap * rate)) if gap > 1.0 else 0
+        stopped = SKIP_TRUNCATED in self.stats.skipped
+        if missing <= 2 and not stopped:
+            return
+        if missing > 0:
+            self.stats.skip(SKIP_ENDED_EARLY, missing)
+        of = ""
+        if expected is not None:
+            of = f" of {'' if self.exact_count else 'about '}{expected}"
+        self.stats.warnings.append(
+            f"{self.path}: the file ended early: {seen}{of} frames decoded "
+            "(cut off while copying, or still being written?)"
+        )
 
     def _decoded(self, container: Any) -> Iterator[Any]:
         """Decoded av.VideoFrames; a packet that fails to decode is skipped and counted."""
@@ -149,8 +184,21 @@ class VideoSource:
                     continue
                 self.stats.frames_yielded += 1
                 yield Frame(image=image, t=t, pose=pose, source=str(self.path), index=index)
+            self._ended_early(last_t, rate)
         finally:
             container.close()
+
+
+def _expected_frames(container: Any) -> int | None:
+    """Frames the container says the stream holds: its frame count (mp4, mov) or, failing
+    that, duration x average rate (mkv, webm: an estimate); None when it says neither."""
+    stream = container.streams.video[0]
+    if stream.frames:
+        return int(stream.frames)
+    rate = float(stream.average_rate or 0)
+    if container.duration and rate > 0:
+        return max(1, int(round(container.duration / av.time_base * rate)))
+    return None
 
 
 @SOURCES.register("video")

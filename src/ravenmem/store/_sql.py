@@ -34,6 +34,17 @@ CREATE TABLE IF NOT EXISTS vectors (id INTEGER PRIMARY KEY, v BLOB NOT NULL);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 """
 
+# Indexes added after memories were already in use: (name, DDL), built on open when missing.
+MIGRATIONS = [
+    ("memories_source", "CREATE INDEX IF NOT EXISTS memories_source ON memories (source, frame_index, t)"),
+]
+
+
+def source_frames(conn: sqlite3.Connection, source: str) -> list[tuple[int, int, float]]:
+    """(id, frame_index, t) of every memory from `source`: read from the covering index
+    `memories_source` alone (no table rows), so it costs O(log n + matches)."""
+    return conn.execute("SELECT id, frame_index, t FROM memories WHERE source = ?", (source,)).fetchall()
+
 
 def connect(path: str, synchronous: str = "FULL") -> sqlite3.Connection:
     """A WAL connection usable from any thread (the store serialises access with a lock)."""
@@ -46,8 +57,10 @@ def connect(path: str, synchronous: str = "FULL") -> sqlite3.Connection:
 
 
 def create_schema(conn: sqlite3.Connection) -> str:
-    """Create the tables once; returns the FTS5 tokenizer in use (trigram when SQLite has it)."""
+    """Create the tables once (and `migrate`); returns the FTS5 tokenizer in use (trigram when
+    SQLite has it)."""
     conn.executescript(SCHEMA)
+    migrate(conn)
     row = conn.execute("SELECT value FROM meta WHERE key = 'store.fts_tokenizer'").fetchone()
     if row:
         return str(row[0])
@@ -60,6 +73,23 @@ def create_schema(conn: sqlite3.Connection) -> str:
         conn.execute(ddl.format(tokenizer))
     conn.execute("INSERT OR REPLACE INTO meta VALUES ('store.fts_tokenizer', ?)", (tokenizer,))
     return tokenizer
+
+
+def migrate(conn: sqlite3.Connection) -> None:
+    """Build the indexes a memory created by an older version lacks.
+
+    Each CREATE INDEX is one SQLite transaction: a crash leaves the index complete or absent
+    (built again on the next open), never half there. The check is a read, so opening an
+    up-to-date memory writes nothing; a read-only memory that lacks an index opens anyway
+    (queries fall back to a scan) and gets it on the first writable open."""
+    have = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'index'")}
+    for name, ddl in MIGRATIONS:
+        if name not in have:
+            try:
+                conn.execute(ddl)
+            except sqlite3.OperationalError as e:
+                if "readonly" not in str(e):
+                    raise
 
 
 def record_row(rid: int, r: MemoryRecord) -> tuple[object, ...]:

@@ -13,12 +13,35 @@ turns queries into vectors and writes thumbnails. Stores are thread-safe: one th
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from ..registry import Registry
 from ..types import Filter, MemoryRecord
+
+
+@dataclass(frozen=True)
+class SourceFrames:
+    """Parallel arrays over the memories of one source: ids (int64), frame indices (int64) and
+    timestamps (float64, exactly as stored). `len()` is the number of memories."""
+
+    ids: np.ndarray
+    frame_index: np.ndarray
+    t: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @classmethod
+    def from_rows(cls, rows: Sequence[tuple[int, int, float]]) -> SourceFrames:
+        """From (id, frame_index, t) rows in any order; sorted by (frame_index, id)."""
+        ids = np.fromiter((r[0] for r in rows), np.int64, len(rows))
+        idx = np.fromiter((r[1] for r in rows), np.int64, len(rows))
+        t = np.fromiter((r[2] for r in rows), np.float64, len(rows))
+        order = np.lexsort((ids, idx))
+        return cls(ids[order], idx[order], t[order])
 
 
 @runtime_checkable
@@ -55,6 +78,13 @@ class Store(Protocol):
 
     def get(self, ids: Sequence[int], with_embeddings: bool = False) -> list[MemoryRecord]:
         """Records for ids, in the order given (unknown ids raise KeyError)."""
+        ...
+
+    def source_frames(self, source: str) -> SourceFrames:
+        """Every memory stored from `source` (exact match on `MemoryRecord.source`), sorted by
+        (frame_index, id). Ingest uses it to skip frames already stored, so that re-running an
+        ingest resumes instead of duplicating; it must stay fast on a store of millions of
+        memories (an index on source), and cost nothing for a source the store has never seen."""
         ...
 
     def count(self) -> int: ...

@@ -25,6 +25,7 @@ from urllib.parse import quote
 import numpy as np
 
 from ..errors import InputError
+from ..fsio import remove_stale_temp_files
 from ..types import Filter, MemoryRecord
 from . import _sql
 from ._columns import Columns
@@ -40,7 +41,7 @@ from ._common import (
     rank_text,
 )
 from ._vindex import IndexFileError, VectorIndex, nlist_for
-from .base import STORES
+from .base import STORES, SourceFrames
 
 log = logging.getLogger(__name__)
 UID_KEY = "store.uid"
@@ -103,8 +104,7 @@ class LocalStore:
         self._worker: threading.Thread | None = None
         self._cancel = threading.Event()
         self._retry_at = 0
-        for stale in folder.glob(".index.faiss.*.tmp"):
-            stale.unlink(missing_ok=True)
+        remove_stale_temp_files(folder, target="index.faiss.")  # never one a live process writes
         self._vi, self._saved_max = self._open_index()
         self._maintain()
 
@@ -380,6 +380,15 @@ class LocalStore:
         if missing:
             raise KeyError(f"unknown memory id(s): {missing[:10]}")
         return [found[i] for i in want]
+
+    def source_frames(self, source: str) -> SourceFrames:
+        """Every memory from `source`, sorted by (frame_index, id), via the source index."""
+        if not isinstance(source, str):
+            raise InputError(f"source: expected a string, got {type(source).__name__}")
+        with self._lock:
+            self._check_open()
+            rows = _sql.source_frames(self._conn, source)
+        return SourceFrames.from_rows(rows)
 
     def count(self) -> int:
         return self._count

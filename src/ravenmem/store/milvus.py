@@ -13,6 +13,7 @@ a bounding box in Milvus plus the exact disc test in Python.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import re
 import threading
@@ -36,7 +37,9 @@ from ._common import (
     query_words,
     rank_text,
 )
-from .base import STORES
+from .base import STORES, SourceFrames
+
+log = logging.getLogger(__name__)
 
 _MAXQ = 16384  # Milvus' cap on limit (and offset + limit) per query or search
 _FIELDS = ["id", "t", "x", "y", "z", "yaw", "has_quat", "qx", "qy", "qz", "qw", "source", "frame_index",
@@ -60,6 +63,12 @@ def _expr(filt: Filter | None, extra: str = "") -> str:
         if filt.region is not None:
             parts.append(_box(filt.region.x, filt.region.y, filt.region.r))
     return " and ".join(parts)
+
+
+def _str(s: str) -> str:
+    """A Milvus string literal: JSON's escaping (quotes, backslashes, control characters) is
+    what Milvus' expression parser reads; non-ASCII stays as UTF-8."""
+    return json.dumps(s, ensure_ascii=False)
 
 
 def _box(x: float, y: float, s: float) -> str:
@@ -106,10 +115,12 @@ class MilvusStore:
             self._create_meta()
         self.client.load_collection(self.meta_name)
         check_dim(uri, self.get_meta(DIM_KEY), dim)
+        self._text_index = "Trie" if old else "INVERTED"
         if self.client.has_collection(self.name):
             fields = self.client.describe_collection(self.name)["fields"]
             vdim = next(int(f["params"]["dim"]) for f in fields if f["name"] == "v")
             check_dim(f"{uri} collection {collection}", str(vdim), dim)
+            self._index_source()
         else:
             self._create_main(scalar_index="STL_SORT" if old else "INVERTED")
         self.client.load_collection(self.name)
@@ -135,7 +146,20 @@ class MilvusStore:
         ip.add_index("v", index_type=self.index_type, metric_type="COSINE", params=self._index_params)
         for f in ("t", "x", "y"):
             ip.add_index(f, index_type=scalar_index)
+        ip.add_index("source", index_type=self._text_index)
         self.client.create_collection(self.name, schema=s, index_params=ip, consistency_level="Session")
+
+    def _index_source(self) -> None:
+        """Migration: collections created before `source_frames` existed get the index on
+        `source` now. Without it the lookup still works, by a scan, so a failure only logs."""
+        try:
+            if self.client.list_indexes(self.name, field_name="source"):
+                return
+            ip = self.client.prepare_index_params()
+            ip.add_index("source", index_type=self._text_index)
+            self.client.create_index(self.name, ip)
+        except self._pm.exceptions.MilvusException as e:  # pragma: no cover - server-specific
+            log.warning("%s: could not index the source field (%s); source lookups will scan", self.uri, e)
 
     def _create_meta(self) -> None:
         dt = self._pm.DataType
@@ -367,6 +391,16 @@ class MilvusStore:
         if missing:
             raise KeyError(f"unknown memory id(s): {missing[:10]}")
         return [found[i] for i in want]
+
+    def source_frames(self, source: str) -> SourceFrames:
+        """Every memory from `source`, sorted by (frame_index, id): one filtered query on the
+        indexed `source` field (an iterator beyond Milvus' per-query cap)."""
+        if not isinstance(source, str):
+            raise InputError(f"source: expected a string, got {type(source).__name__}")
+        with self._lock:
+            self._check_open()
+            rows = self._query(f"source == {_str(source)}", ["id", "frame_index", "t"])
+        return SourceFrames.from_rows([(int(r["id"]), int(r["frame_index"]), float(r["t"])) for r in rows])
 
     @staticmethod
     def _record(r: dict[str, Any]) -> MemoryRecord:

@@ -1,0 +1,94 @@
+"""Clean-up after a killed writer: thumbnails whose memory was never stored, temporary files.
+
+A batch's thumbnails are written before its records are committed (a record must never point at
+a missing file), so a writer killed in between leaves thumbnails nothing refers to. Before
+writing them, the writer lists them in a journal (`thumbs/pending-<id>.json`) and deletes the
+journal once the store has committed the batch. The next writer (`Memory.acquire_writer`) reads
+any journal left behind and deletes the listed thumbnails the store does not reference: it asks
+the store for the memories of the journal's (source, frame index, time) and compares their
+image paths. A store batch is one transaction, so it holds all of them or none.
+
+Only files ravenmem names itself are ever removed: thumbnails named like `Memory._write_thumb`'s
+and listed in a journal, and `ravenmem.fsio` temporary files that no live process holds.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import uuid
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .fsio import atomic_write_json, remove_stale_temp_files
+from .store.base import Store
+
+log = logging.getLogger(__name__)
+
+THUMBS = "thumbs"
+THUMB_NAME = re.compile(r"-?\d+_[0-9a-f]{8}\.jpg")
+_JOURNAL = re.compile(r"pending-[0-9a-f]{12}\.json")
+
+# (thumbnail path relative to the memory folder, source, frame index, time)
+Entry = tuple[str, str, int, float]
+
+
+def begin(folder: Path, entries: Sequence[Entry]) -> Path:
+    """Write (durably) the journal of thumbnails about to be written; returns its path."""
+    path = folder / THUMBS / f"pending-{uuid.uuid4().hex[:12]}.json"
+    atomic_write_json(path, {"thumbs": [list(e) for e in entries]})
+    return path
+
+
+def end(journal: Path) -> None:
+    """The batch is committed: its journal goes (if this unlink is lost in a crash, recovery
+    finds every thumbnail referenced and only deletes the journal)."""
+    journal.unlink(missing_ok=True)
+
+
+def settle(folder: Path, store: Store, journal: Path) -> int:
+    """Delete the journal's thumbnails that no stored memory references, then the journal."""
+    try:
+        raw = json.loads(journal.read_text(encoding="utf-8"))["thumbs"]
+        entries = [(str(n), str(s), int(i), float(t)) for n, s, i, t in raw]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        log.warning("%s: unreadable thumbnail journal, left as is (%s)", journal, e)
+        return 0
+    referenced: set[str] = set()
+    for source in {e[1] for e in entries}:
+        sf = store.source_frames(source)
+        want = {(i, t) for _, s, i, t in entries if s == source}
+        near = np.flatnonzero(np.isin(sf.frame_index, [i for i, _ in want]))
+        hit = [int(k) for k in near if (int(sf.frame_index[k]), float(sf.t[k])) in want]
+        if hit:
+            referenced.update(r.image_path or "" for r in store.get(np.asarray(sf.ids)[hit].tolist()))
+    removed = 0
+    for name, *_ in entries:
+        p = folder / name
+        if name in referenced or p.parent != folder / THUMBS or not THUMB_NAME.fullmatch(p.name):
+            continue
+        if p.is_file():
+            p.unlink()
+            removed += 1
+    end(journal)
+    return removed
+
+
+def recover(folder: Path, store: Store) -> dict[str, int]:
+    """What a new writer cleans before writing: journals left by a killed writer, stale
+    temporary files in the memory folder and in thumbs/. Returns the counts removed."""
+    thumbs = folder / THUMBS
+    removed = 0
+    if thumbs.is_dir():
+        for journal in sorted(thumbs.iterdir()):
+            if _JOURNAL.fullmatch(journal.name):
+                removed += settle(folder, store, journal)
+    temps = remove_stale_temp_files(folder) + remove_stale_temp_files(thumbs)
+    if removed or temps:
+        log.info(
+            "%s: removed %d unreferenced thumbnail(s), %d temporary file(s)", folder, removed, len(temps)
+        )
+    return {"thumbnails": removed, "temp_files": len(temps)}

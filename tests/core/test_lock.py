@@ -83,7 +83,7 @@ def test_memory_takes_the_lock_to_write_and_reads_fresh_state(tmp_path: Path, co
     third = reader.add(solid("blue"), Pose(1, 0), t=11.0)
     assert reader.is_writer and third > second > first and reader.count() == 3
     reader.record_ingest({"source": "b", "frames_seen": 1})
-    assert [r["source"] for r in reader.manifest["ingests"]] == ["a", "b"]  # the writer's kept
+    assert [r["source"] for r in reader.manifest.ingests] == ["a", "b"]  # the writer's kept
     reader.release_writer()
     again = ravenmem.open(path, writable=True, wait=1.0)
     try:

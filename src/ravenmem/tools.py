@@ -121,6 +121,7 @@ class PositionArgs(ToolArgs):
 
 
 Runner = Callable[..., list[Hit]]
+_CENTRED = "List the memories around a given time (about half before it, half from it on)."
 
 
 @dataclass(frozen=True)
@@ -173,10 +174,17 @@ class Tool:
         inner = ", ".join(f"{k}={v!r}" for k, v in shown.items())
         return f"{self.name}({inner})"
 
-    def description(self, k: int | None = None) -> str:
+    def description(
+        self, k: int | None = None, *, scores: bool = True, time_mode: TimeMode = "forward"
+    ) -> str:
+        """What the tool does, for a model or a person. `scores=False` leaves out the similarity
+        score / distance (an ablation hides them from the model); `time_mode="centred"` describes
+        the time tool's window around the given time instead of from it onwards."""
+        summary = _CENTRED if self.name == "search_time" and time_mode == "centred" else self.summary
         more = f" Returns up to {k} memories" if k else " Returns memories"
         metric = {"score": " with a similarity score (higher is better)", "distance": " with the distance"}
-        return f"{self.summary}{more}, {self.order}, each with its id, time and pose{metric.get(self.metric or '', '')}."
+        shown = metric.get(self.metric or "", "") if scores else ""
+        return f"{summary}{more}, {self.order}, each with its id, time and pose{shown}."
 
     def json_schema(self) -> dict[str, Any]:
         """The full JSON schema of the arguments (MCP and OpenAPI take it as it is)."""

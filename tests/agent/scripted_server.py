@@ -18,6 +18,9 @@ Script items (plain dicts, consumed one per request; helpers below build them):
 - {"status": int, "error": str, "headers": {...}}   an HTTP error (429, 500, 503, 400, ...)
 - {"raw": str}                           a 200 response whose body is this text (broken JSON)
 - "delay": seconds (any item)            sleep before responding (provokes client timeouts)
+- "drip": seconds (any item)             send the response (status line, headers, body) one byte
+                                         at a time, this long apart: a server that is never
+                                         silent long enough for a per-read timeout
 - "finish_reason", "usage": {...}        override the defaults
 - a callable(body: dict) -> item         decided per request (e.g. answer with what was shown)
 When the script runs out, `default` is used (an item or callable); without one, HTTP 500.
@@ -81,6 +84,7 @@ class ScriptedModel:
         self.requests: list[dict[str, Any]] = []
         self.headers: list[dict[str, str]] = []  # request headers, names lower-cased
         self.responses: list[dict[str, Any]] = []
+        self.drips_abandoned = 0  # dripped responses the client hung up on
         self._lock = threading.Lock()
         self._httpd: ThreadingHTTPServer | None = None
         self._thread: threading.Thread | None = None
@@ -110,12 +114,15 @@ class ScriptedModel:
                 except json.JSONDecodeError:
                     self._send(400, {"error": {"message": "request body is not JSON"}})
                     return
-                status, payload, headers, delay = owner._respond(
+                status, payload, headers, delay, drip = owner._respond(
                     body, {k.lower(): v for k, v in self.headers.items()}
                 )
                 if delay:
                     time.sleep(delay)
-                self._send(status, payload, headers)
+                if drip:
+                    self._drip(status, payload, drip)
+                else:
+                    self._send(status, payload, headers)
 
             def _send(self, status: int, payload: Any, headers: dict[str, str] | None = None) -> None:
                 data = payload.encode() if isinstance(payload, str) else json.dumps(payload).encode()
@@ -129,6 +136,18 @@ class ScriptedModel:
                     self.wfile.write(data)
                 except (BrokenPipeError, ConnectionResetError):  # the client gave up (timeout tests)
                     pass
+
+            def _drip(self, status: int, payload: Any, every: float) -> None:
+                data = json.dumps(payload).encode()
+                head = f"HTTP/1.1 {status} OK\r\ncontent-type: application/json\r\ncontent-length: {len(data)}\r\n\r\n"
+                self.close_connection = True
+                try:
+                    for byte in head.encode() + data:
+                        self.wfile.write(bytes([byte]))
+                        self.wfile.flush()
+                        time.sleep(every)
+                except (BrokenPipeError, ConnectionResetError, OSError):  # the client gave up
+                    owner.drips_abandoned += 1
 
         self._httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
         self._httpd.daemon_threads = True
@@ -186,7 +205,7 @@ class ScriptedModel:
     # ---------------------------------------------------------------- responding
     def _respond(
         self, body: dict[str, Any], headers: dict[str, str]
-    ) -> tuple[int, Any, dict[str, str], float]:
+    ) -> tuple[int, Any, dict[str, str], float, float]:
         with self._lock:
             self.requests.append(body)
             self.headers.append(headers)
@@ -202,15 +221,16 @@ class ScriptedModel:
         if callable(item):
             item = item(body)
         delay = float(item.get("delay", 0.0))
+        drip = float(item.get("drip", 0.0))
         if "status" in item:
             payload = {
                 "error": {"message": item.get("error", "error"), "type": "scripted", "code": item["status"]}
             }
             self.responses.append({"status": item["status"], **payload})
-            return int(item["status"]), payload, dict(item.get("headers", {})), delay
+            return int(item["status"]), payload, dict(item.get("headers", {})), delay, drip
         if "raw" in item:
             self.responses.append({"raw": item["raw"]})
-            return 200, str(item["raw"]), {}, delay
+            return 200, str(item["raw"]), {}, delay, drip
         message: dict[str, Any] = {"role": "assistant", "content": item.get("content")}
         finish = item.get("finish_reason", "stop")
         if item.get("tool_calls"):
@@ -249,4 +269,4 @@ class ScriptedModel:
             ),
         }
         self.responses.append(payload)
-        return 200, payload, {}, delay
+        return 200, payload, {}, delay, drip

@@ -23,31 +23,40 @@ from ravenmem.agent import (
 )
 from ravenmem.agent.captions import CAPTION_FILE
 from ravenmem.errors import InputError
-from tests.agent.conftest import T0, config_for
+from ravenmem.types import Frame, Pose
+from tests.agent.conftest import T0, VLM_ENV, config_for, scene_frames
 from tests.agent.scripted_server import answer, tool
-from tests.conftest import COLORS, ColorEmbedder
+from tests.conftest import COLORS, ColorEmbedder, solid
 
 
 class ColorWords:
-    """A text encoder for captions: the colour a text names (same space as ColorEmbedder texts)."""
+    """A text encoder for captions: the sum of the colours a text names (same space as
+    ColorEmbedder texts), so "red" is closest to the captions that mention red."""
 
     name = "test-color-words"
 
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
-        return ColorEmbedder().embed_texts([re.sub(r"[^a-z ]", " ", t.lower()) for t in texts])
+        out = []
+        for t in texts:
+            words = re.sub(r"[^a-z ]", " ", t.lower()).split()
+            v = np.full(4, 0.15, np.float32)
+            v[:3] += sum((np.array(COLORS[w], np.float32) / 255 for w in words if w in COLORS), np.zeros(3))
+            out.append(v / np.linalg.norm(v))
+        return np.asarray(out, dtype=np.float32)
 
 
-def describe_image(body: dict) -> dict:
-    """A scripted captioner: names the colour of the image it was sent."""
-    url = next(
-        p["image_url"]["url"] for m in body["messages"] for p in m["content"] if p["type"] == "image_url"
-    )
+def colour_of(url: str) -> str:
     img = np.asarray(
         Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB"), dtype=float
     )
     mean = img.reshape(-1, 3).mean(0)
-    name = min(COLORS, key=lambda c: float(np.sum((np.array(COLORS[c]) - mean) ** 2)))
-    return {"content": f"  A plain wall painted {name}.\n"}
+    return min(COLORS, key=lambda c: float(np.sum((np.array(COLORS[c]) - mean) ** 2)))
+
+
+def describe_segment(body: dict) -> dict:
+    """A scripted captioner: names the colours of the images it was sent, in order."""
+    urls = [p["image_url"]["url"] for m in body["messages"] for p in m["content"] if p["type"] == "image_url"]
+    return {"content": "  Walls painted " + ", ".join(colour_of(u) for u in urls) + ".\n"}
 
 
 def test_registry_names_and_unknown():
@@ -60,6 +69,7 @@ def test_embedder_only_is_top1(mem):
     ans = create_method("embedder-only", mem).ask("Where is the magenta box?")
     assert isinstance(create_method("embedder-only", mem), EmbedderOnly)
     assert ans.method == "embedder-only" and ans.position == pytest.approx([7.0, 3.0, 0.5])
+    assert ans.position_source == ans.yaw_source == "evidence"
     assert ans.time == pytest.approx(T0 + 70) and ans.cost.alpha == pytest.approx(1 / 12)
     assert ans.yes is None and create_method("embedder-only", mem).ask("Is there a magenta box?").yes is True
 
@@ -72,7 +82,7 @@ def test_random_is_reproducible(mem):
     assert len(ids) > 3
 
 
-def test_vlm_only_sends_uniform_frames_in_one_prompt(mem, server):
+def test_vlm_only_sends_the_whole_history_subsampled_to_its_frame_budget(mem, server):
     recs = mem.all_records()
     server.push(answer(question_type="position", evidence=[recs[7].id], answer="by the magenta wall"))
     m = create_method("vlm-only", mem, vlm=config_for(server), frames=4, max_tool_calls=9)
@@ -83,10 +93,41 @@ def test_vlm_only_sends_uniform_frames_in_one_prompt(mem, server):
     listed = [int(i) for i in re.findall(r"^\[m(\d+)\]", server.texts(0), re.M)]
     assert listed == [recs[i].id for i in (0, 4, 7, 11)]  # uniform over the whole history, in order
     assert ans.position == pytest.approx([7.0, 3.0, 0.5])
-    assert (
-        ans.cost.memories_shown == 4 and ans.cost.alpha == pytest.approx(4 / 12) and ans.cost.tool_calls == 0
-    )
+    c = ans.cost
+    assert (c.memories_shown, c.tool_calls, c.alpha) == (4, 0, pytest.approx(4 / 12))
+    assert any("vlm-only: shown 4 of 12 memories" in n and "alpha 0.333" in n for n in ans.notes)
+    assert (ans.method, ans.model, ans.embedder) == ("vlm-only", "scripted-vlm", None)
+    assert c.image_bytes == sum((mem.path / recs[i].image_path).stat().st_size for i in (0, 4, 7, 11))
     assert "at most" not in server.requests[0]["messages"][0]["content"]  # no tools are promised
+    # a budget that holds every memory shows every memory: alpha 1
+    server.push(answer(question_type="text", answer="all", evidence=[]))
+    ans = create_method("vlm-only", mem, vlm=config_for(server), frames=100).ask("What did I see?")
+    assert server.images(1) == 12 and ans.cost.alpha == 1.0 and "every memory" in server.texts(1)
+
+
+def test_vlm_only_sends_images_at_the_requested_size(tmp_path, server):
+    import ravenmem
+
+    with ravenmem.create(tmp_path / "big.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=200) as big:
+        big.add_frames(scene_frames()[:3])
+        server.push(
+            answer(question_type="text", answer="a", evidence=[]),
+            answer(question_type="text", answer="b", evidence=[]),
+        )
+        create_method("vlm-only", big, vlm=config_for(server)).ask("What did I see?")
+        create_method("vlm-only", big, vlm=config_for(server), image_max_side=40).ask("What did I see?")
+    sizes = [
+        [
+            Image.open(io.BytesIO(base64.b64decode(p["image_url"]["url"].split(",", 1)[1]))).size
+            for m in r["messages"]
+            if isinstance(m["content"], list)
+            for p in m["content"]
+            if p["type"] == "image_url"
+        ]
+        for r in server.requests
+    ]
+    assert sizes[0] == [(64, 48)] * 3  # stored at 64x48 (smaller than 200): sent as stored, never enlarged
+    assert sizes[1] == [(40, 30)] * 3
 
 
 def test_vlm_only_refuses_tool_requests(mem, server):
@@ -98,52 +139,69 @@ def test_vlm_only_refuses_tool_requests(mem, server):
     assert not ans.failed and ans.cost.tool_calls == 0 and "used all 0 tool calls" in server.texts(1)
 
 
-def test_vlm_methods_need_a_vlm(mem, monkeypatch, tmp_path):
-    monkeypatch.delenv("RAVENMEM_VLM_MODEL", raising=False)
+@pytest.mark.parametrize("name", ["raven", "vlm-only", "caption"])
+def test_vlm_methods_need_a_vlm(mem, monkeypatch, tmp_path, name):
+    for var in VLM_ENV:
+        monkeypatch.delenv(var, raising=False)
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path))
-    with pytest.raises(InputError, match="needs a VLM"):
-        create_method("vlm-only", mem)
-    with pytest.raises(InputError, match="needs a VLM"):
-        create_method("caption", mem, encoder=ColorWords())
+    with pytest.raises(
+        InputError, match=f"method '{name}' needs a VLM: no VLM model configured: pass --model"
+    ):
+        create_method(name, mem, encoder=ColorWords())
+    assert create_method("offline", mem).name == "offline"  # the model-free reasoner only by name
 
 
-def test_caption_memories_is_incremental_and_crash_safe(mem, server):
-    server.default = describe_image
-    n = caption_memories(mem, config_for(server), encoder=ColorWords(), batch=5)
-    assert n == 12 and len(server.requests) == 12 and (mem.path / CAPTION_FILE).exists()
-    idx = CaptionIndex(mem, ColorWords())
+def test_caption_segments_are_incremental_and_crash_safe(mem, server):
+    server.default = describe_segment
+    n = caption_memories(mem, config_for(server), encoder=ColorWords(), batch=2, segment_frames=3)
+    assert n == 4 and len(server.requests) == 4 and (mem.path / CAPTION_FILE).exists()
+    assert [server.images(i) for i in range(4)] == [3, 3, 3, 3]  # one request per segment of 3 keyframes
+    assert "3 consecutive views" in server.texts(0)
+    idx = CaptionIndex(mem, ColorWords(), segment_frames=3)
     recs = mem.all_records()
-    assert idx.caption(recs[1].id) == "A plain wall painted red." and len(idx) == 12
-    hits = idx.search("the red wall", k=2)
-    assert {h.memory.id for h in hits} == {recs[1].id, recs[8].id} and hits[0].score == pytest.approx(
-        1.0, abs=1e-5
+    assert (
+        len(idx) == 4
+        and idx.caption(recs[1].id) == idx.caption(recs[2].id) == "Walls painted green, red, yellow."
     )
+    hits = idx.search("the red wall", k=2)
+    # the segments that mention red, each as its middle memory
+    assert {h.memory.id for h in hits} == {recs[1].id, recs[7].id}
     late = idx.search("red", k=2, after=T0 + 50)
-    assert late[0].memory.id == recs[8].id and all(h.memory.t >= T0 + 50 for h in late)
-    assert [h.memory.id for h in idx.search("blue", k=3, near=(6.0, 2.0, 0.5))] == [recs[6].id]
+    assert late[0].memory.id == recs[7].id and recs[1].id not in {h.memory.id for h in late}  # t=+10 s: out
+    assert [h.memory.id for h in idx.search("blue", k=3, near=(10.0, 4.0, 0.5))] == [recs[10].id]
     idx.close()
-    assert caption_memories(mem, config_for(server), encoder=ColorWords()) == 0  # nothing new
-    assert len(server.requests) == 12
+    assert (
+        caption_memories(mem, config_for(server), encoder=ColorWords(), segment_frames=3) == 0
+    )  # nothing new
+    assert len(server.requests) == 4
+    mem.add_frames([Frame(image=solid("white"), t=T0 + 200, pose=Pose(12.0, 4.0), index=12)])
+    assert (
+        caption_memories(mem, config_for(server), encoder=ColorWords(), segment_frames=3) == 1
+    )  # a new segment
     with pytest.raises(InputError, match="were embedded with"):
-        CaptionIndex(mem, ColorEmbedder().embed_texts)  # another encoder name
+        CaptionIndex(mem, ColorEmbedder().embed_texts, segment_frames=3)  # another encoder name
+    with pytest.raises(InputError, match="segments of 3 keyframes, not 2"):
+        CaptionIndex(mem, ColorWords(), segment_frames=2)
 
 
 def test_caption_agent_answers_over_text_only(mem, server):
     recs = mem.all_records()
-    server.default = describe_image
-    agent = CaptionAgent(mem, vlm=config_for(server), encoder=ColorWords())  # auto-captions first
-    assert len(server.requests) == 12
+    server.default = describe_segment
+    agent = create_method("caption", mem, vlm=config_for(server), encoder=ColorWords(), segment_frames=3)
+    assert isinstance(agent, CaptionAgent) and len(server.requests) == 4  # captioned on first use
     server.requests.clear()
     server.default = None
     server.push(
-        tool("search_text", query="a red wall"), answer(question_type="position", evidence=[recs[8].id])
+        tool("search_text", query="a red wall"), answer(question_type="position", evidence=[recs[7].id])
     )
     ans = agent.ask("Where is the red wall?", image=np.zeros((8, 8, 3), np.uint8))
-    assert not ans.failed and ans.method == "caption" and ans.position == pytest.approx([8.0, 3.0, 0.5])
+    assert not ans.failed and ans.method == "caption" and ans.position == pytest.approx([7.0, 3.0, 0.5])
+    assert (ans.model, ans.embedder) == ("scripted-vlm", "test-color-words")
     assert server.images(0) == server.images(1) == 0  # text only, even with a query image
-    assert "search_image" not in server.tool_names(0)
+    assert server.tool_names(0) == ["search_text", "search_time", "search_position"]  # ReMEmbR's three
     text = next(m["content"] for m in server.requests[1]["messages"] if m["role"] == "tool")
-    assert 'caption: "A plain wall painted red."' in text and "image attached" not in text
+    assert 'caption: "Walls painted blue, magenta, red."' in text and "image attached" not in text
+    assert 'caption: "Walls painted green, red, yellow."' in text
     assert "text captions of camera images" in server.requests[0]["messages"][0]["content"]
 
 
@@ -153,3 +211,6 @@ def test_create_method_passes_only_relevant_options(mem, server):
         m = create_method(name, mem, **opts)
         assert m.name == name
     assert create_method("raven", mem, **opts).top_k == 2
+    ans = create_method("embedder-only", mem).ask("Where is the magenta box?")
+    assert (ans.embedder, ans.model) == ("test-color", None)
+    assert create_method("offline", mem).ask("Where is the magenta box?").embedder == "test-color"

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
 
+from ravenmem.agent import client as client_module
 from ravenmem.agent.client import ToolsRejectedError, VLMClient, VLMError, image_data_url, redact_images
 from ravenmem.agent.config import VLMConfig
 from ravenmem.errors import InputError
@@ -103,7 +105,7 @@ def test_unreachable_endpoint_fails_after_retries():
 
 
 def test_no_model_configured_is_an_error():
-    with pytest.raises(VLMError, match="no VLM model configured"):
+    with pytest.raises(InputError, match="no VLM model configured: pass --model"):
         VLMClient(VLMConfig())
 
 
@@ -120,6 +122,9 @@ def test_images_are_data_urls_and_redacted_in_traces(tmp_path):
         image_data_url(p)
         == "data:image/jpeg;base64," + __import__("base64").b64encode(p.read_bytes()).decode()
     )
+    (tmp_path / "notes.jpg").write_text("not a picture")
+    with pytest.raises(InputError, match="not an image"):
+        image_data_url(tmp_path / "notes.jpg")
     msgs = [{"role": "user", "content": [{"type": "image_url", "image_url": {"url": url}}]}]
     red = redact_images(msgs)
     text = json.dumps(red)
@@ -136,8 +141,12 @@ def test_config_precedence_flags_env_file(tmp_path):
     env = {"RAVENMEM_VLM_MODEL": "env-model", "OPENAI_API_KEY": "sk-env"}
     cfg = VLMConfig.resolve(config_path=f, env=env, timeout=None, base_url="http://flag/v1")
     assert (cfg.base_url, cfg.model, cfg.api_key, cfg.timeout, cfg.tool_mode) == (
-        "http://flag/v1", "env-model", "sk-env", 7.0, "json"
-    )  # fmt: skip
+        "http://flag/v1",
+        "env-model",
+        "sk-env",
+        7.0,
+        "json",
+    )
     assert cfg.public()["api_key"] == "***"
     env2 = {"RAVENMEM_CONFIG": str(f), "RAVENMEM_VLM_API_KEY": "rk", "OPENAI_API_KEY": "sk"}
     assert VLMConfig.resolve(env=env2).api_key == "rk"
@@ -171,3 +180,64 @@ def test_bad_config_files_name_the_problem(tmp_path, text, match):
 def test_bad_env_value_is_an_input_error():
     with pytest.raises(InputError, match="max_retries"):
         VLMConfig.resolve(env={"RAVENMEM_VLM_MAX_RETRIES": "many"})
+
+
+# ------------------------------------------------------------------ wall-clock limits
+def wait_for(cond, seconds: float = 5.0) -> bool:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.05)
+    return cond()
+
+
+def test_a_dripping_server_is_cut_off_at_the_request_limit(server):
+    """One byte every 0.5 s never trips a per-read timeout; the total limit per attempt does."""
+    server.default = {"content": "never finishes", "drip": 0.5}
+    c = VLMClient(config_for(server, timeout=1.5, max_retries=1))
+    t0 = time.monotonic()
+    with pytest.raises(VLMError, match=r"failed after 2 attempt\(s\): timed out after 1.5 s"):
+        c.chat(MSG)
+    took = time.monotonic() - t0
+    assert 3.0 <= took < 4.5, took
+    assert len(server.requests) == 2
+    assert wait_for(lambda: server.drips_abandoned == 2)  # both connections were really closed
+    server.default = content("fine again")
+    assert c.chat(MSG).content == "fine again"  # the client recovers after abandoning a request
+
+
+def test_the_callers_deadline_cuts_attempts_and_waits(server):
+    server.default = {"content": "never finishes", "drip": 0.5}
+    c = VLMClient(config_for(server, timeout=30, max_retries=5))
+    t0 = time.monotonic()
+    with pytest.raises(VLMError, match=r"out of time for this question \(last error: timed out after 1.2 s"):
+        c.chat(MSG, deadline=time.monotonic() + 1.2)
+    assert time.monotonic() - t0 < 2.0 and len(server.requests) == 1
+    waits: list[float] = []
+    c = VLMClient(config_for(server, backoff=5.0, backoff_max=5.0, max_retries=3), sleep=waits.append)
+    server.default = error(503, "busy")
+    with pytest.raises(VLMError, match="out of time for this question"):
+        c.chat(MSG, deadline=time.monotonic() + 2.0)
+    assert waits == []  # a 5 s wait past a 2 s deadline is not slept
+
+
+def test_temperature_and_seed_are_sent(server):
+    c = VLMClient(config_for(server, temperature=0.2, seed=7))
+    server.push(content("a"), content("b"))
+    c.chat(MSG)
+    c.chat(MSG, temperature=0.0, seed=3)
+    assert [(r["temperature"], r["seed"]) for r in server.requests] == [(0.2, 7), (0.0, 3)]
+
+
+def test_an_oversized_reply_is_refused_before_it_is_read(server, monkeypatch):
+    monkeypatch.setattr(client_module, "MAX_REPLY_BYTES", 64)
+    server.default = content("x" * 500)
+    with pytest.raises(VLMError, match="over the 64-byte limit"):
+        VLMClient(config_for(server, max_retries=0)).chat(MSG)
+
+
+@pytest.mark.parametrize("field, value", [("timeout", 0), ("question_timeout", -1), ("temperature", 3.0)])
+def test_bad_limits_are_input_errors(field, value):
+    with pytest.raises(InputError, match=field):
+        VLMConfig(model="m", **{field: value})

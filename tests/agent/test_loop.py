@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+import math
 import re
+import time
 
 import pytest
 
 from ravenmem.agent import Agent, VLMConfig
+from ravenmem.errors import InputError
 from tests.agent.conftest import T0, config_for
 from tests.agent.scripted_server import answer, content, error, json_tool, refuse, tool, tools
 from tests.conftest import solid
@@ -30,8 +33,9 @@ def test_native_loop_offers_tools_attaches_images_and_answers_from_evidence(mem,
     assert not ans.failed and ans.found and ans.method == "raven"
     assert len(server.requests) == 2
     r0, r1 = server.requests
-    assert server.tool_names(0) == ["search_text", "search_time", "search_position"]
+    assert server.tool_names(0) == ["search_text", "search_image", "search_time", "search_position"]
     assert r0["tool_choice"] == "auto" and server.images(0) == 0
+    assert r0["temperature"] == 0.0 and "seed" not in r0  # the config's defaults: no seed set
     assert "Where did I leave the red backpack?" in server.texts(0)
     # the tool result: one tool message answering the call, 5 memories with time, pose and score
     call_id = r1["messages"][2]["tool_calls"][0]["id"]
@@ -42,13 +46,20 @@ def test_native_loop_offers_tools_attaches_images_and_answers_from_evidence(mem,
     assert f"[m{ids[1]}]" in text and f"[m{ids[8]}]" in text and "score 1.000" in text
     assert "pose x=8.00 y=3.00 z=0.50" in text and "+80.0 s" in text
     assert server.images(1) == 5  # one image per new memory
-    # the answer: pose and time of the evidence memory, never invented
-    assert ans.question_type == "position" and ans.position_source == "evidence"
+    # the answer: the model gave no position or heading, so both come from the evidence camera
+    assert ans.question_type == "position" and ans.position_source == ans.yaw_source == "evidence"
     assert ans.position == pytest.approx([8.0, 3.0, 0.5]) and ans.yaw == pytest.approx(0.8)
+    assert any("no position given" in n and f"m{ids[8]}" in n for n in ans.notes)
+    assert any("no heading given" in n and "46 deg" in n for n in ans.notes)
+    assert (ans.model, ans.embedder) == ("scripted-vlm", "test-color")
+    assert ans.model_host == server.base_url.split("/")[2] and ans.preset is None
     assert ans.time == pytest.approx(T0 + 80) and [e.id for e in ans.evidence] == [ids[8]]
     assert ans.evidence[0].score == pytest.approx(1.0, abs=1e-4)
     c = ans.cost
     assert (c.tool_calls, c.memories_shown, c.memories_total, c.images) == (1, 5, 12, 5)
+    assert c.image_bytes == sum(
+        (mem.path / h.memory.image_path).stat().st_size for h in mem.search_text("red", k=5)
+    )
     assert (
         c.alpha == pytest.approx(5 / 12) and c.prompt_tokens > 0 and c.completion_tokens > 0 and c.wall_s > 0
     )
@@ -59,6 +70,7 @@ def test_query_image_offers_the_image_tool(mem, server):
     server.push(tool("search_image"), answer(question_type="position", evidence=[ids[10]]))
     ans = Agent(mem, vlm=config_for(server), top_k=3).ask("Where did I see this?", image=solid("blue"))
     assert "search_image" in server.tool_names(0)
+    assert "search_image without memory_id searches with the image attached" in server.texts(0)
     assert server.images(0) == 1  # the user's image
     text = next(m["content"] for m in server.requests[1]["messages"] if m["role"] == "tool")
     assert [int(i) for i in re.findall(r"^\[m(\d+)\]", text, re.M)] == sorted(
@@ -209,30 +221,44 @@ def test_position_answer_missing_coordinates_uses_best_evidence(mem, server):
     server.push(tool("search_text", query="magenta"), answer(question_type="position", answer="It is there."))
     ans = Agent(mem, vlm=config_for(server)).ask("Where is the magenta box?")
     assert ans.position_source == "evidence" and ans.position == pytest.approx([7.0, 3.0, 0.5])
-    assert [e.id for e in ans.evidence] == [ids[7]] and "no evidence named" in ans.reasoning
+    assert [e.id for e in ans.evidence] == [ids[7]] and any("no evidence named" in n for n in ans.notes)
 
 
-def test_model_coordinates_kept_near_evidence_and_replaced_when_invented(mem, server):
+def test_the_model_chooses_position_and_heading(mem, server):
     ids = ids_by_index(mem)
     server.push(
         tool("search_text", query="red"),
-        answer(
-            question_type="position", evidence=[ids[8]], position=[8.5, 3.2, 0.4], yaw=1.0
-        ),  # yaw is not the model's to set
+        answer(question_type="position", evidence=[ids[8]], position=[8.5, 3.2, 0.4], yaw_deg=90),
     )
     ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
-    assert (
-        ans.position_source == "model" and ans.position == [8.5, 3.2, 0.4] and ans.yaw == pytest.approx(0.8)
+    assert (ans.position, ans.position_source) == ([8.5, 3.2, 0.4], "model")
+    assert ans.yaw == pytest.approx(math.pi / 2) and ans.yaw_source == "model"
+    assert not any("position" in n or "heading" in n for n in ans.notes)
+    fmt = server.requests[0]["messages"][0]["content"]
+    assert '"yaw_deg": null or the heading' in fmt and "in degrees counter-clockwise" in fmt
+    # a heading alone: the position falls back to the evidence camera and says so; 270 deg wraps
+    server.push(
+        tool("search_text", query="red"), answer(question_type="position", evidence=[ids[8]], yaw_deg=270)
     )
+    ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
+    assert ans.yaw == pytest.approx(-math.pi / 2) and ans.yaw_source == "model"
+    assert ans.position_source == "evidence" and ans.position == pytest.approx([8.0, 3.0, 0.5])
+    assert any("no position given" in n for n in ans.notes)
+
+
+def test_a_far_model_position_is_kept_with_a_warning(mem, server):
+    ids = ids_by_index(mem)
     server.push(
         tool("search_text", query="red"),
         answer(question_type="position", evidence=[ids[8], 9999], position=[50.0, -40.0, 0.0]),
     )
     ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
-    assert ans.position_source == "evidence" and ans.position == pytest.approx([8.0, 3.0, 0.5])
-    assert (
-        "replaced" in ans.reasoning and "9999" in ans.reasoning and [e.id for e in ans.evidence] == [ids[8]]
-    )
+    assert ans.position_source == "model" and ans.position == [50.0, -40.0, 0.0]
+    warning = next(n for n in ans.notes if n.startswith("warning:"))
+    assert f"(m{ids[8]})" in warning and "more than 3 m; kept as given" in warning
+    assert "is 60.1 m from the nearest memory shown" in warning  # |(50, -40, 0) - (8, 3, 0.5)|
+    assert any("9999" in n for n in ans.notes) and [e.id for e in ans.evidence] == [ids[8]]
+    assert ans.yaw_source == "evidence" and ans.yaw == pytest.approx(0.8)
 
 
 def test_where_answer_without_any_retrieval_is_reasked(mem, server):
@@ -302,7 +328,7 @@ def test_auto_mode_falls_back_to_json_when_tools_are_rejected(mem, server):
     server.push(json_tool("search_text", query="red"), answer(question_type="position", evidence=[ids[8]]))
     agent = Agent(mem, vlm=config_for(server))
     ans = agent.ask("Where is the red ball?")
-    assert not ans.failed and agent.mode == "json" and "switched to the JSON" in ans.reasoning
+    assert not ans.failed and agent.mode == "json" and any("switched to the JSON" in n for n in ans.notes)
     assert "tools" in server.requests[0] and all("tools" not in r for r in server.requests[1:])
     n = len(server.requests)
     server.push(json_tool("search_text", query="red"), answer(question_type="position", evidence=[ids[8]]))
@@ -337,20 +363,16 @@ def test_trace_is_saved_without_image_bytes(mem, server, tmp_path):
     assert len(list(d.glob("trace_*.json"))) == 1
 
 
-def test_no_vlm_configured_falls_back_to_offline(mem, monkeypatch, tmp_path):
+def test_no_vlm_configured_is_a_clear_error(mem, monkeypatch, tmp_path):
     for var in ("RAVENMEM_VLM_MODEL", "RAVENMEM_VLM_BASE_URL", "RAVENMEM_CONFIG"):
         monkeypatch.delenv(var, raising=False)
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path))
-    agent = Agent(mem)
-    assert agent.client is None and "no VLM configured" in agent.note
-    ans = agent.ask("Where is the red ball?")
-    assert ans.method == "offline" and ans.reasoning.startswith("no VLM configured")
-    assert Agent(mem, vlm=VLMConfig()).client is None
+    for vlm in (None, VLMConfig()):
+        with pytest.raises(InputError, match="method 'raven' needs a VLM: .*--model.*RAVENMEM_VLM_MODEL"):
+            Agent(mem, vlm=vlm)
 
 
 def test_bad_arguments(mem, server):
-    from ravenmem.errors import InputError
-
     with pytest.raises(InputError):
         Agent(mem, vlm=config_for(server), top_k=0)
     with pytest.raises(InputError, match="empty question"):
@@ -380,3 +402,80 @@ def test_top_k_per_tool(mem, server):
     assert [len(re.findall(r"^\[m\d+\]", t, re.M)) for t in tool_texts] == [9, 2]
     with pytest.raises(Exception, match="unknown tool 'colour'"):
         Agent(mem, vlm=config_for(server), top_k={"colour": 3})
+
+
+def test_the_image_tool_is_always_offered_and_searches_by_memory_id(mem, server):
+    ids = ids_by_index(mem)
+    server.push(
+        tool("search_image"),  # no image attached and no memory_id: an error the model can fix
+        tool("search_image", memory_id=ids[3]),  # "more views like memory m3" (blue)
+        answer(question_type="position", evidence=[ids[10]]),
+    )
+    ans = Agent(mem, vlm=config_for(server), top_k={"image": 2}).ask("Where else was the blue wall?")
+    assert "search_image" in server.tool_names(0) and server.images(0) == 0
+    spec = next(t["function"] for t in server.requests[0]["tools"] if t["function"]["name"] == "search_image")
+    assert "memory_id" in spec["parameters"]["properties"] and spec["parameters"]["required"] == []
+    assert "up to 2 memories" in spec["description"]
+    tool_msgs = [m["content"] for m in server.requests[2]["messages"] if m["role"] == "tool"]
+    assert tool_msgs[0].startswith("error: search_image could not run") and "memory_id" in tool_msgs[0]
+    listed = [int(i) for i in re.findall(r"^\[m(\d+)\]", tool_msgs[1], re.M)]
+    assert set(listed) == {ids[6], ids[10]} and f"memory_id={ids[3]}" in tool_msgs[1]  # not m3 itself
+    assert not ans.failed and ans.position == pytest.approx([10.0, 4.0, 0.5])
+
+
+def test_scores_can_be_hidden_from_the_model(mem, server):
+    server.push(
+        tool("search_text", query="red"),
+        tool("search_position", x=1.0, y=0.0),
+        answer(question_type="text", answer="done", evidence=[]),
+    )
+    Agent(mem, vlm=config_for(server), show_scores=False, max_tool_calls=2).ask("What was red?")
+    specs = " ".join(t["function"]["description"] for t in server.requests[0]["tools"])
+    assert "score" not in specs and "distance" not in specs
+    assert "Scores are similarities" not in server.texts(0)
+    tool_msgs = [m["content"] for m in server.requests[2]["messages"] if m["role"] == "tool"]
+    assert len(re.findall(r"^\[m\d+\]", "\n".join(tool_msgs), re.M)) == 10
+    assert "score" not in "\n".join(tool_msgs) and "distance" not in "\n".join(tool_msgs)
+    # and shown by default
+    server.push(tool("search_text", query="red"), answer(question_type="text", answer="done", evidence=[]))
+    Agent(mem, vlm=config_for(server)).ask("What was red?")
+    assert "score 1.000" in [m["content"] for m in server.requests[-1]["messages"] if m["role"] == "tool"][0]
+
+
+def test_time_tool_forward_or_centred(mem, server):
+    ids = ids_by_index(mem)
+    for mode, expected in (("forward", (5, 6, 7, 8)), ("centred", (3, 4, 5, 6))):
+        server.push(
+            tool("search_time", time="+50s"), answer(question_type="text", answer="done", evidence=[])
+        )
+        Agent(mem, vlm=config_for(server), top_k=4, time_mode=mode).ask("What did I see around +50 s?")
+        desc = next(
+            t["function"]["description"]
+            for t in server.requests[-2]["tools"]
+            if "time" in t["function"]["name"]
+        )
+        assert ("around a given time" in desc) == (mode == "centred")
+        text = next(m["content"] for m in server.requests[-1]["messages"] if m["role"] == "tool")
+        assert [int(i) for i in re.findall(r"^\[m(\d+)\]", text, re.M)] == [ids[i] for i in expected]
+    with pytest.raises(InputError, match="time_mode"):
+        Agent(mem, vlm=config_for(server), time_mode="backwards")
+
+
+def test_temperature_and_seed_reach_the_request_body(mem, server):
+    server.push(tool("search_text", query="red"), answer(question_type="text", answer="ok", evidence=[]))
+    Agent(mem, vlm=config_for(server, temperature=0.3, seed=11)).ask("What was red?")
+    assert [(r["temperature"], r["seed"]) for r in server.requests] == [(0.3, 11), (0.3, 11)]
+    server.push(tool("search_text", query="red"), answer(question_type="text", answer="ok", evidence=[]))
+    Agent(mem, vlm=config_for(server, temperature=0.3, seed=11), temperature=0.9, seed=5).ask("What was red?")
+    assert [(r["temperature"], r["seed"]) for r in server.requests[2:]] == [(0.9, 5), (0.9, 5)]
+
+
+def test_a_question_has_a_wall_clock_deadline(mem, server):
+    """Each reply arrives just inside the per-request limit, but the question as a whole must stop."""
+    server.default = {**tool("search_text", query="red"), "delay": 0.6}
+    agent = Agent(mem, vlm=config_for(server, timeout=2.0, question_timeout=1.5), max_tool_calls=10)
+    t0 = time.monotonic()
+    ans = agent.ask("Where is the red ball?")
+    took = time.monotonic() - t0
+    assert ans.failed and took < 2.6, took
+    assert "out of time" in (ans.error or "") and ans.cost.tool_calls >= 1

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from pydantic import ValidationError
 
-from ravenmem.agent.parse import ModelAnswer, build_answer, extract_json
+from ravenmem.agent.parse import MAX_DECODE_ATTEMPTS, MAX_REPLY_CHARS, ModelAnswer, build_answer, extract_json
 from ravenmem.agent.tools import WorkingMemory
 from ravenmem.types import Hit
 from tests.agent.conftest import T0
@@ -31,9 +33,16 @@ def test_extract_json(text, expected):
 
 def test_model_answer_is_lenient_about_spelling():
     ma = ModelAnswer.model_validate(
-        {"question_type": "Location", "text": "there", "memory_ids": ["m3", "[m4]", 5, {"id": 6}], "yes": "no",
-         "duration": "1m30s", "position": {"x": 1, "y": 2}, "extra": "ignored"}
-    )  # fmt: skip
+        {
+            "question_type": "Location",
+            "text": "there",
+            "memory_ids": ["m3", "[m4]", 5, {"id": 6}],
+            "yes": "no",
+            "duration": "1m30s",
+            "position": {"x": 1, "y": 2},
+            "extra": "ignored",
+        }
+    )
     assert ma.question_type == "position" and ma.answer == "there" and ma.evidence == [3, 4, 5, 6]
     assert ma.yes is False and ma.duration_s == 90.0 and ma.position == [1.0, 2.0, 0.0]
 
@@ -47,6 +56,9 @@ def test_model_answer_is_lenient_about_spelling():
         {"position": "kitchen"},
         {"duration_s": "a while"},
         {"found": "maybe"},
+        {"position": [1.0, float("nan"), 0.0]},
+        {"yaw_deg": float("inf")},
+        {"yaw_deg": "north"},
     ],
 )
 def test_model_answer_rejects_wrong_types(bad):
@@ -67,13 +79,48 @@ def test_build_answer_rules(mem):
         ModelAnswer(evidence=[recs[1].id], position=[1.2, 0.1], time="+15s"), "Where?", wm, mem, "raven"
     )
     assert a.position == [1.2, 0.1, 0.5] and a.position_source == "model" and a.time == T0 + 15
+    assert any(n.startswith("no height given: used z of evidence memory") for n in a.notes)
     # not found: nothing is filled in
     a = build_answer(
         ModelAnswer(question_type="position", found=False), "Where is the cat?", wm, mem, "raven"
     )
     assert a.position is None and a.time is None and not a.evidence and a.position_source == "none"
+    assert a.yaw is None and a.yaw_source == "none"
     # an unreadable time falls back to the evidence time and says so
     a = build_answer(ModelAnswer(evidence=[recs[3].id], time="teatime"), "When?", wm, mem, "raven")
-    assert a.time == T0 + 30 and "could not read the model's time" in a.reasoning
+    assert a.time == T0 + 30 and any("could not read the model's time" in n for n in a.notes)
+    assert any("the model's time was unreadable: used the time of evidence memory" in n for n in a.notes)
     # question type from the wording when the model gives none
     assert build_answer(ModelAnswer(), "How long was I there?", wm, mem, "raven").question_type == "duration"
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "[" * 100_000,  # nesting deeper than the decoder's recursion limit
+        "{" * 1_000_000,  # one failing decode per brace used to cost O(n) each: quadratic
+        "[" * 1_000_000,
+        ("{" + "x" * 999) * 150,  # brace after brace, far apart, inside the size limit
+        "```json\n" + "{" * 150_000 + "\n```",
+        "``` " * 60_000,
+    ],
+)
+def test_extract_json_is_bounded_in_time(text):
+    t0 = time.perf_counter()
+    assert extract_json(text) is None
+    assert time.perf_counter() - t0 < 1.0
+
+
+def test_extract_json_bounds_size_and_still_finds_late_objects():
+    assert extract_json("x" * MAX_REPLY_CHARS + ' {"a": 1}') is None  # too long: a malformed reply
+    assert (
+        extract_json("{ not json " * (MAX_DECODE_ATTEMPTS + 1) + '{"a": 1}') is None
+    )  # past the decode budget
+    assert extract_json("{ not json " * 5 + '{"a": 1}') == {"a": 1}
+    assert extract_json('[1, 2] then {"b": 2}') == {"b": 2}
+
+
+def test_model_answer_heading_spellings():
+    assert ModelAnswer.model_validate({"yaw_deg": 45}).yaw_deg == 45.0
+    assert ModelAnswer.model_validate({"heading": -30}).yaw_deg == -30.0
+    assert ModelAnswer.model_validate({}).yaw_deg is None

@@ -3,6 +3,7 @@
 from ravenmem.agent import Agent, VLMConfig, create_method
 agent = Agent(mem, vlm=VLMConfig(base_url="http://localhost:8000/v1", model="Qwen/Qwen2.5-VL-7B-Instruct"))
 answer = agent.ask("Where did I leave the red backpack?")
+navqa = create_method("raven", mem, preset="navqa", vlm=...)   # the paper's per-benchmark settings
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from .config import VLMConfig
 from .loop import Agent
 from .methods import create_method
 from .offline import OfflineReasoner, OfflineSettings
+from .presets import PRESETS, Preset, get_preset, parse_top_k
 from .schema import Answer, Cost, Evidence, QuestionType
 
 __all__ = [
@@ -30,6 +32,8 @@ __all__ = [
     "Method",
     "OfflineReasoner",
     "OfflineSettings",
+    "PRESETS",
+    "Preset",
     "QuestionType",
     "RandomBaseline",
     "VLMClient",
@@ -38,4 +42,6 @@ __all__ = [
     "VLMOnly",
     "caption_memories",
     "create_method",
+    "get_preset",
+    "parse_top_k",
 ]

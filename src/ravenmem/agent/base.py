@@ -13,6 +13,7 @@ from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
+from ..embed.base import Embedder
 from ..registry import Registry
 from ..types import Hit, MemoryRecord
 from .schema import Answer
@@ -23,7 +24,18 @@ Near = tuple[float, float, float]
 
 @runtime_checkable
 class MemoryLike(Protocol):
+    """Everything the methods use of a memory: the four searches, records, images and clock.
+
+    `ravenmem.Memory` offers all of it; `image_file` must return only files inside `path`
+    (the agent checks again before it sends a picture)."""
+
     path: Path
+
+    @property
+    def embedder(self) -> Embedder: ...
+
+    @property
+    def ocr_enabled(self) -> bool: ...
 
     def search_text(
         self,
@@ -33,6 +45,16 @@ class MemoryLike(Protocol):
         before: TimeLike = None,
         near: Near | None = None,
     ) -> list[Hit]: ...
+
+    def search_texts(
+        self,
+        queries: Sequence[str],
+        k: int = 5,
+        after: TimeLike = None,
+        before: TimeLike = None,
+        near: Near | None = None,
+        ocr: bool = True,
+    ) -> list[list[Hit]]: ...
 
     def search_image(
         self,
@@ -66,6 +88,10 @@ class MemoryLike(Protocol):
     ) -> list[Hit]: ...
 
     def get(self, ids: Sequence[int]) -> list[MemoryRecord]: ...
+
+    def all_records(self) -> list[MemoryRecord]: ...
+
+    def image_file(self, rec: MemoryRecord) -> Path | None: ...
 
     def load_image(self, rec: MemoryRecord) -> np.ndarray | None: ...
 
@@ -107,42 +133,3 @@ def vlm_method(factory: F) -> F:
 def needs_vlm(name: str) -> bool:
     """Whether the method registered as `name` needs a VLM (imports only its registering module)."""
     return bool(getattr(METHODS.get(name), "needs_vlm", False))
-
-
-def image_file(mem: Any, rec: MemoryRecord) -> Path | None:
-    """The memory's image file when the memory can say where it is (sent byte for byte)."""
-    fn = getattr(mem, "image_file", None)
-    if fn is not None:
-        p = fn(rec)
-        return Path(p) if p is not None else None
-    if rec.image_path:
-        p = Path(rec.image_path)
-        p = p if p.is_absolute() else Path(mem.path) / p
-        return p if p.exists() else None
-    return None
-
-
-def record_image_url(mem: Any, rec: MemoryRecord, max_side: int = 0) -> str | None:
-    """A memory's image as a data URL (its JPEG file as is when possible), None if it has none."""
-    from .client import image_data_url
-
-    p = image_file(mem, rec)
-    if p is not None:
-        try:
-            return image_data_url(p, max_side)
-        except OSError:
-            pass
-    arr = mem.load_image(rec)
-    return image_data_url(arr, max_side) if arr is not None else None
-
-
-def all_records(mem: Any) -> list[MemoryRecord]:
-    """Every memory, chronological: `all_records()` when offered, else the time tool from the start."""
-    fn = getattr(mem, "all_records", None)
-    if fn is not None:
-        return list(fn())
-    n = mem.count()
-    if n == 0:
-        return []
-    t0, _ = mem.time_span()
-    return [h.memory for h in mem.search_time(t0, k=n)]

@@ -2,8 +2,9 @@
 
 - `embedder-only`: the raw question through the text tool, top-1 memory's pose and time.
 - `random`: a uniformly random memory (seeded): the floor every method must beat.
-- `vlm-only`: N frames sampled uniformly over the WHOLE history in one prompt, no tools, so
-  the model's context, not retrieval, decides what it sees.
+- `vlm-only`: the WHOLE history in one prompt, no tools: every memory when they fit, else
+  `frames` (the most images the model's context takes) sampled uniformly in time, so its alpha
+  is frames / memories and the model's context, not retrieval, decides what it sees.
 """
 
 from __future__ import annotations
@@ -17,14 +18,16 @@ import numpy as np
 from ..errors import InputError
 from ..timeparse import fmt_time
 from ..types import Hit, MemoryRecord
-from .base import MemoryLike, all_records, record_image_url
+from .base import MemoryLike
 from .client import VLMClient
 from .config import VLMConfig
 from .loop import Agent, _Run
 from .parse import evidence_of
 from .questions import classify_question
 from .schema import Answer, Cost
-from .tools import Shown, describe
+from .tools import Shown, describe, record_image
+
+DEFAULT_FRAMES = 32
 
 
 def _record_answer(
@@ -35,20 +38,30 @@ def _record_answer(
     retrieved: int,
     total: int,
     t_start: float,
+    embedder: str | None = None,
 ) -> Answer:
     qtype = classify_question(question)
     p = rec.pose
     ans = Answer(
-        question=question, method=method, question_type=qtype,
+        question=question,
+        method=method,
+        embedder=embedder,
+        question_type=qtype,
         text=f"Memory m{rec.id}: seen at x={p.x:.2f}, y={p.y:.2f}, z={p.z:.2f} at {fmt_time(rec.t)}.",
-        position=[p.x, p.y, p.z], yaw=p.yaw, position_source="evidence", time=rec.t,
+        position=[p.x, p.y, p.z],
+        yaw=p.yaw,
+        position_source="evidence",
+        yaw_source="evidence",
+        time=rec.t,
         yes=True if qtype == "binary" else None,
         evidence=[evidence_of(Shown(rec, score, None, method))],
-    )  # fmt: skip
+    )
     ans.cost = Cost(
-        memories_shown=retrieved, memories_total=total, alpha=retrieved / max(1, total),
+        memories_shown=retrieved,
+        memories_total=total,
+        alpha=retrieved / max(1, total),
         wall_s=round(time.perf_counter() - t_start, 4),
-    )  # fmt: skip
+    )
     return ans
 
 
@@ -70,10 +83,23 @@ class EmbedderOnly:
             else self.memory.search_text(question, k=1)
         )
         if not hits:
-            return Answer(question=question, method=self.name, question_type=classify_question(question), found=False,
-                          text="The memory returned nothing.")  # fmt: skip
+            return Answer(
+                question=question,
+                method=self.name,
+                question_type=classify_question(question),
+                found=False,
+                text="The memory returned nothing.",
+                embedder=self.memory.embedder.name,
+            )
         return _record_answer(
-            question, self.name, hits[0].memory, hits[0].score, 1, self.memory.count(), t_start
+            question,
+            self.name,
+            hits[0].memory,
+            hits[0].score,
+            1,
+            self.memory.count(),
+            t_start,
+            self.memory.embedder.name,
         )
 
 
@@ -92,7 +118,7 @@ class RandomBaseline:
             raise InputError("empty question")
         t_start = time.perf_counter()
         if self._records is None:
-            self._records = all_records(self.memory)
+            self._records = self.memory.all_records()
         if not self._records:
             raise InputError("the memory is empty")
         rec = self.rng.choice(self._records)
@@ -106,27 +132,28 @@ class RandomBaseline:
 
 
 class VLMOnly(Agent):
-    """The whole history, subsampled to `frames` images, in one prompt; no tools."""
+    """The whole history in one prompt, no tools: every memory, or `frames` of them evenly
+    spaced in time when there are more (set `frames` to what the model's context holds)."""
 
     name = "vlm-only"
     use_tools = False
 
     def __init__(
-        self, memory: MemoryLike, vlm: VLMConfig | VLMClient | None = None, frames: int = 16, **kw: Any
+        self,
+        memory: MemoryLike,
+        vlm: VLMConfig | VLMClient | None = None,
+        frames: int = DEFAULT_FRAMES,
+        **kw: Any,
     ) -> None:
         kw.pop("max_tool_calls", None)
         super().__init__(memory, vlm=vlm, max_tool_calls=0, **kw)
         if frames < 1:
             raise InputError(f"frames must be >= 1, got {frames}")
         self.frames = frames
-        if self.client is None:
-            raise InputError(
-                "the vlm-only baseline needs a VLM: set RAVENMEM_VLM_MODEL / RAVENMEM_VLM_BASE_URL"
-            )
 
     def sample(self) -> list[MemoryRecord]:
-        """`frames` memories evenly spaced in time order over the whole history (all if fewer)."""
-        recs = all_records(self.memory)
+        """All memories when at most `frames`, else `frames` evenly spaced in time order."""
+        recs = self.memory.all_records()
         if len(recs) <= self.frames:
             return recs
         idx = np.linspace(0, len(recs) - 1, self.frames).round().astype(int)
@@ -134,19 +161,26 @@ class VLMOnly(Agent):
 
     def _extra_opening(self, run: _Run) -> list[dict[str, Any]]:
         recs = self.sample()
+        total = self.memory.count()
         t0 = self.memory.time_span()[0]
+        what = "every memory" if len(recs) == total else f"{len(recs)} memories sampled uniformly"
         parts: list[dict[str, Any]] = [
-            {
-                "type": "text",
-                "text": f"{len(recs)} memories sampled uniformly over the whole recording, in time order:",
-            }
+            {"type": "text", "text": f"{what} over the whole recording ({total} in all), in time order:"}
         ]
         for rec in recs:
             run.wm.add(Hit(memory=rec), "history")
-            parts.append({"type": "text", "text": describe(rec, t0)})
-            url = record_image_url(self.memory, rec)
-            if url is not None:
-                parts.append({"type": "image_url", "image_url": {"url": url}})
+            parts.append({"type": "text", "text": describe(rec, t0, scores=self.show_scores)})
+            img = record_image(self.memory, rec, self.image_max_side)
+            if img is not None:
+                parts.append({"type": "image_url", "image_url": {"url": img.url}})
                 run.images += 1
+                run.image_bytes += img.nbytes
         run.shown_ids.update(run.wm.items)
+        run.notes.append(
+            f"vlm-only: shown {len(recs)} of {total} memories (at most {self.frames} frames; "
+            f"alpha {len(recs) / max(1, total):.3f})"
+        )
         return parts
+
+    def _embedder_name(self) -> str | None:
+        return None  # no retrieval: the model sees the history directly

@@ -1,13 +1,18 @@
-"""The caption baseline (ReMEmbR-style): a VLM captions every memory once, the captions are
-embedded with a sentence model, and the same agent loop answers over text only.
+"""The caption baseline, as ReMEmbR builds it: a VLM captions short segments of consecutive
+keyframes, the captions are embedded with a sentence model, and the same agent loop answers
+over text only (its text tool searches the captions; time and position tools list memories
+with their segment's caption; no image reaches the answering model).
 
-Captions live beside the memory in `captions.sqlite` (id, time, position, caption, model,
-embedding), one transaction per batch, so an interrupted captioning run keeps what it wrote and a
-re-run only captions what is missing.
+Captions live beside the memory in `captions.sqlite`: one row per segment (its memories, the
+memory that stands for it, its caption, the captioning model, the text embedding), one
+transaction per batch, so an interrupted run keeps what it wrote and a re-run only captions
+segments that are new or grew. The segment length is stored with the captions; opening them
+with another length is an error rather than a silent mix.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import sqlite3
 import threading
@@ -19,19 +24,25 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..types import Hit
-from .base import MemoryLike, TimeLike, all_records, record_image_url
+from ..types import Hit, MemoryRecord
+from .base import MemoryLike, TimeLike
 from .client import VLMClient
 from .config import VLMConfig
+from .images import data_url, record_jpeg
 from .loop import Agent
 from .tools import ToolRunner
 
 CAPTION_FILE = "captions.sqlite"
+SEGMENT_FRAMES = 3  # consecutive keyframes per caption (ReMEmbR captions a few seconds of video)
 CAPTION_PROMPT = (
-    "Describe this image from a robot's camera in one or two sentences: the main objects and their "
-    "colours, the kind of place, and any readable text. Reply with the description only."
+    "These are {n} consecutive views from a robot's camera, in time order. Describe them in one to "
+    "three sentences: the main objects and their colours, the kind of place, and any readable "
+    "text. Reply with the description only."
 )
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
+Row = tuple[
+    int, list[int], int, float, float, float, str, str
+]  # first id, members, rep, t, x, y, caption, model
 
 
 class MiniLMEncoder:
@@ -54,86 +65,125 @@ class MiniLMEncoder:
         return np.asarray(out, dtype=np.float32)
 
 
-class CaptionIndex:
-    """Captions of one memory and their text embeddings; cosine search with the tools' filters."""
+def segments(mem: MemoryLike, n: int) -> list[list[MemoryRecord]]:
+    """The memory's keyframes in time order, cut into runs of `n` (the last may be shorter)."""
+    recs = mem.all_records()
+    return [recs[i : i + n] for i in range(0, len(recs), n)]
 
-    def __init__(self, mem: MemoryLike, encoder: TextEncoder | None = None) -> None:
+
+class CaptionIndex:
+    """Segment captions of one memory and their text embeddings; cosine search with the tools' filters."""
+
+    def __init__(
+        self, mem: MemoryLike, encoder: TextEncoder | None = None, segment_frames: int = SEGMENT_FRAMES
+    ) -> None:
+        if segment_frames < 1:
+            raise InputError(f"segment_frames must be >= 1, got {segment_frames}")
         self.mem = mem
         self.encoder: TextEncoder = encoder or MiniLMEncoder()
         self.encoder_name = str(getattr(self.encoder, "name", type(self.encoder).__name__))
+        self.segment_frames = segment_frames
         self.path = Path(mem.path) / CAPTION_FILE
         self._db = sqlite3.connect(self.path, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute(
-            "CREATE TABLE IF NOT EXISTS captions (id INTEGER PRIMARY KEY, t REAL, x REAL, y REAL, "
-            "caption TEXT NOT NULL, model TEXT, embedding BLOB NOT NULL, created REAL)"
+            "CREATE TABLE IF NOT EXISTS segments (id INTEGER PRIMARY KEY, members TEXT NOT NULL, "
+            "rep INTEGER NOT NULL, t REAL, x REAL, y REAL, caption TEXT NOT NULL, model TEXT, "
+            "embedding BLOB NOT NULL, created REAL)"
         )
         self._db.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
         self._db.commit()
-        row = self._db.execute("SELECT value FROM meta WHERE key='encoder'").fetchone()
-        if row and row[0] != self.encoder_name:
+        meta = dict(self._db.execute("SELECT key, value FROM meta").fetchall())
+        if meta.get("encoder") not in (None, self.encoder_name):
             raise InputError(
-                f"{self.path}: captions were embedded with {row[0]!r}, not {self.encoder_name!r}"
+                f"{self.path}: captions were embedded with {meta['encoder']!r}, not {self.encoder_name!r}"
+            )
+        if meta.get("segment_frames") not in (None, str(segment_frames)):
+            raise InputError(
+                f"{self.path}: captions were made for segments of {meta['segment_frames']} keyframes, "
+                f"not {segment_frames}; pass segment_frames={meta['segment_frames']}"
             )
         self._matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._by_member: dict[int, str] | None = None
 
     def __len__(self) -> int:
-        return int(self._db.execute("SELECT COUNT(*) FROM captions").fetchone()[0])
+        return int(self._db.execute("SELECT COUNT(*) FROM segments").fetchone()[0])
 
-    def captioned_ids(self) -> set[int]:
-        return {int(r[0]) for r in self._db.execute("SELECT id FROM captions")}
+    def todo(self) -> list[list[MemoryRecord]]:
+        """Segments with no caption yet, or whose memories changed since they were captioned."""
+        stored = {int(i): json.loads(m) for i, m in self._db.execute("SELECT id, members FROM segments")}
+        return [
+            seg
+            for seg in segments(self.mem, self.segment_frames)
+            if stored.get(seg[0].id) != [r.id for r in seg]
+        ]
 
     def caption(self, mid: int) -> str | None:
-        row = self._db.execute("SELECT caption FROM captions WHERE id=?", (mid,)).fetchone()
-        return str(row[0]) if row else None
+        """The caption of the segment that holds memory `mid`."""
+        if self._by_member is None:
+            self._by_member = {
+                int(m): str(c)
+                for members, c in self._db.execute("SELECT members, caption FROM segments")
+                for m in json.loads(members)
+            }
+        return self._by_member.get(mid)
 
-    def add(self, rows: list[tuple[int, float, float, float, str, str]]) -> None:
-        """Embed and store (id, t, x, y, caption, model) rows in one transaction."""
+    def add(self, rows: list[Row]) -> None:
+        """Embed and store segment rows in one transaction."""
         if not rows:
             return
-        emb = np.asarray(self.encoder([r[4] for r in rows]), dtype=np.float32)
+        emb = np.asarray(self.encoder([r[6] for r in rows]), dtype=np.float32)
         with self._db:
             self._db.execute("INSERT OR REPLACE INTO meta VALUES ('encoder', ?)", (self.encoder_name,))
+            self._db.execute(
+                "INSERT OR REPLACE INTO meta VALUES ('segment_frames', ?)", (str(self.segment_frames),)
+            )
             self._db.executemany(
-                "INSERT OR REPLACE INTO captions VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                [(*r, e.tobytes(), time.time()) for r, e in zip(rows, emb)],
+                "INSERT OR REPLACE INTO segments VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [(r[0], json.dumps(r[1]), *r[2:], e.tobytes(), time.time()) for r, e in zip(rows, emb)],
             )
         self._matrix = None
+        self._by_member = None
 
     def _load(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if self._matrix is None:
-            rows = self._db.execute("SELECT id, t, x, y, embedding FROM captions ORDER BY id").fetchall()
-            ids = np.array([r[0] for r in rows], dtype=np.int64)
+            rows = self._db.execute("SELECT rep, t, x, y, embedding FROM segments ORDER BY id").fetchall()
+            reps = np.array([r[0] for r in rows], dtype=np.int64)
             meta = np.array([(r[1], r[2], r[3]) for r in rows], dtype=np.float64).reshape(-1, 3)
             emb = (
                 np.stack([np.frombuffer(r[4], dtype=np.float32) for r in rows])
                 if rows
                 else np.zeros((0, 1), np.float32)
             )
-            self._matrix = (ids, meta, emb)
+            self._matrix = (reps, meta, emb)
         return self._matrix
 
     def search(
-        self, query: str, k: int = 5, after: TimeLike = None, before: TimeLike = None,
+        self,
+        query: str,
+        k: int = 5,
+        after: TimeLike = None,
+        before: TimeLike = None,
         near: tuple[float, float, float] | None = None,
-    ) -> list[Hit]:  # fmt: skip
-        """Captions most similar to the query (cosine), best first, honouring the filters."""
+    ) -> list[Hit]:
+        """Segments whose caption is most similar to the query (cosine), best first, as hits on the
+        memory that stands for each segment; filters apply to that memory's time and place."""
         if not query or not query.strip():
             raise InputError("empty text query")
-        ids, meta, emb = self._load()
-        if len(ids) == 0:
+        reps, meta, emb = self._load()
+        if len(reps) == 0:
             return []
         q = np.asarray(self.encoder([query]), dtype=np.float32)[0]
         scores = emb @ q
-        keep = np.ones(len(ids), dtype=bool)
+        keep = np.ones(len(reps), dtype=bool)
         if after is not None:
             keep &= meta[:, 0] >= self.mem.parse_time(after)
         if before is not None:
             keep &= meta[:, 0] <= self.mem.parse_time(before)
         if near is not None:
             keep &= (meta[:, 1] - near[0]) ** 2 + (meta[:, 2] - near[1]) ** 2 <= near[2] ** 2
-        order = [i for i in np.argsort(-scores) if keep[i]][:k]
-        recs = self.mem.get([int(ids[i]) for i in order])
+        order = [i for i in np.argsort(-scores, kind="stable") if keep[i]][:k]
+        recs = self.mem.get([int(reps[i]) for i in order])
         return [Hit(memory=r, score=float(scores[i])) for r, i in zip(recs, order)]
 
     def close(self) -> None:
@@ -147,31 +197,34 @@ def caption_memories(
     batch: int = 16,
     prompt: str = CAPTION_PROMPT,
     progress: Callable[[int, int], None] | None = None,
+    segment_frames: int = SEGMENT_FRAMES,
+    image_max_side: int = 0,
 ) -> int:
-    """Caption every memory that has no caption yet; returns how many were captioned now."""
+    """Caption every segment that has no caption yet (one request per segment, its keyframes'
+    images in time order); returns how many segments were captioned now."""
     client = (
         vlm
         if isinstance(vlm, VLMClient)
         else VLMClient(vlm if isinstance(vlm, VLMConfig) else VLMConfig.resolve())
     )
-    index = CaptionIndex(mem, encoder)
+    index = CaptionIndex(mem, encoder, segment_frames)
     try:
-        done = index.captioned_ids()
-        todo = [r for r in all_records(mem) if r.id not in done]
-        rows: list[tuple[int, float, float, float, str, str]] = []
+        todo = index.todo()
+        rows: list[Row] = []
         count = 0
-        for i, rec in enumerate(todo):
-            url = record_image_url(mem, rec)
-            if url is None:
-                continue
-            reply = client.chat([{"role": "user", "content": [
-                {"type": "text", "text": prompt}, {"type": "image_url", "image_url": {"url": url}},
-            ]}])  # fmt: skip
-            client.events.clear()  # one caption per request: no trace to keep
-            text = " ".join((reply.content or "").split())
-            if not text:
-                text = "(no description)"
-            rows.append((rec.id, rec.t, rec.pose.x, rec.pose.y, text, str(client.config.model)))
+        for i, seg in enumerate(todo):
+            jpegs = [j for j in (record_jpeg(mem, r, image_max_side) for r in seg) if j is not None]
+            if jpegs:
+                content: list[dict[str, Any]] = [{"type": "text", "text": prompt.format(n=len(jpegs))}]
+                content += [{"type": "image_url", "image_url": {"url": data_url(j)}} for j in jpegs]
+                reply = client.chat([{"role": "user", "content": content}])
+                client.events.clear()  # one caption per request: no trace to keep
+                text = " ".join((reply.content or "").split())[:2000] or "(no description)"
+                rep = seg[len(seg) // 2]
+                p = rep.pose
+                rows.append(
+                    (seg[0].id, [r.id for r in seg], rep.id, rep.t, p.x, p.y, text, str(client.config.model))
+                )
             if len(rows) >= batch:
                 index.add(rows)
                 count += len(rows)
@@ -185,7 +238,10 @@ def caption_memories(
 
 
 class CaptionAgent(Agent):
-    """The agent loop over captions only: no image is ever sent to the answering model."""
+    """The agent loop over segment captions only: no image is ever sent to the answering model.
+
+    The model gets the text, time and position tools (ReMEmbR's three); the text tool searches
+    the captions. `segment_frames` is the number of consecutive keyframes per caption."""
 
     name = "caption"
     attach_images = False
@@ -197,18 +253,17 @@ class CaptionAgent(Agent):
         encoder: TextEncoder | None = None,
         captioner: VLMConfig | VLMClient | None = None,
         auto_caption: bool = True,
+        segment_frames: int = SEGMENT_FRAMES,
         **kw: Any,
     ) -> None:
         super().__init__(memory, vlm=vlm, **kw)
-        if self.client is None:
-            raise InputError(
-                "the caption baseline needs a VLM: set RAVENMEM_VLM_MODEL / RAVENMEM_VLM_BASE_URL"
+        self.index = CaptionIndex(memory, encoder, segment_frames)
+        if auto_caption and self.index.todo():
+            caption_memories(
+                memory, captioner or self.client, encoder=self.index.encoder, segment_frames=segment_frames
             )
-        self.index = CaptionIndex(memory, encoder)
-        missing = memory.count() - len(self.index)
-        if missing > 0 and auto_caption:
-            caption_memories(memory, captioner or self.client, encoder=self.index.encoder)
-            self.index = CaptionIndex(memory, encoder or self.index.encoder)
+            self.index.close()
+            self.index = CaptionIndex(memory, self.index.encoder, segment_frames)
         if len(self.index) == 0:
             raise InputError(
                 f"{memory.path} has no captions: run `ravenmem caption --memory {memory.path}` first"
@@ -216,6 +271,15 @@ class CaptionAgent(Agent):
 
     def _runner(self, image: np.ndarray | None) -> ToolRunner:
         return ToolRunner(
-            self.memory, self.top_k, query_image=None, text_search=self.index.search,
-            captions=self.index.caption, attach_images=False,
-        )  # fmt: skip
+            self.memory,
+            self.ks,
+            text_search=self.index.search,
+            captions=self.index.caption,
+            attach_images=False,
+            show_scores=self.show_scores,
+            time_mode=self.time_mode,
+            tools=("search_text", "search_time", "search_position"),
+        )
+
+    def _embedder_name(self) -> str | None:
+        return self.index.encoder_name

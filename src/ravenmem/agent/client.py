@@ -3,17 +3,19 @@
 The `openai` package does the HTTP; retries are ours (the SDK's are switched off) so that
 every attempt is counted, traced and tested: 429, 5xx, timeouts and dropped connections are
 retried with exponential backoff up to `max_retries`, then a `VLMError` says what happened.
+Time is bounded in wall clock, not per read: each attempt gets at most `timeout` seconds and
+the caller's deadline (the agent's per-question limit) cuts attempts and waits short.
 A 400/404/422 to a request that carried `tools` raises `ToolsRejectedError`, which the agent
 takes as "this endpoint has no function calling" and switches to the JSON-in-prompt protocol.
 """
 
 from __future__ import annotations
 
-import base64
+import contextlib
 import copy
 import hashlib
-import io
 import json
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -22,8 +24,16 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import RavenmemError
+from ..errors import InputError, RavenmemError
 from .config import VLMConfig
+from .images import data_url, jpeg_of_array, jpeg_of_bytes
+
+MAX_REPLY_BYTES = 16 * 1024 * 1024  # a chat completion is kilobytes; more is not a reply
+NO_MODEL = (
+    "no VLM model configured: pass --model (and --base-url), or set RAVENMEM_VLM_MODEL "
+    "(and RAVENMEM_VLM_BASE_URL), or put them in [vlm] of ~/.config/ravenmem/config.toml; "
+    "use --offline for the model-free reasoner"
+)
 
 
 class VLMError(RavenmemError):
@@ -52,22 +62,19 @@ class ChatReply:
     raw: dict[str, Any] = field(default_factory=dict)
 
 
-def image_data_url(image: np.ndarray | str | Path, max_side: int = 0, quality: int = 85) -> str:
-    """A JPEG data URL. Files that already are JPEGs (our thumbnails) are sent byte for byte."""
+def image_data_url(image: np.ndarray | str | Path, max_side: int = 0) -> str:
+    """A JPEG data URL of an array or an image file (a JPEG that fits is sent byte for byte);
+    a file that does not decode as an image is an `InputError`."""
     if isinstance(image, (str, Path)):
-        p = Path(image)
-        data = p.read_bytes()
-        if p.suffix.lower() in (".jpg", ".jpeg") and max_side <= 0:
-            return "data:image/jpeg;base64," + base64.b64encode(data).decode("ascii")
-        from PIL import Image
-
-        with Image.open(io.BytesIO(data)) as im:
-            image = np.asarray(im.convert("RGB"))
-    from ..imageio import resize_max_side
-
-    buf = io.BytesIO()
-    resize_max_side(np.ascontiguousarray(image), max_side).save(buf, format="JPEG", quality=quality)
-    return "data:image/jpeg;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+        try:
+            data = Path(image).read_bytes()
+        except OSError as e:
+            raise InputError(f"image file {image} cannot be read: {e}") from e
+        jpeg = jpeg_of_bytes(data, max_side)
+        if jpeg is None:
+            raise InputError(f"image file {image} is not an image that can be decoded")
+        return data_url(jpeg)
+    return data_url(jpeg_of_array(image, max_side))
 
 
 def redact_images(messages: Any) -> Any:
@@ -91,25 +98,42 @@ def redact_images(messages: Any) -> Any:
     return out
 
 
+class _Deadline(Exception):
+    """An attempt ran out of wall-clock time (raised in the caller, not the worker)."""
+
+
 class VLMClient:
-    """Sends chat requests; counts requests, retries and tokens; records a redacted trace."""
+    """Sends chat requests; counts requests, retries and tokens; records a redacted trace.
+
+    Every attempt runs on a worker thread that the caller waits on for at most the attempt's
+    budget (`timeout`, cut to what is left before `deadline`); when the budget is spent the
+    connection pool is closed, which aborts the worker's socket, and the attempt counts as
+    timed out. So a reply is bounded in wall-clock time, not just per read.
+    """
 
     def __init__(self, config: VLMConfig, sleep: Callable[[float], None] = time.sleep) -> None:
         if not config.configured:
-            raise VLMError(
-                "no VLM model configured: set RAVENMEM_VLM_MODEL (and RAVENMEM_VLM_BASE_URL) or pass --model"
-            )
+            raise InputError(NO_MODEL)
         import openai
 
         self.config = config
         self._sleep = sleep
         self._openai = openai
-        self._client = openai.OpenAI(
-            base_url=config.base_url, api_key=config.api_key or "EMPTY", timeout=config.timeout, max_retries=0
-        )
+        self._client = self._make_client()
         self.requests = 0
         self.retries = 0
         self.events: list[dict[str, Any]] = []  # redacted request/response pairs, cleared by the caller
+
+    def _make_client(self) -> Any:
+        cfg = self.config
+        http = self._openai.DefaultHttpxClient(event_hooks={"response": [_check_reply_size]})
+        return self._openai.OpenAI(
+            base_url=cfg.base_url,
+            api_key=cfg.api_key or "EMPTY",
+            timeout=cfg.timeout,
+            max_retries=0,
+            http_client=http,
+        )
 
     @property
     def where(self) -> str:
@@ -120,27 +144,46 @@ class VLMClient:
         messages: list[dict[str, Any]],
         tools: list[dict[str, Any]] | None = None,
         tool_choice: str | None = None,
+        *,
+        temperature: float | None = None,
+        seed: int | None = None,
+        deadline: float | None = None,
     ) -> ChatReply:
-        """One completion, retried on transient failures; raises VLMError when they persist."""
+        """One completion, retried on transient failures; raises VLMError when they persist.
+
+        `temperature` and `seed` override the config's for this request; `deadline` is a
+        `time.monotonic()` instant after which no attempt runs and no wait is slept.
+        """
         cfg = self.config
         kwargs: dict[str, Any] = {
             "model": cfg.model,
             "messages": messages,
-            "temperature": cfg.temperature,
+            "temperature": cfg.temperature if temperature is None else temperature,
             "max_tokens": cfg.max_tokens,
         }
+        seed = cfg.seed if seed is None else seed
+        if seed is not None:
+            kwargs["seed"] = seed
         if tools:
             kwargs["tools"] = tools
             kwargs["tool_choice"] = tool_choice or "auto"
         last = ""
         for attempt in range(cfg.max_retries + 1):
+            budget = cfg.timeout
+            if deadline is not None:
+                budget = min(budget, deadline - time.monotonic())
+                if budget <= 0:
+                    raise VLMError(f"{self.where}: out of time for this question{_after(last)}")
             t0 = time.perf_counter()
             event: dict[str, Any] = {"attempt": attempt, "request": redact_images(kwargs)}
             self.events.append(event)
             self.requests += 1
             retry_after: float | None = None
             try:
-                resp = self._client.chat.completions.create(**kwargs)
+                resp = self._attempt(kwargs, budget)
+            except _Deadline:
+                last = f"timed out after {budget:g} s (no complete reply within the time limit)"
+                event["error"] = last
             except self._openai.APIStatusError as e:
                 status = e.status_code
                 last = f"HTTP {status}: {_error_text(e)}"
@@ -151,7 +194,7 @@ class VLMClient:
                     raise VLMError(f"{self.where} refused the request: {last}") from e
                 retry_after = _retry_after(e)
             except self._openai.APITimeoutError:
-                last = f"timed out after {cfg.timeout:g} s"
+                last = f"timed out after {budget:g} s (no complete reply within the time limit)"
                 event["error"] = last
             except self._openai.APIConnectionError as e:
                 last = f"connection failed ({e.__cause__ or e})"
@@ -164,13 +207,42 @@ class VLMClient:
                 return self._reply(resp, event)
             event["elapsed_s"] = round(time.perf_counter() - t0, 3)
             if attempt < cfg.max_retries:
-                self.retries += 1
                 wait = min(cfg.backoff_max, cfg.backoff * (2**attempt))
                 if retry_after is not None:
                     wait = min(cfg.backoff_max, max(wait, retry_after))
+                if deadline is not None and time.monotonic() + wait >= deadline:
+                    raise VLMError(f"{self.where}: out of time for this question{_after(last)}")
+                self.retries += 1
                 event["retry_in_s"] = wait
                 self._sleep(wait)
         raise VLMError(f"{self.where} failed after {cfg.max_retries + 1} attempt(s): {last}")
+
+    def _attempt(self, kwargs: dict[str, Any], budget: float) -> Any:
+        """One HTTP request, given at most `budget` seconds of wall-clock time."""
+        client = self._client
+        box: dict[str, Any] = {}
+        done = threading.Event()
+
+        def work() -> None:
+            try:
+                box["reply"] = client.with_options(timeout=budget).chat.completions.create(**kwargs)
+            except BaseException as e:  # handed to the caller below
+                box["error"] = e
+            finally:
+                done.set()
+
+        threading.Thread(target=work, name="ravenmem-vlm-request", daemon=True).start()
+        if not done.wait(budget):
+            self._client = self._make_client()
+            with contextlib.suppress(Exception):  # closing a half-used pool must not hide the timeout
+                client.close()  # aborts the worker's socket; its late error is ignored
+            raise _Deadline
+        if "error" in box:
+            raise box["error"]
+        return box["reply"]
+
+    def close(self) -> None:
+        self._client.close()
 
     def _reply(self, resp: Any, event: dict[str, Any]) -> ChatReply:
         raw = resp.model_dump(exclude_none=True) if hasattr(resp, "model_dump") else dict(resp)
@@ -194,6 +266,17 @@ class VLMClient:
             completion_tokens=int(getattr(usage, "completion_tokens", 0) or 0),
             raw=raw,
         )
+
+
+def _after(last: str) -> str:
+    return f" (last error: {last})" if last else ""
+
+
+def _check_reply_size(response: Any) -> None:
+    """Refuse a reply that announces a body larger than MAX_REPLY_BYTES before reading it."""
+    size = response.headers.get("content-length")
+    if size is not None and size.isdigit() and int(size) > MAX_REPLY_BYTES:
+        raise VLMError(f"the reply announces {int(size)} bytes, over the {MAX_REPLY_BYTES}-byte limit")
 
 
 def _error_text(e: Any) -> str:

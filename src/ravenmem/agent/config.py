@@ -8,11 +8,13 @@ with the same keys as `VLMConfig`.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Literal
+from urllib.parse import urlsplit
 
 from ..errors import InputError
 
@@ -26,6 +28,7 @@ ENV_KEYS = {
     "timeout": "RAVENMEM_VLM_TIMEOUT",
     "max_retries": "RAVENMEM_VLM_MAX_RETRIES",
     "tool_mode": "RAVENMEM_VLM_TOOL_MODE",
+    "question_timeout": "RAVENMEM_VLM_QUESTION_TIMEOUT",
 }
 
 
@@ -33,30 +36,40 @@ ENV_KEYS = {
 class VLMConfig:
     """Connection and retry settings for one OpenAI-compatible chat endpoint.
 
+    `timeout` is the wall-clock limit of one HTTP attempt, from connecting to the last byte of
+    the reply (not a per-read limit: a server that drips a byte every second is cut off too).
+    `question_timeout` bounds one whole question: every model turn, retry and backoff wait.
     `max_retries` counts retries after the first attempt (on 429, 5xx, timeouts and dropped
-    connections); waits grow as `backoff * 2**attempt`, capped at `backoff_max`, and honour a
-    server's Retry-After when it is shorter than the cap. `tool_mode` picks native function
-    calling, a JSON-in-prompt protocol, or `auto` (native, switching to JSON when the endpoint
-    rejects the `tools` field).
+    connections); waits grow as `backoff * 2**attempt`, capped at `backoff_max`, honour a
+    server's Retry-After when it is shorter than the cap, and never run past the deadline.
+    `tool_mode` picks native function calling, a JSON-in-prompt protocol, or `auto` (native,
+    switching to JSON when the endpoint rejects the `tools` field). `temperature` and `seed`
+    are sent with every request (`seed` only when set; not every server honours it).
     """
 
     base_url: str | None = None
     model: str | None = None
     api_key: str | None = None
     timeout: float = 60.0
+    question_timeout: float = 300.0
     max_retries: int = 3
     backoff: float = 1.0
     backoff_max: float = 20.0
     tool_mode: ToolMode = "auto"
     temperature: float = 0.0
+    seed: int | None = None
     max_tokens: int = 1024
     image_detail: str | None = None  # OpenAI's "low" | "high" | "auto"; None = not sent
 
     def __post_init__(self) -> None:
         if self.tool_mode not in TOOL_MODES:
             raise InputError(f"vlm tool_mode must be one of {', '.join(TOOL_MODES)}, got {self.tool_mode!r}")
-        if self.timeout <= 0:
-            raise InputError(f"vlm timeout must be > 0 seconds, got {self.timeout}")
+        for name in ("timeout", "question_timeout"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value <= 0:
+                raise InputError(f"vlm {name} must be a finite number of seconds > 0, got {value}")
+        if not math.isfinite(self.temperature) or not 0 <= self.temperature <= 2:
+            raise InputError(f"vlm temperature must be from 0 to 2, got {self.temperature}")
         if self.max_retries < 0:
             raise InputError(f"vlm max_retries must be >= 0, got {self.max_retries}")
         if self.backoff < 0 or self.backoff_max < 0:
@@ -66,6 +79,16 @@ class VLMConfig:
     def configured(self) -> bool:
         """A model name is the one thing we cannot guess; without it there is no VLM."""
         return bool(self.model)
+
+    @property
+    def host(self) -> str:
+        """host[:port] of the endpoint, without any user name or password in the URL."""
+        if not self.base_url:
+            return "api.openai.com"
+        u = urlsplit(self.base_url)
+        if not u.hostname:
+            return self.base_url.split("/")[0]
+        return u.hostname + (f":{u.port}" if u.port else "")
 
     def public(self) -> dict[str, Any]:
         """The settings without the key (for traces and reports)."""

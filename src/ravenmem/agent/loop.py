@@ -6,8 +6,9 @@
 
 Budgets bound every path: at most `max_tool_calls` tool runs (after that the model is told to
 answer and tools are offered with tool_choice "none"), at most `max_reasks` corrective
-re-asks, and a hard cap on model turns. Whatever happens, `ask` returns an `Answer`;
-transport failures become an explicit failure answer (`failed=True`, `error`).
+re-asks, a hard cap on model turns, and a wall-clock limit per question (the VLM config's
+`question_timeout`). Whatever happens, `ask` returns an `Answer`; transport failures and
+time-outs become an explicit failure answer (`failed=True`, `error`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import json
 import re
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -27,13 +29,17 @@ from ..errors import InputError
 from ..fsio import atomic_write
 from ..imageio import read_image
 from .base import MemoryLike
-from .client import ChatReply, ToolsRejectedError, VLMClient, VLMError, image_data_url
+from .client import NO_MODEL, ChatReply, ToolsRejectedError, VLMClient, VLMError
 from .config import VLMConfig
-from .parse import ModelAnswer, build_answer, evidence_of, extract_json
+from .images import data_url, jpeg_of_array
+from .parse import MAX_REPLY_CHARS, ModelAnswer, build_answer, evidence_of, extract_json
+from .presets import Preset, get_preset, merge_top_k
 from .prompts import budget_spent, reask, system_prompt
 from .questions import classify_question
 from .schema import Answer, Cost
-from .tools import ToolRunner, WorkingMemory, image_parts, per_tool_k
+from .tools import DEFAULT_K, ToolRunner, WorkingMemory, check_time_mode, image_parts, per_tool_k
+
+DEFAULT_TOOL_CALLS = 3
 
 
 class Step(Enum):
@@ -60,6 +66,8 @@ class _Run:
     reasks: int = 0
     turns: int = 0
     images: int = 0
+    image_bytes: int = 0
+    deadline: float = float("inf")
     prompt_tokens: int = 0
     completion_tokens: int = 0
     calls: list[tuple[str, str, Any]] = field(default_factory=list)
@@ -72,11 +80,16 @@ class _Run:
 
 
 class Agent:
-    """Answers questions about a memory with a VLM that calls the memory tools.
+    """Answers questions about a memory with a VLM that calls the four memory tools.
 
     `vlm` is a `VLMConfig`, a ready `VLMClient`, or None (settings from the environment and the
-    config file). With no VLM configured the agent answers with the offline reasoner and says
-    so in `Answer.reasoning` and `Agent.note`.
+    config file); without a configured model this raises `InputError` (the model-free reasoner
+    is the separate `offline` method). Options left at None come from `preset` (see
+    `ravenmem.agent.presets`), then from the built-in defaults (3 tool calls, k=5 per tool):
+    `top_k` is one k or {tool: k}; `temperature` and `seed` override the VLM config's;
+    `show_scores=False` hides similarity scores and distances from the model; `time_mode`
+    "centred" makes the time tool look around the given time instead of forward from it;
+    `image_max_side` shrinks the pictures sent (0 = as stored; never enlarged).
     """
 
     name = "raven"
@@ -87,44 +100,59 @@ class Agent:
         self,
         memory: MemoryLike,
         vlm: VLMConfig | VLMClient | None = None,
-        top_k: int | dict[str, int] = 5,
-        max_tool_calls: int = 3,
+        top_k: int | Mapping[str, int] | None = None,
+        max_tool_calls: int | None = None,
         trace_path: str | Path | None = None,
         max_reasks: int = 2,
         max_position_offset: float = 3.0,
         image_max_side: int = 0,
+        show_scores: bool = True,
+        time_mode: str = "forward",
+        temperature: float | None = None,
+        seed: int | None = None,
+        preset: str | Preset | None = None,
     ) -> None:
+        p = get_preset(preset)
+        if p is not None:
+            top_k = merge_top_k(p.top_k, top_k)
+        elif top_k is None:
+            top_k = DEFAULT_K
+        if max_tool_calls is None:
+            max_tool_calls = p.max_tool_calls if p else DEFAULT_TOOL_CALLS
+        if temperature is None and p is not None:
+            temperature = p.temperature
+        if seed is None and p is not None:
+            seed = p.seed
         ks = per_tool_k(top_k)  # one k for every tool, or {"time": 200, "text": 30, ...}
         if max_tool_calls < 0 or max_reasks < 0:
             raise InputError(
                 f"need max_tool_calls >= 0, max_reasks >= 0 (got {max_tool_calls}, {max_reasks})"
             )
+        if image_max_side < 0:
+            raise InputError(f"image_max_side must be >= 0 (0 = as stored), got {image_max_side}")
         self.memory = memory
         self.top_k = top_k
+        self.ks = ks
         self.evidence_k = ks["search_text"]
         self.max_tool_calls = max_tool_calls if self.use_tools else 0
         self.max_reasks = max_reasks
         self.max_position_offset = max_position_offset
         self.image_max_side = image_max_side
+        self.show_scores = bool(show_scores)
+        self.time_mode = check_time_mode(time_mode)
+        self.preset = p.name if p else None
         self.trace_path = Path(trace_path) if trace_path else None
         self.last_trace: dict[str, Any] | None = None
-        self.note = ""
-        self.client: VLMClient | None = None
-        self.fallback: Any = None
         if isinstance(vlm, VLMClient):
             self.client = vlm
         else:
             cfg = vlm if isinstance(vlm, VLMConfig) else VLMConfig.resolve()
-            if cfg.configured:
-                self.client = VLMClient(cfg)
-        if self.client is None:
-            from .offline import OfflineReasoner
-
-            self.fallback = OfflineReasoner(memory, top_k=self.evidence_k)
-            self.note = "no VLM configured (set RAVENMEM_VLM_MODEL and RAVENMEM_VLM_BASE_URL): used the offline reasoner"
-            self.mode = "offline"
-        else:
-            self.mode = "json" if self.client.config.tool_mode == "json" else "native"
+            if not cfg.configured:
+                raise InputError(f"method {self.name!r} needs a VLM: {NO_MODEL}")
+            self.client = VLMClient(cfg)
+        self.temperature = self.client.config.temperature if temperature is None else float(temperature)
+        self.seed = self.client.config.seed if seed is None else int(seed)
+        self.mode = "json" if self.client.config.tool_mode == "json" else "native"
 
     # ------------------------------------------------------------------ public
     def ask(self, question: str, image: np.ndarray | str | Path | None = None) -> Answer:
@@ -132,25 +160,28 @@ class Agent:
         if not question or not question.strip():
             raise InputError("empty question")
         img = read_image(image) if isinstance(image, (str, Path)) else image
-        if self.fallback is not None:
-            ans: Answer = self.fallback.ask(question, img)
-            ans.reasoning = f"{self.note}. {ans.reasoning}".strip()
-            return ans
-        assert self.client is not None
         t_start = time.perf_counter()
         first_event = len(self.client.events)
         run = _Run(question=question.strip(), image=img, runner=self._runner(img), mode=self.mode)
+        run.deadline = time.monotonic() + self.client.config.question_timeout
         self._open(run)
         try:
             self._loop(run)
         except VLMError as e:
             run.error = str(e)
         answer = run.answer if run.answer is not None else self._failure(run)
+        answer.notes = run.notes + answer.notes
+        answer.model = self.client.config.model
+        answer.model_host = self.client.config.host
+        answer.embedder = self._embedder_name()
+        answer.preset = self.preset
+        total = self.memory.count()
         answer.cost = Cost(
             memories_shown=len(run.shown_ids),
-            memories_total=self.memory.count(),
-            alpha=len(run.shown_ids) / max(1, self.memory.count()),
+            memories_total=total,
+            alpha=len(run.shown_ids) / max(1, total),
             images=run.images,
+            image_bytes=run.image_bytes,
             prompt_tokens=run.prompt_tokens,
             completion_tokens=run.completion_tokens,
             tool_calls=run.tool_calls,
@@ -162,30 +193,44 @@ class Agent:
 
     # ------------------------------------------------------------------ hooks
     def _runner(self, image: np.ndarray | None) -> ToolRunner:
-        return ToolRunner(self.memory, self.top_k, query_image=image, image_max_side=self.image_max_side)
+        return ToolRunner(
+            self.memory,
+            self.ks,
+            query_image=image,
+            image_max_side=self.image_max_side,
+            show_scores=self.show_scores,
+            time_mode=self.time_mode,
+        )
 
     def _extra_opening(self, run: _Run) -> list[dict[str, Any]]:
         """Content parts added after the question (the vlm-only baseline puts its frames here)."""
         return []
 
+    def _embedder_name(self) -> str | None:
+        """The embedder this method retrieves with (recorded in every answer)."""
+        return self.memory.embedder.name
+
     # ------------------------------------------------------------------ the machine
     def _open(self, run: _Run) -> None:
         tools_on = self.max_tool_calls > 0
         listing = run.runner.prompt_listing() if tools_on and run.mode == "json" else None
+        attached = run.image is not None and self.attach_images
         sys_text = system_prompt(
             self.memory.count(),
             self.memory.time_span(),
             listing,
             self.max_tool_calls,
             images=self.attach_images,
+            scores=self.show_scores,
+            query_image=attached and "search_image" in run.runner.names,
         )
         parts: list[dict[str, Any]] = [{"type": "text", "text": f"Question: {run.question}"}]
-        if run.image is not None and self.attach_images:
+        if attached and run.image is not None:
+            jpeg = jpeg_of_array(run.image, self.image_max_side)
             parts.append({"type": "text", "text": "The user attached this image to the question:"})
-            parts.append(
-                {"type": "image_url", "image_url": {"url": image_data_url(run.image, self.image_max_side)}}
-            )
+            parts.append({"type": "image_url", "image_url": {"url": data_url(jpeg)}})
             run.images += 1
+            run.image_bytes += len(jpeg)
         parts += self._extra_opening(run)
         run.messages = [{"role": "system", "content": sys_text}, {"role": "user", "content": parts}]
 
@@ -196,6 +241,10 @@ class Agent:
             if step is Step.CALL_MODEL:
                 if run.turns >= max_turns:
                     run.error = f"no usable answer after {run.turns} model turns"
+                    return
+                if time.monotonic() >= run.deadline:
+                    limit = self.client.config.question_timeout
+                    run.error = f"out of time: no usable answer within {limit:g} s (question_timeout)"
                     return
                 step = self._classify(run, self._call(run))
             elif step is Step.RUN_TOOLS:
@@ -215,11 +264,11 @@ class Agent:
         run.error = "the agent loop hit its step limit"
 
     def _call(self, run: _Run) -> ChatReply:
-        assert self.client is not None
         tools = run.runner.specs() if self.max_tool_calls > 0 and run.mode == "native" else None
         choice = "auto" if run.tool_calls < self.max_tool_calls else "none"
+        opts: dict[str, Any] = {"temperature": self.temperature, "seed": self.seed, "deadline": run.deadline}
         try:
-            reply = self.client.chat(run.messages, tools=tools, tool_choice=choice)
+            reply = self.client.chat(run.messages, tools=tools, tool_choice=choice, **opts)
         except ToolsRejectedError as e:
             if self.client.config.tool_mode != "auto":
                 raise VLMError(f"{e}; set tool_mode to 'json' (--tool-mode json) for this endpoint") from e
@@ -227,7 +276,7 @@ class Agent:
             run.notes.append("endpoint rejected tools: switched to the JSON-in-prompt protocol")
             run.wm, run.tool_calls = WorkingMemory(), 0
             self._open(run)
-            reply = self.client.chat(run.messages)
+            reply = self.client.chat(run.messages, **opts)
         run.turns += 1
         run.prompt_tokens += reply.prompt_tokens
         run.completion_tokens += reply.completion_tokens
@@ -236,16 +285,26 @@ class Agent:
     def _classify(self, run: _Run, reply: ChatReply) -> Step:
         if reply.tool_calls:
             run.calls = [(c.id, c.name, c.arguments) for c in reply.tool_calls]
-            run.messages.append({
-                "role": "assistant",
-                "content": reply.content,
-                "tool_calls": [
-                    {"id": c.id, "type": "function", "function": {"name": c.name, "arguments": c.arguments}}
-                    for c in reply.tool_calls
-                ],
-            })  # fmt: skip
+            run.messages.append(
+                {
+                    "role": "assistant",
+                    "content": reply.content,
+                    "tool_calls": [
+                        {
+                            "id": c.id,
+                            "type": "function",
+                            "function": {"name": c.name, "arguments": c.arguments},
+                        }
+                        for c in reply.tool_calls
+                    ],
+                }
+            )
             return Step.RUN_TOOLS
         content = (reply.content or "").strip()
+        if len(content) > MAX_REPLY_CHARS:
+            run.messages.append({"role": "assistant", "content": content[:2000] + " [... cut]"})
+            run.reason = f"the reply was {len(content)} characters long; the JSON answer must be short"
+            return Step.REASK
         run.messages.append({"role": "assistant", "content": content or (reply.refusal or "")})
         obj = extract_json(content)
         if obj is None:
@@ -290,12 +349,13 @@ class Agent:
                 run.messages.append({"role": "tool", "tool_call_id": cid, "content": text})
         run.shown_ids.update(run.wm.items)
         run.images += len(images)
+        run.image_bytes += sum(im.nbytes for im in images)
         parts: list[dict[str, Any]] = []
         if not native:
             parts.append({"type": "text", "text": "Tool results:\n" + "\n\n".join(texts)})
         if images:
             parts.append({"type": "text", "text": "Images of the memories just retrieved:"})
-            parts += image_parts(images, self.client.config.image_detail if self.client else None)
+            parts += image_parts(images, self.client.config.image_detail)
         if run.tool_calls >= self.max_tool_calls:
             parts.append({"type": "text", "text": budget_spent(self.max_tool_calls)})
         if parts:
@@ -321,28 +381,34 @@ class Agent:
             if self.max_tool_calls > run.tool_calls:
                 run.reason += ": search the memory with the tools first"
             return Step.REASK
-        ans = build_answer(ma, run.question, run.wm, self.memory, self.name, self.max_position_offset)
-        if run.notes:
-            ans.reasoning = (ans.reasoning + " [" + "; ".join(run.notes) + "]").strip()
-        run.answer = ans
+        run.answer = build_answer(ma, run.question, run.wm, self.memory, self.name, self.max_position_offset)
         return Step.DONE
 
     def _failure(self, run: _Run) -> Answer:
         return Answer(
-            question=run.question, method=self.name, question_type=classify_question(run.question),
-            text=f"I could not answer: {run.error}", found=False, failed=True, error=run.error,
-            evidence=[evidence_of(s) for s in run.wm.ranked()[: self.evidence_k]], reasoning="; ".join(run.notes),
-        )  # fmt: skip
+            question=run.question,
+            method=self.name,
+            question_type=classify_question(run.question),
+            text=f"I could not answer: {run.error}",
+            found=False,
+            failed=True,
+            error=run.error,
+            evidence=[evidence_of(s) for s in run.wm.ranked()[: self.evidence_k]],
+        )
 
     def _trace(self, run: _Run, answer: Answer, events: list[dict[str, Any]]) -> None:
-        assert self.client is not None
         trace = {
             "question": run.question,
             "method": self.name,
             "mode": run.mode,
             "vlm": self.client.config.public(),
-            "top_k": self.top_k,
+            "preset": self.preset,
+            "top_k": self.ks,
             "max_tool_calls": self.max_tool_calls,
+            "temperature": self.temperature,
+            "seed": self.seed,
+            "show_scores": self.show_scores,
+            "time_mode": self.time_mode,
             "turns": run.turns,
             "reasks": run.reasks,
             "events": events,

@@ -1,18 +1,25 @@
-"""Methods by name, for the CLI and the evaluation: `create_method("offline", mem)`.
+"""Methods by name, for the CLI, the service and the evaluation: `create_method("raven", mem)`.
 
 Every factory takes the memory plus keyword options and ignores options meant for others
-(so the evaluator can pass one options dict to every method). VLM-backed methods take `vlm`
-(a `VLMConfig`, a `VLMClient` or None for the environment/config file).
+(so the evaluator can pass one options dict to every method). VLM-backed methods (`raven`,
+`vlm-only`, `caption`) take `vlm` (a `VLMConfig`, a `VLMClient` or None for the
+environment/config file) and fail with a one-line `InputError` when no model is configured.
+`preset` fills in the options it sets (budget, k per tool, temperature, seed) that are not
+given explicitly: explicit options win.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from .base import METHODS, MemoryLike, Method, vlm_method
+from ..errors import InputError
+from .base import METHODS, MemoryLike, Method, needs_vlm, vlm_method
+from .client import NO_MODEL
+from .config import VLMConfig
+from .presets import Preset, apply_preset
 from .tools import per_tool_k
 
-_AGENT_OPTS = (
+AGENT_OPTS = (
     "vlm",
     "top_k",
     "max_tool_calls",
@@ -20,11 +27,16 @@ _AGENT_OPTS = (
     "max_reasks",
     "max_position_offset",
     "image_max_side",
+    "show_scores",
+    "time_mode",
+    "temperature",
+    "seed",
+    "preset",
 )
 
 
 def _pick(opts: dict[str, Any], names: tuple[str, ...], per_tool: bool = False) -> dict[str, Any]:
-    """The options a method takes. Only the VLM agent has one k per tool: the others get the
+    """The options a method takes. Only the VLM agents have one k per tool: the others get the
     text tool's k when a {tool: k} mapping is given."""
     out = {k: v for k, v in opts.items() if k in names and v is not None}
     if not per_tool and isinstance(out.get("top_k"), dict):
@@ -37,7 +49,7 @@ def _pick(opts: dict[str, Any], names: tuple[str, ...], per_tool: bool = False) 
 def _raven(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .loop import Agent
 
-    return Agent(memory, **_pick(opts, _AGENT_OPTS, per_tool=True))
+    return Agent(memory, **_pick(opts, AGENT_OPTS, per_tool=True))
 
 
 @METHODS.register("offline")
@@ -66,8 +78,8 @@ def _random(spec: str, memory: MemoryLike, **opts: Any) -> Method:
 def _vlm_only(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .baselines import VLMOnly
 
-    extra = ("frames",) + tuple(o for o in _AGENT_OPTS if o != "max_tool_calls")
-    return VLMOnly(memory, **_pick(opts, extra))
+    names = ("frames",) + tuple(o for o in AGENT_OPTS if o != "max_tool_calls")
+    return VLMOnly(memory, **_pick(opts, names, per_tool=True))
 
 
 @METHODS.register("caption")
@@ -75,9 +87,19 @@ def _vlm_only(spec: str, memory: MemoryLike, **opts: Any) -> Method:
 def _caption(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .captions import CaptionAgent
 
-    return CaptionAgent(memory, **_pick(opts, _AGENT_OPTS + ("encoder", "captioner", "auto_caption")))
+    names = AGENT_OPTS + ("encoder", "captioner", "auto_caption", "segment_frames")
+    return CaptionAgent(memory, **_pick(opts, names, per_tool=True))
 
 
-def create_method(name: str, memory: MemoryLike, **opts: Any) -> Method:
-    """A method by name: raven | offline | embedder-only | vlm-only | caption | random."""
-    return METHODS.create(name, memory=memory, **opts)
+def create_method(name: str, memory: MemoryLike, preset: str | Preset | None = None, **opts: Any) -> Method:
+    """A method by name: raven | offline | embedder-only | vlm-only | caption | random.
+
+    `preset` (raven-qa | navqa | findingdory) supplies the options it sets that `opts` leaves
+    out or passes as None; see `ravenmem.agent.presets`."""
+    return METHODS.create(name, memory=memory, **apply_preset(preset, opts))
+
+
+def require_model(name: str, vlm: VLMConfig) -> None:
+    """A one-line `InputError` naming how to configure a model, before anything else runs."""
+    if not vlm.configured and needs_vlm(name):
+        raise InputError(f"method {name!r} needs a VLM: {NO_MODEL}")

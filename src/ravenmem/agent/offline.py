@@ -59,20 +59,67 @@ AFFORDANCES: dict[str, list[str]] = {
     r"\bplay\b|\bgame\b": ["game controller", "joystick"],
 }
 SYNONYMS: dict[str, str] = {
-    "tv": "television", "couch": "sofa", "fridge": "refrigerator", "bin": "trash can", "mug": "coffee mug",
-    "monitor": "computer monitor", "screen": "computer screen", "keyboard": "computer keyboard",
-    "mouse": "computer mouse", "plant": "potted plant", "laptop": "laptop computer", "phone": "telephone",
-    "cellphone": "cellular telephone", "gamepad": "game controller", "controller": "game controller",
-    "bottle": "water bottle", "people": "person",
-}  # fmt: skip
+    "tv": "television",
+    "couch": "sofa",
+    "fridge": "refrigerator",
+    "bin": "trash can",
+    "mug": "coffee mug",
+    "monitor": "computer monitor",
+    "screen": "computer screen",
+    "keyboard": "computer keyboard",
+    "mouse": "computer mouse",
+    "plant": "potted plant",
+    "laptop": "laptop computer",
+    "phone": "telephone",
+    "cellphone": "cellular telephone",
+    "gamepad": "game controller",
+    "controller": "game controller",
+    "bottle": "water bottle",
+    "people": "person",
+}
 # Things a robot's memory rarely holds all at once; their scores calibrate "not found".
 DECOYS = (
-    "shark", "elephant", "zebra", "giraffe", "jellyfish", "goldfish", "flamingo", "snail", "tiger", "horse",
-    "cow", "spider", "butterfly", "eagle", "penguin", "volcano", "sailboat", "tractor", "airliner",
-    "fire truck", "lighthouse", "bridge", "beach", "mountain", "train", "banana", "pineapple", "pizza",
-    "bathtub", "umbrella", "guitar", "violin", "toilet", "washing machine", "bed", "vase", "wine bottle",
-    "candle", "basketball", "tennis racket",
-)  # fmt: skip
+    "shark",
+    "elephant",
+    "zebra",
+    "giraffe",
+    "jellyfish",
+    "goldfish",
+    "flamingo",
+    "snail",
+    "tiger",
+    "horse",
+    "cow",
+    "spider",
+    "butterfly",
+    "eagle",
+    "penguin",
+    "volcano",
+    "sailboat",
+    "tractor",
+    "airliner",
+    "fire truck",
+    "lighthouse",
+    "bridge",
+    "beach",
+    "mountain",
+    "train",
+    "banana",
+    "pineapple",
+    "pizza",
+    "bathtub",
+    "umbrella",
+    "guitar",
+    "violin",
+    "toilet",
+    "washing machine",
+    "bed",
+    "vase",
+    "wine bottle",
+    "candle",
+    "basketball",
+    "tennis racket",
+)
 _DEICTIC = re.compile(
     r"^(this|that|it|these|those|this thing|this object|this place|here|there)$", re.IGNORECASE
 )
@@ -157,14 +204,9 @@ class OfflineReasoner:
 
     # ------------------------------------------------------------------ scoring
     def _search_many(self, texts: list[str], k: int) -> list[list[tuple[MemoryRecord, float]]]:
-        """(record, cosine) lists per text, all texts embedded in one batch when the memory offers
-        `search_texts` (the real Memory); otherwise one `search_text` call per text. OCR is fused
+        """(record, cosine) lists per text, all texts embedded in one batch. OCR is fused
         separately (`_add_ocr`), so the image channel alone is asked for here."""
-        batched = getattr(self.memory, "search_texts", None)
-        if batched is not None:
-            groups = batched(texts, k=k, ocr=False)
-        else:
-            groups = [self.memory.search_text(t, k=k) for t in texts]
+        groups = self.memory.search_texts(texts, k=k, ocr=False)
         return [[(h.memory, float(h.score or 0.0)) for h in hits] for hits in groups]
 
     def _fuse(self, groups: list[list[str]], k: int, image: np.ndarray | None = None) -> dict[int, Cand]:
@@ -189,7 +231,7 @@ class OfflineReasoner:
         words = [w for w in re.findall(r"[a-z0-9]+", subject.lower()) if w not in STOPWORDS and len(w) >= 2]
         if not words:
             return
-        if getattr(self.memory, "ocr_enabled", False):  # OCR-only matches the vectors missed
+        if self.memory.ocr_enabled:  # OCR-only matches the vectors missed
             for h in self.memory.search_text(" ".join(words), k=min(k, 20)):
                 if h.ocr_match and h.memory.id not in cands:
                     cands[h.memory.id] = Cand(h.memory, float(h.score or 0.0) - OCR_WEIGHT)
@@ -229,7 +271,7 @@ class OfflineReasoner:
         return float(np.quantile(vals, self.s.decoy_quantile))
 
     def _calibration_key(self) -> str:
-        emb = getattr(getattr(self.memory, "embedder", None), "name", "?")
+        emb = self.memory.embedder.name
         t0, t1 = self.memory.time_span()
         parts = [
             emb,
@@ -291,7 +333,9 @@ class OfflineReasoner:
         ranked = sorted(cands.values(), key=lambda c: -c.support)
         best = ranked[0] if ranked else None
         found = best is not None and best.support > thr
-        ans = Answer(question=question, method=self.name, question_type=qtype, found=found)
+        ans = Answer(
+            question=question, method=self.name, question_type=qtype, found=found, embedder=mem.embedder.name
+        )
         notes = [f"queries: {[g[0] for g in groups] + (['<image>'] if image is not None else [])}"]
         if best is not None:
             notes.append(f"best support {best.support:.3f} vs threshold {thr:.3f}")
@@ -306,9 +350,11 @@ class OfflineReasoner:
             self._not_found(ans, subject or "it", qtype, best)
         ans.reasoning = "; ".join(notes)
         ans.cost = Cost(
-            memories_shown=len(cands), memories_total=n, alpha=len(cands) / max(1, n),
+            memories_shown=len(cands),
+            memories_total=n,
+            alpha=len(cands) / max(1, n),
             wall_s=round(time.perf_counter() - t_start, 4),
-        )  # fmt: skip
+        )
         return ans
 
     def _episodes(self, good: list[Cand]) -> list[list[Cand]]:
@@ -372,7 +418,8 @@ class OfflineReasoner:
             chosen = by_support[0]
             evidence = [chosen] + [c for c in sorted(good, key=lambda c: -c.support) if c is not chosen]
         p = chosen.rec.pose
-        ans.position, ans.yaw, ans.position_source = [p.x, p.y, p.z], p.yaw, "evidence"
+        ans.position, ans.yaw = [p.x, p.y, p.z], p.yaw
+        ans.position_source = ans.yaw_source = "evidence"
         ans.time = chosen.rec.t
         ans.evidence = [_ev(c) for c in evidence[: self.top_k]]
         where, when = f"at x={p.x:.2f}, y={p.y:.2f}, z={p.z:.2f}", fmt_time(chosen.rec.t)

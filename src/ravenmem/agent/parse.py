@@ -1,56 +1,93 @@
 """From a model's reply to a validated `Answer`: JSON extraction, lenient typing, evidence rules.
 
-Model output is parsed, never executed: JSON is decoded with `json`, validated by pydantic, and
-anything else is a malformed reply that the loop re-asks. Coordinates are taken from evidence
-memories; a model's own coordinates are kept only when they lie near something it was shown,
-and the heading (yaw) always comes from the best evidence memory.
+Model output is parsed, never executed: JSON is decoded with `json` (bounded in size and work),
+validated by pydantic, and anything else is a malformed reply that the loop re-asks. The model's
+position and heading are used as given; the evidence camera's pose fills in only what the model
+left out, and every such fallback or correction is recorded in `Answer.notes` with its reason.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
-from typing import Any
+from collections.abc import Iterator
+from typing import Annotated, Any
 
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
 
 from ..errors import RavenmemError
 from ..timeparse import parse_duration
+from ..types import MemoryRecord
 from .base import MemoryLike
 from .questions import classify_question
 from .schema import Answer, Evidence, QuestionType
 from .tools import Shown, WorkingMemory
 
+MAX_REPLY_CHARS = 200_000  # a JSON answer is a few hundred characters; a longer reply is malformed
+MAX_DECODE_ATTEMPTS = 32
 _FENCE = re.compile(r"```(?:json|JSON)?\s*(.*?)```", re.DOTALL)
 _TYPE_SYNONYMS = {
-    "location": "position", "where": "position", "place": "position", "pose": "position",
-    "when": "time", "timestamp": "time", "yes/no": "binary", "yes_no": "binary", "boolean": "binary",
-    "bool": "binary", "yesno": "binary", "how long": "duration", "how_long": "duration",
-    "description": "text", "open": "text", "other": "text",
-}  # fmt: skip
+    "location": "position",
+    "where": "position",
+    "place": "position",
+    "pose": "position",
+    "when": "time",
+    "timestamp": "time",
+    "yes/no": "binary",
+    "yes_no": "binary",
+    "boolean": "binary",
+    "bool": "binary",
+    "yesno": "binary",
+    "how long": "duration",
+    "how_long": "duration",
+    "description": "text",
+    "open": "text",
+    "other": "text",
+}
 
 
 def extract_json(text: str | None) -> Any:
-    """The first JSON object (or array) in a reply, fenced or not; None when there is none."""
-    if not text:
+    """The first JSON object (or list of objects) in a reply, fenced or not; None when there is none.
+
+    Bounded work: a reply longer than MAX_REPLY_CHARS is not parsed at all, at most
+    MAX_DECODE_ATTEMPTS decodes are tried (each linear in the reply), and nesting too deep for
+    the decoder is a failed attempt, not a crash.
+    """
+    if not text or len(text) > MAX_REPLY_CHARS:
         return None
-    candidates = [m.group(1) for m in _FENCE.finditer(text)] + [text]
+    candidates = [m.group(1).strip() for m in _FENCE.finditer(text)][:MAX_DECODE_ATTEMPTS]
+    candidates.append(text.strip())
     dec = json.JSONDecoder()
+    attempts = 0
     for cand in candidates:
-        cand = cand.strip()
-        try:
-            return json.loads(cand)
-        except json.JSONDecodeError:
-            pass
-        for i, ch in enumerate(cand):
-            if ch in "{[":
-                try:
-                    obj, _ = dec.raw_decode(cand, i)
-                except json.JSONDecodeError:
-                    continue
-                if isinstance(obj, dict) or (isinstance(obj, list) and obj and isinstance(obj[0], dict)):
-                    return obj
+        for start in _starts(cand):
+            attempts += 1
+            if attempts > MAX_DECODE_ATTEMPTS:
+                return None
+            try:
+                obj, _ = dec.raw_decode(cand, start)
+            except (ValueError, RecursionError):
+                continue
+            if isinstance(obj, dict) or (isinstance(obj, list) and obj and isinstance(obj[0], dict)):
+                return obj
     return None
+
+
+def _starts(text: str) -> Iterator[int]:
+    """Positions where a JSON object or list may begin, in order."""
+    i = 0
+    while True:
+        brace, bracket = text.find("{", i), text.find("[", i)
+        found = [p for p in (brace, bracket) if p >= 0]
+        if not found:
+            return
+        i = min(found)
+        yield i
+        i += 1
+
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
 class ModelAnswer(BaseModel):
@@ -64,9 +101,12 @@ class ModelAnswer(BaseModel):
         default_factory=list,
         validation_alias=AliasChoices("evidence", "evidence_ids", "memory_ids", "memories"),
     )
-    position: list[float] | None = None
+    position: list[Finite] | None = None
+    yaw_deg: Finite | None = Field(
+        None, validation_alias=AliasChoices("yaw_deg", "yaw", "heading_deg", "heading")
+    )
     time: float | str | None = None
-    duration_s: float | None = Field(None, validation_alias=AliasChoices("duration_s", "duration"))
+    duration_s: Finite | None = Field(None, validation_alias=AliasChoices("duration_s", "duration"))
     yes: bool | None = None
     found: bool = True
     reasoning: str = ""
@@ -144,50 +184,93 @@ def evidence_of(s: Shown) -> Evidence:
 def build_answer(
     ma: ModelAnswer, question: str, wm: WorkingMemory, mem: MemoryLike, method: str, max_offset: float = 3.0
 ) -> Answer:
-    """Apply the evidence rules to a validated model answer (see the module docstring)."""
+    """Apply the evidence rules to a validated model answer; every fallback or correction is
+    written to `Answer.notes` with its reason (see docs/agent.md, "Evidence rules")."""
     qtype: QuestionType = ma.question_type or classify_question(question)
     notes: list[str] = []
     ids = list(dict.fromkeys(ma.evidence))
     unknown = [i for i in ids if i not in wm]
     if unknown:
-        notes.append(f"dropped evidence ids never shown: {unknown}")
+        notes.append(f"dropped evidence ids never shown to the model: {unknown}")
     shown = [wm.items[i] for i in ids if i in wm]
     if not shown and ma.found and wm.items:
         shown = wm.ranked()[:1]
-        notes.append(f"no evidence named; using the best retrieved memory m{shown[0].record.id}")
+        notes.append(f"no evidence named: used the best-scored memory shown, m{shown[0].record.id}")
     ans = Answer(
-        question=question, method=method, question_type=qtype, text=ma.answer.strip(), found=ma.found,
-        evidence=[evidence_of(s) for s in shown], reasoning=ma.reasoning.strip(), yaw=None,
-    )  # fmt: skip
+        question=question,
+        method=method,
+        question_type=qtype,
+        text=ma.answer.strip(),
+        found=ma.found,
+        evidence=[evidence_of(s) for s in shown],
+        reasoning=ma.reasoning.strip(),
+    )
     best = shown[0].record if shown and ma.found else None
-    if ma.found and ma.position is not None:
-        pos = [float(c) for c in ma.position] + (
-            [best.pose.z if best else 0.0] if len(ma.position) == 2 else []
-        )
-        near = [s for s in wm.items.values() if _dist(pos, s) <= max_offset]
-        if near:
-            ans.position, ans.position_source = pos, "model"
-            ans.yaw = best.pose.yaw if best else None
-        else:
-            notes.append(f"model position {pos} is over {max_offset:g} m from every memory shown; replaced")
-    if best is not None and ans.position is None:
-        ans.position, ans.yaw, ans.position_source = (
-            [best.pose.x, best.pose.y, best.pose.z],
-            best.pose.yaw,
-            "evidence",
-        )
+    if ma.found:
+        _place(ans, ma, best, wm, max_offset, notes)
+    elif ma.position is not None or ma.yaw_deg is not None:
+        notes.append("the model's position/heading ignored: its answer says the thing was not found")
     ans.time = _time(ma.time, mem, notes)
     if ans.time is None and best is not None:
         ans.time = best.t
+        why = "no time given" if ma.time is None else "the model's time was unreadable"
+        notes.append(f"{why}: used the time of evidence memory m{best.id}")
     ans.duration = ma.duration_s
     if qtype == "duration" and ans.duration is None and len(shown) >= 2 and ma.found:
         ts = [s.record.t for s in shown]
         ans.duration = max(ts) - min(ts)
-        notes.append("duration taken from the span of the evidence times")
+        notes.append("no duration given: used the span of the evidence times")
     ans.yes = ma.yes if ma.yes is not None else (ma.found if qtype == "binary" else None)
-    if notes:
-        ans.reasoning = (ans.reasoning + " [" + "; ".join(notes) + "]").strip()
+    ans.notes = notes
     return ans
+
+
+def _place(
+    ans: Answer,
+    ma: ModelAnswer,
+    best: MemoryRecord | None,
+    wm: WorkingMemory,
+    max_offset: float,
+    notes: list[str],
+) -> None:
+    """Position and heading: the model's when given, else the evidence camera's, with notes.
+
+    A model position far from every memory shown is kept (the model may place a thing it saw
+    down a corridor) but flagged with a warning that names the distance."""
+    if ma.position is not None:
+        pos = [float(c) for c in ma.position]
+        if len(pos) == 2:
+            pos.append(best.pose.z if best else 0.0)
+            notes.append(
+                f"no height given: used z of evidence memory m{best.id}" if best else "no height given: z = 0"
+            )
+        ans.position, ans.position_source = pos, "model"
+        if wm.items:
+            near = min(wm.items.values(), key=lambda s: _dist(pos, s))
+            d = _dist(pos, near)
+            if d > max_offset:
+                notes.append(
+                    f"warning: the model's position {_fmt(pos)} is {d:.1f} m from the nearest memory "
+                    f"shown (m{near.record.id}), more than {max_offset:g} m; kept as given"
+                )
+        else:
+            notes.append("warning: the model gave a position but was shown no memory to rest it on")
+    elif best is not None:
+        p = best.pose
+        ans.position, ans.position_source = [p.x, p.y, p.z], "evidence"
+        notes.append(f"no position given: used the camera position of evidence memory m{best.id}")
+    if ma.yaw_deg is not None:
+        ans.yaw, ans.yaw_source = math.radians((ma.yaw_deg + 180.0) % 360.0 - 180.0), "model"
+    elif best is not None and ans.position is not None:
+        ans.yaw, ans.yaw_source = best.pose.yaw, "evidence"
+        notes.append(
+            f"no heading given: used the camera heading of evidence memory m{best.id} "
+            f"({math.degrees(best.pose.yaw):.0f} deg)"
+        )
+
+
+def _fmt(pos: list[float]) -> str:
+    return "[" + ", ".join(f"{c:.2f}" for c in pos) + "]"
 
 
 def _dist(pos: list[float], s: Shown) -> float:

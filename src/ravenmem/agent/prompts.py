@@ -9,7 +9,8 @@ ANSWER_FORMAT = """When you answer, reply with ONLY this JSON object (no other t
 {"question_type": "position" | "time" | "binary" | "text" | "duration",
  "answer": "one or two sentences for the user",
  "evidence": [memory ids that support the answer, the most relevant first, e.g. 12],
- "position": null or [x, y, z] in metres (leave null to use the pose of the first evidence memory),
+ "position": null or [x, y, z] in metres in the map frame, where to go to see the thing (null = the camera position of the first evidence memory),
+ "yaw_deg": null or the heading to face it, in degrees counter-clockwise from the map x axis like the yaw in the listings (null = the camera heading of the first evidence memory),
  "time": null or the time as written in the memory listings (null = time of the first evidence memory),
  "duration_s": null or seconds (for "how long" questions),
  "yes": null or true or false (for yes/no questions),
@@ -30,6 +31,8 @@ def system_prompt(
     tools_listing: str | None,
     max_tool_calls: int,
     images: bool = True,
+    scores: bool = True,
+    query_image: bool = False,
 ) -> str:
     """The system message; `tools_listing` is set in the JSON-in-prompt protocol only."""
     t0, t1 = span
@@ -41,10 +44,15 @@ def system_prompt(
         f"{fmt_time(t0)} to {fmt_time(t1)} ({fmt_duration(t1 - t0)}). 'Now' is {fmt_time(t1)}.",
     ]
     if max_tool_calls > 0:
-        lines.append(
+        tools = (
             f"Search the memory with the tools (at most {max_tool_calls} tool calls in total), "
-            "look at the retrieved memories, then answer. Scores are similarities: higher is a better match."
+            "look at the retrieved memories, then answer."
         )
+        if scores:
+            tools += " Scores are similarities: higher is a better match."
+        if query_image:
+            tools += " search_image without memory_id searches with the image attached to the question."
+        lines.append(tools)
     if tools_listing:
         lines.append(JSON_TOOL_PROTOCOL + tools_listing)
     lines.append(ANSWER_FORMAT)

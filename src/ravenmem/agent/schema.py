@@ -1,8 +1,7 @@
-"""The structured answer every method (VLM agent, offline reasoner, baselines) returns.
+"""The answer every method returns, shared with the evaluation, the service and the CLI.
 
-One schema for all methods so the evaluation runner can score them the same way. Positions
-are never invented: when a model names no coordinates for a position question, the agent fills
-them from the best evidence memory and says so in `position_source`.
+Units: positions in metres in the map frame, `yaw` in radians (counter-clockwise from the map
+x axis, as in `Pose`), times in Unix seconds (UTC), durations in seconds.
 """
 
 from __future__ import annotations
@@ -12,6 +11,7 @@ from typing import Literal
 from pydantic import BaseModel, Field
 
 QuestionType = Literal["position", "time", "binary", "text", "duration"]
+Source = Literal["model", "evidence", "none"]
 
 
 class Evidence(BaseModel):
@@ -34,6 +34,7 @@ class Cost(BaseModel):
     memories_total: int = 0
     alpha: float = 0.0
     images: int = 0
+    image_bytes: int = 0
     prompt_tokens: int = 0
     completion_tokens: int = 0
     tool_calls: int = 0
@@ -42,12 +43,21 @@ class Cost(BaseModel):
 
 class Answer(BaseModel):
     question: str = ""
-    method: str = ""
+    method: str = Field(default="", description="the method that actually ran: raven, offline, vlm-only, ...")
+    model: str | None = Field(default=None, description="the VLM's model name, None for model-free methods")
+    model_host: str | None = Field(
+        default=None, description="host[:port] of the VLM endpoint (never the key)"
+    )
+    embedder: str | None = Field(
+        default=None, description="the embedder (or caption text encoder) used to retrieve"
+    )
+    preset: str | None = Field(default=None, description="the preset the settings came from, if any")
     question_type: QuestionType = "text"
     text: str = ""
     position: list[float] | None = Field(default=None, description="[x, y, z] in the map frame, metres")
-    yaw: float | None = None
-    position_source: Literal["model", "evidence", "none"] = "none"
+    yaw: float | None = Field(default=None, description="heading in radians, map frame")
+    position_source: Source = "none"
+    yaw_source: Source = "none"
     time: float | None = Field(default=None, description="Unix seconds (UTC)")
     duration: float | None = Field(default=None, description="seconds")
     yes: bool | None = None
@@ -56,4 +66,8 @@ class Answer(BaseModel):
     error: str | None = None
     evidence: list[Evidence] = Field(default_factory=list)
     reasoning: str = ""
+    notes: list[str] = Field(
+        default_factory=list,
+        description="every fallback, correction or warning applied to the model's answer, and why",
+    )
     cost: Cost = Field(default_factory=Cost)

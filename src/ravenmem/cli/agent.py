@@ -27,8 +27,18 @@ KeyOpt = Annotated[
 ConfigOpt = Annotated[
     Path | None, typer.Option("--config", help="config file (default ~/.config/ravenmem/config.toml)")
 ]
-TimeoutOpt = Annotated[float | None, typer.Option("--timeout", help="seconds per VLM request")]
+TimeoutOpt = Annotated[
+    float | None, typer.Option("--timeout", help="seconds per VLM request, wall clock (default 60)")
+]
 RetriesOpt = Annotated[int | None, typer.Option("--max-retries", help="retries on 429/5xx/timeouts")]
+SegmentOpt = Annotated[
+    int | None,
+    typer.Option("--segment-frames", help="caption: consecutive keyframes per caption (default 3)"),
+]
+ImageSideOpt = Annotated[
+    int | None,
+    typer.Option("--image-max-side", help="longest side in px of images sent to the model (0 = as stored)"),
+]
 
 
 def ask(
@@ -40,71 +50,119 @@ def ask(
         str | None,
         typer.Option(help="raven | offline | embedder-only | vlm-only | caption | random (default raven)"),
     ] = None,
+    preset: Annotated[
+        str | None,
+        typer.Option(help="raven-qa | navqa | findingdory: the paper's budget, top-k, temperature, seed"),
+    ] = None,
     base_url: BaseUrlOpt = None,
     model: ModelOpt = None,
     api_key: KeyOpt = None,
     tool_mode: Annotated[
         str | None, typer.Option(help="auto | native | json (JSON-in-prompt, no function calling)")
     ] = None,
-    top_k: Annotated[int, typer.Option(help="memories per tool call")] = 5,
-    max_tool_calls: Annotated[int, typer.Option(help="tool calls before the model must answer")] = 3,
-    frames: Annotated[int, typer.Option(help="vlm-only: frames sampled over the whole history")] = 16,
+    top_k: Annotated[
+        str | None,
+        typer.Option("--top-k", help="memories per tool call: N, or per tool 'text=30,time=200' (default 5)"),
+    ] = None,
+    max_tool_calls: Annotated[
+        int | None, typer.Option(help="tool calls before the model must answer (default 3)")
+    ] = None,
+    temperature: Annotated[float | None, typer.Option(help="sampling temperature sent to the model")] = None,
+    seed: Annotated[int | None, typer.Option(help="seed sent to the model (and the random baseline)")] = None,
+    hide_scores: Annotated[
+        bool, typer.Option("--hide-scores", help="do not show similarity scores/distances to the model")
+    ] = False,
+    time_mode: Annotated[
+        str | None, typer.Option(help="forward | centred: the time tool's window (default forward)")
+    ] = None,
+    frames: Annotated[
+        int | None,
+        typer.Option(help="vlm-only: most frames in the prompt (all memories if fewer; default 32)"),
+    ] = None,
+    segment_frames: SegmentOpt = None,
+    image_max_side: ImageSideOpt = None,
     trace: Annotated[
         Path | None, typer.Option(help="save the full request/response trace (JSON) here")
     ] = None,
     timeout: TimeoutOpt = None,
+    question_timeout: Annotated[
+        float | None, typer.Option(help="seconds for the whole question, wall clock (default 300)")
+    ] = None,
     max_retries: RetriesOpt = None,
     config: ConfigOpt = None,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
 ) -> None:
     """Answer a question from a memory: position, time, yes/no, duration or text, with evidence."""
     import ravenmem
-    from ravenmem.agent import VLMConfig, create_method
+    from ravenmem.agent import VLMConfig, create_method, get_preset, parse_top_k
+    from ravenmem.agent.methods import VLM_METHODS, require_model
     from ravenmem.errors import InputError
     from ravenmem.imageio import read_image
 
     if offline and method not in (None, "offline"):
         raise InputError(f"--offline and --method {method} contradict each other")
     name = "offline" if offline else (method or "raven")
+    get_preset(preset)  # an unknown preset is an error before anything is opened
     vlm = None
-    if name in ("raven", "vlm-only", "caption"):
+    if name in VLM_METHODS:
         vlm = VLMConfig.resolve(
-            config_path=config, base_url=base_url, model=model, api_key=api_key, tool_mode=tool_mode,
-            timeout=timeout, max_retries=max_retries,
-        )  # fmt: skip
-    img = read_image(image) if image is not None else None
-    with ravenmem.open(memory) as mem:
-        m = create_method(
-            name, mem, vlm=vlm, top_k=top_k, max_tool_calls=max_tool_calls, trace_path=trace, frames=frames
+            config_path=config,
+            base_url=base_url,
+            model=model,
+            api_key=api_key,
+            tool_mode=tool_mode,
+            timeout=timeout,
+            question_timeout=question_timeout,
+            max_retries=max_retries,
         )
+        require_model(name, vlm)
+    img = read_image(image) if image is not None else None
+    opts = {
+        "vlm": vlm,
+        "top_k": parse_top_k(top_k),
+        "max_tool_calls": max_tool_calls,
+        "trace_path": trace,
+        "frames": frames,
+        "temperature": temperature,
+        "seed": seed,
+        "show_scores": False if hide_scores else None,
+        "time_mode": time_mode,
+        "segment_frames": segment_frames,
+        "image_max_side": image_max_side,
+    }
+    with ravenmem.open(memory) as mem:
+        m = create_method(name, mem, preset=preset, **opts)
         ans = m.ask(question, image=img)
-        note = getattr(m, "note", "")
         root = Path(mem.path)
     data = ans.model_dump(mode="json")
     for ev in data["evidence"]:
         p = ev.get("image_path")
         ev["image_file"] = str(root / p) if p and not Path(p).is_absolute() else p
     if json_out:
-        if note:
-            data["note"] = note
         sys.stdout.write(json.dumps(data, indent=2) + "\n")
     else:
-        _render(data, note)
+        _render(data)
     if ans.failed:
         raise typer.Exit(1)
 
 
-def _render(a: dict[str, Any], note: str) -> None:
+def _render(a: dict[str, Any]) -> None:
     con = out_console()
-    if note:
-        con.print(f"[yellow]note:[/] {esc(note)}", highlight=False)
     status = "[red]FAILED[/]" if a["failed"] else ("found" if a["found"] else "[yellow]not found[/]")
     con.print(f"[bold]type:[/] {esc(a['question_type'])}   [bold]method:[/] {esc(a['method'])}   {status}")
+    ran = [f"model {a['model']} at {a['model_host']}" if a.get("model") else ""]
+    ran += [
+        f"embedder {a['embedder']}" if a.get("embedder") else "",
+        f"preset {a['preset']}" if a.get("preset") else "",
+    ]
+    if any(ran):
+        con.print("[bold]ran:[/] " + esc(", ".join(r for r in ran if r)), highlight=False)
     con.print(f"[bold]answer:[/] {esc(a['text'])}", highlight=False)
     if a.get("position"):
         x, y, z = a["position"]
         yaw = f"{math.degrees(a['yaw']):.0f} deg" if a.get("yaw") is not None else "-"
-        con.print(f"[bold]x y z yaw:[/] {x:.2f} {y:.2f} {z:.2f} {yaw}   ({esc(a['position_source'])})")
+        src = f"position from {a['position_source']}, yaw from {a['yaw_source']}"
+        con.print(f"[bold]x y z yaw:[/] {x:.2f} {y:.2f} {z:.2f} {yaw}   ({esc(src)})")
     if a.get("time") is not None:
         con.print(f"[bold]time seen:[/] {fmt_time(a['time'])}")
     if a.get("duration") is not None:
@@ -119,17 +177,27 @@ def _render(a: dict[str, Any], note: str) -> None:
             table.add_column(col, justify="left" if col in ("time (UTC)", "image") else "right")
         for e in a["evidence"]:
             score = "" if e.get("score") is None else f"{e['score']:.3f}"
-            table.add_row(str(e["id"]), fmt_time(e["t"]), f"{e['x']:.2f}", f"{e['y']:.2f}", f"{e['z']:.2f}",
-                          f"{math.degrees(e['yaw']):.0f}", score, esc(e.get("image_file") or ""))  # fmt: skip
+            table.add_row(
+                str(e["id"]),
+                fmt_time(e["t"]),
+                f"{e['x']:.2f}",
+                f"{e['y']:.2f}",
+                f"{e['z']:.2f}",
+                f"{math.degrees(e['yaw']):.0f}",
+                score,
+                esc(e.get("image_file") or ""),
+            )
         con.print(table)
     c = a["cost"]
     con.print(
         f"[bold]tool calls used:[/] {c['tool_calls']}   memories shown {c['memories_shown']}/{c['memories_total']} "
-        f"(alpha {c['alpha']:.4f})   images {c['images']}   tokens {c['prompt_tokens']}+{c['completion_tokens']}   "
+        f"(alpha {c['alpha']:.4f})   images {c['images']} ({c['image_bytes'] / 1024:.0f} KiB)   tokens {c['prompt_tokens']}+{c['completion_tokens']}   "
         f"{c['wall_s']:.2f} s"
     )
     if a.get("reasoning"):
         con.print(f"[dim]reasoning: {esc(a['reasoning'])}[/]", highlight=False)
+    for note in a.get("notes", []):
+        con.print(f"[yellow]note:[/] {esc(note)}", highlight=False)
 
 
 def caption(
@@ -137,15 +205,19 @@ def caption(
     base_url: BaseUrlOpt = None,
     model: ModelOpt = None,
     api_key: KeyOpt = None,
+    segment_frames: SegmentOpt = None,
+    image_max_side: ImageSideOpt = None,
     timeout: TimeoutOpt = None,
     max_retries: RetriesOpt = None,
     config: ConfigOpt = None,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
 ) -> None:
-    """Caption every memory with a VLM (for the caption baseline); re-running captions only new ones."""
+    """Caption the memory in segments of consecutive keyframes with a VLM (the caption baseline);
+    re-running captions only new segments."""
     import ravenmem
     from ravenmem.agent import VLMConfig, caption_memories
-    from ravenmem.agent.captions import CAPTION_FILE
+    from ravenmem.agent.captions import CAPTION_FILE, SEGMENT_FRAMES
+    from ravenmem.agent.methods import require_model
 
     vlm = VLMConfig.resolve(
         config_path=config,
@@ -155,14 +227,24 @@ def caption(
         timeout=timeout,
         max_retries=max_retries,
     )
+    require_model("caption", vlm)
+    seg = SEGMENT_FRAMES if segment_frames is None else segment_frames
     with ravenmem.open(memory) as mem:
-        n = caption_memories(mem, vlm)
+        n = caption_memories(mem, vlm, segment_frames=seg, image_max_side=image_max_side or 0)
         total = mem.count()
-    out = {"captioned_now": n, "memories": total, "file": str(Path(memory) / CAPTION_FILE)}
+    out = {
+        "captioned_now": n,
+        "memories": total,
+        "segment_frames": seg,
+        "file": str(Path(memory) / CAPTION_FILE),
+    }
     if json_out:
         sys.stdout.write(json.dumps(out, indent=2) + "\n")
     else:
-        Console().print(f"captioned {n} memories ({total} in the memory); captions in {esc(out['file'])}")
+        Console().print(
+            f"captioned {n} segments of {seg} keyframes ({total} memories); captions in {esc(out['file'])}",
+            highlight=False,
+        )
 
 
 def register(app: typer.Typer) -> None:

@@ -82,7 +82,8 @@ def test_ask_json_with_a_vlm_preset_top_k_temperature_and_seed(cli, mem_path, se
     data = json.loads(r.stdout)
     assert data["method"] == "raven" and data["text"] == "There." and data["position"] == [7.0, 3.0, 0.5]
     assert data["yaw"] == pytest.approx(-1.5707963) and data["yaw_source"] == "model"
-    assert (data["model"], data["preset"], data["embedder"]) == ("scripted-vlm", "findingdory", "test-color")
+    # only the time tool ran: no embedder took part, and none was loaded to name it
+    assert (data["model"], data["preset"], data["embedder"]) == ("scripted-vlm", "findingdory", None)
     assert data["model_host"] == server.base_url.split("/")[2] and "test-key" not in r.stdout
     assert data["cost"]["tool_calls"] == 1 and data["cost"]["memories_shown"] == 3
     assert data["cost"]["alpha"] == 0.25 and data["cost"]["image_bytes"] > 0

@@ -107,6 +107,7 @@ def test_time_results_are_chronological(mem, server):
     offsets = [float(x) for x in re.findall(r"\(\+([\d.]+) s\)", text)]
     assert offsets == sorted(offsets) == [30.0, 40.0, 50.0, 60.0, 70.0]
     assert ans.time == pytest.approx(T0 + 30)
+    assert ans.embedder is None and ans.model == "scripted-vlm"  # only the time tool ran: no embedder
 
 
 def test_position_tool_and_model_time_strings(mem, server):

@@ -181,6 +181,3 @@ class VLMOnly(Agent):
             f"alpha {len(recs) / max(1, total):.3f})"
         )
         return parts
-
-    def _embedder_name(self) -> str | None:
-        return None  # no retrieval: the model sees the history directly

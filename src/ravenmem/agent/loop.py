@@ -173,7 +173,7 @@ class Agent:
         answer.notes = run.notes + answer.notes
         answer.model = self.client.config.model
         answer.model_host = self.client.config.host
-        answer.embedder = self._embedder_name()
+        answer.embedder = self._embedder_name() if run.runner.embedded else None
         answer.preset = self.preset
         total = self.memory.count()
         answer.cost = Cost(
@@ -207,7 +207,8 @@ class Agent:
         return []
 
     def _embedder_name(self) -> str | None:
-        """The embedder this method retrieves with (recorded in every answer)."""
+        """The embedder this method retrieves with, recorded in answers where a text or image
+        search ran (read only then: naming it must not load a model that was not needed)."""
         return self.memory.embedder.name
 
     # ------------------------------------------------------------------ the machine

@@ -160,6 +160,7 @@ class ToolRunner:
         self.time_mode = check_time_mode(time_mode)
         self.names = [get_tool(n).name for n in (tools if tools is not None else TOOLS)]
         self.t0 = mem.time_span()[0]
+        self.embedded = False  # a text or image search ran: the embedder took part in the answer
 
     def specs(self) -> list[dict[str, Any]]:
         """The tools in OpenAI function-calling form, generated from `ravenmem.tools.TOOLS`."""
@@ -203,6 +204,7 @@ class ToolRunner:
         except (RavenmemError, ValueError, TypeError, RecursionError) as e:
             msg = str(e).replace("\n", " ")[:400]
             return ToolOutput(f"error: {name} could not run: {msg}", [], [], ok=False)
+        self.embedded = self.embedded or name in ("search_text", "search_image")
         return self._format(tool.label(args), tool.order, hits, name, wm)
 
     def _format(self, label: str, order: str, hits: list[Hit], name: str, wm: WorkingMemory) -> ToolOutput:

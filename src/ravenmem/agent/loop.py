@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import re
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -100,7 +99,7 @@ class Agent:
         self,
         memory: MemoryLike,
         vlm: VLMConfig | VLMClient | None = None,
-        top_k: int | Mapping[str, int] | None = None,
+        top_k: int | dict[str, int] | None = None,
         max_tool_calls: int | None = None,
         trace_path: str | Path | None = None,
         max_reasks: int = 2,

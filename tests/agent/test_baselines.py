@@ -21,6 +21,7 @@ from ravenmem.agent import (
     caption_memories,
     create_method,
 )
+from ravenmem.agent.base import needs_vlm
 from ravenmem.agent.captions import CAPTION_FILE
 from ravenmem.errors import InputError
 from ravenmem.types import Frame, Pose
@@ -61,6 +62,7 @@ def describe_segment(body: dict) -> dict:
 
 def test_registry_names_and_unknown():
     assert METHODS.names() == ["caption", "embedder-only", "offline", "random", "raven", "vlm-only"]
+    assert [n for n in METHODS.names() if needs_vlm(n)] == ["caption", "raven", "vlm-only"]
     with pytest.raises(InputError, match="unknown method 'gpt'"):
         create_method("gpt", None)  # type: ignore[arg-type]
 

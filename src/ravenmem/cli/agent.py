@@ -95,7 +95,8 @@ def ask(
     """Answer a question from a memory: position, time, yes/no, duration or text, with evidence."""
     import ravenmem
     from ravenmem.agent import VLMConfig, create_method, get_preset, parse_top_k
-    from ravenmem.agent.methods import VLM_METHODS, require_model
+    from ravenmem.agent.base import needs_vlm
+    from ravenmem.agent.methods import require_model
     from ravenmem.errors import InputError
     from ravenmem.imageio import read_image
 
@@ -104,7 +105,7 @@ def ask(
     name = "offline" if offline else (method or "raven")
     get_preset(preset)  # an unknown preset is an error before anything is opened
     vlm = None
-    if name in VLM_METHODS:
+    if needs_vlm(name):
         vlm = VLMConfig.resolve(
             config_path=config,
             base_url=base_url,

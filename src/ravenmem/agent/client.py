@@ -182,7 +182,7 @@ class VLMClient:
             try:
                 resp = self._attempt(kwargs, budget)
             except _Deadline:
-                last = f"timed out after {budget:g} s (no complete reply within the time limit)"
+                last = f"timed out after {budget:.3g} s (no complete reply within the time limit)"
                 event["error"] = last
             except self._openai.APIStatusError as e:
                 status = e.status_code
@@ -194,7 +194,7 @@ class VLMClient:
                     raise VLMError(f"{self.where} refused the request: {last}") from e
                 retry_after = _retry_after(e)
             except self._openai.APITimeoutError:
-                last = f"timed out after {budget:g} s (no complete reply within the time limit)"
+                last = f"timed out after {budget:.3g} s (no complete reply within the time limit)"
                 event["error"] = last
             except self._openai.APIConnectionError as e:
                 last = f"connection failed ({e.__cause__ or e})"

@@ -2,8 +2,8 @@
 
 A batch's thumbnails are written before its records are committed (a record must never point at
 a missing file), so a writer killed in between leaves thumbnails nothing refers to. Before
-writing them, the writer lists them in a journal (`thumbs/pending-<id>.json`) and deletes the
-journal once the store has committed the batch. The next writer (`Memory.acquire_writer`) reads
+writing them, the writer lists them in a journal (`pending-thumbs-<id>.json` in the memory
+folder) and deletes the journal once the store has committed the batch. The next writer (`Memory.acquire_writer`) reads
 any journal left behind and deletes the listed thumbnails the store does not reference: it asks
 the store for the memories of the journal's (source, frame index, time) and compares their
 image paths. A store batch is one transaction, so it holds all of them or none.
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import uuid
 from collections.abc import Sequence
@@ -30,7 +31,7 @@ log = logging.getLogger(__name__)
 
 THUMBS = "thumbs"
 THUMB_NAME = re.compile(r"-?\d+_[0-9a-f]{8}\.jpg")
-_JOURNAL = re.compile(r"pending-[0-9a-f]{12}\.json")
+_JOURNAL = re.compile(r"pending-thumbs-[0-9a-f]{12}\.json")
 
 # (thumbnail path relative to the memory folder, source, frame index, time)
 Entry = tuple[str, str, int, float]
@@ -38,7 +39,7 @@ Entry = tuple[str, str, int, float]
 
 def begin(folder: Path, entries: Sequence[Entry]) -> Path:
     """Write (durably) the journal of thumbnails about to be written; returns its path."""
-    path = folder / THUMBS / f"pending-{uuid.uuid4().hex[:12]}.json"
+    path = folder / f"pending-thumbs-{uuid.uuid4().hex[:12]}.json"
     atomic_write_json(path, {"thumbs": [list(e) for e in entries]})
     return path
 
@@ -78,15 +79,18 @@ def settle(folder: Path, store: Store, journal: Path) -> int:
 
 
 def recover(folder: Path, store: Store) -> dict[str, int]:
-    """What a new writer cleans before writing: journals left by a killed writer, stale
-    temporary files in the memory folder and in thumbs/. Returns the counts removed."""
-    thumbs = folder / THUMBS
-    removed = 0
-    if thumbs.is_dir():
-        for journal in sorted(thumbs.iterdir()):
-            if _JOURNAL.fullmatch(journal.name):
-                removed += settle(folder, store, journal)
-    temps = remove_stale_temp_files(folder) + remove_stale_temp_files(thumbs)
+    """What a new writer cleans before writing: journals left by a killed writer (and the
+    thumbnails they list that were never stored), stale temporary files. Returns the counts.
+
+    Only the memory folder itself is listed on every call; `thumbs/` (a million files in a big
+    memory) only after a crash, i.e. when a journal was left: a thumbnail's temporary file can
+    only exist while its batch's journal does.
+    """
+    journals = [e for e in sorted(os.listdir(folder)) if _JOURNAL.fullmatch(e)]
+    removed = sum(settle(folder, store, folder / j) for j in journals)
+    temps = remove_stale_temp_files(folder)
+    if journals:
+        temps += remove_stale_temp_files(folder / THUMBS)
     if removed or temps:
         log.info(
             "%s: removed %d unreferenced thumbnail(s), %d temporary file(s)", folder, removed, len(temps)

@@ -171,14 +171,14 @@ def test_thumbnails_of_a_batch_killed_before_commit_are_removed(tmp_path: Path, 
     assert crash.returncode == -signal.SIGKILL, crash.stderr
     assert stored_count(mem) == 4  # the first batch; the second died before its commit
     thumbs = list((mem / "thumbs").glob("*.jpg"))
-    assert len(thumbs) == 8 and list((mem / "thumbs").glob("pending-*.json"))
+    assert len(thumbs) == 8 and list(mem.glob("pending-thumbs-*.json"))
 
     r = rm(*args)
     assert r.returncode == 0, r.stderr
     memories = all_memories(mem)
     assert sorted(m["frame_index"] for m in memories) == expected_frames(tum_path, spec)
     assert_clean(mem, memories)
-    assert not list((mem / "thumbs").glob("pending-*.json"))
+    assert not list(mem.glob("pending-thumbs-*.json"))
 
 
 def test_clean_up_removes_only_ravenmem_leftovers(tmp_path: Path, tum_path: Path) -> None:
@@ -186,16 +186,18 @@ def test_clean_up_removes_only_ravenmem_leftovers(tmp_path: Path, tum_path: Path
     args = ingest_args(tum_path, mem, "stride=240")
     assert rm(*args).returncode == 0
     old = time.time() - 60
-    stale = [
-        mem / ".memory.json.0123456789ab.tmp",
-        mem / "thumbs" / ".000000001_abcdef01.jpg.ba9876543210.tmp",
-    ]
+    # what a writer killed while writing a thumbnail leaves: the batch's journal, a thumbnail
+    # written before it, the temporary file of the one it was writing
+    cut = mem / "thumbs" / "000000000000002_abcdef02.jpg"
+    journal = mem / "pending-thumbs-00112233aabb.json"
+    journal.write_text(json.dumps({"thumbs": [[f"thumbs/{cut.name}", "tum:x@0", 5, 2.5]]}))
+    stale = [mem / ".memory.json.0123456789ab.tmp", mem / "thumbs" / f".{cut.name}.ba9876543210.tmp", cut]
     foreign = [
         mem / "notes.txt",
         mem / ".notes.tmp",  # not a name ravenmem makes
         mem / ".memory.json.XYZ.tmp",
         mem / "thumbs" / "holiday.jpg",
-        mem / "thumbs" / "0000000001_abcdef01.jpg",  # thumbnail-like, but no journal lists it
+        mem / "thumbs" / "000000000000001_abcdef01.jpg",  # thumbnail-like, but no journal lists it
     ]
     for p in stale + foreign:
         p.write_bytes(b"x")
@@ -218,7 +220,7 @@ def test_clean_up_removes_only_ravenmem_leftovers(tmp_path: Path, tum_path: Path
         r = rm(*args)
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["skipped"]["already in memory"] == 3
-        assert [p for p in stale if p.exists()] == []
+        assert [p for p in [*stale, journal] if p.exists()] == []
         assert [p for p in foreign if not p.exists()] == []
         assert busy.exists()
     finally:

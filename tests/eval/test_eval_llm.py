@@ -167,3 +167,51 @@ def test_top_k_study_against_the_scripted_model(scoring_root: Path, tmp_path: Pa
     assert pts[1]["images_per_q"]["mean"] == 1 and pts[4]["images_per_q"]["mean"] == 4
     assert pts[1]["frame_accuracy"]["mean"] == 1.0 == pts[4]["frame_accuracy"]["mean"]
     assert pts[4]["tokens_per_q"]["mean"] > pts[1]["tokens_per_q"]["mean"]
+
+
+def first_shown_reply(body: dict[str, Any]) -> dict[str, Any]:
+    """Search the colour the question names, then answer with the first memory listed (best ranked)."""
+    tool_msgs = [m for m in body["messages"] if m["role"] == "tool"]
+    if not tool_msgs:
+        return vlm_reply(body)
+    first = re.search(r"^\[m(\d+)\]", tool_msgs[-1]["content"], re.M)
+    return answer(question_type="position", answer="there", evidence=[int(first.group(1))] if first else [])
+
+
+def test_scores_study_with_a_preset_against_the_scripted_model(scoring_root: Path, tmp_path: Path) -> None:
+    """The scores ablation end to end: what the model reads with scores shown and hidden, the
+    preset's k and temperature, the run's seed, and what each row says ran."""
+    from ravenmem.eval.studies import option_study
+
+    with ScriptedModel(default=first_shown_reply) as srv:
+        base = run_cfg(
+            f"raven-qa:{scoring_root / 'sim' / 'simple'}",
+            ["raven"],
+            tmp_path,
+            vlm="scripted",
+            vlm_base_url=srv.base_url,
+            method_opts={"preset": "raven-qa"},
+            seeds=2,
+        )
+        doc = option_study(
+            base,
+            "scores",
+            [True, False],
+            tmp_path / "scores",
+            embedder=CountingColorEmbedder(),
+            log=lambda _: None,
+        )
+        requests = list(srv.requests)
+    assert len(requests) == 2 * 3 * 2 * 2  # settings x questions x seeds x (search, answer)
+    assert {b["temperature"] for b in requests} == {0.0} and {b.get("seed") for b in requests} == {0, 1}
+    tool_texts = [m["content"] for b in requests for m in b["messages"] if m["role"] == "tool"]
+    assert all(len(re.findall(r"^\[m\d+\]", t, re.M)) == 5 for t in tool_texts)  # the preset's k
+    with_scores = [t for t in tool_texts if "score " in t]
+    assert len(with_scores) == len(tool_texts) // 2  # shown in one setting, hidden in the other
+    pts = {p["value"]: p for p in doc["points"]}
+    assert pts[True]["frame_accuracy"]["mean"] == 1.0 == pts[False]["frame_accuracy"]["mean"]
+    rows = read_rows(tmp_path / "scores")
+    assert {r["variant"] for r in rows} == {"show_scores=on", "show_scores=off"}
+    assert {(r["ran"]["method"], r["ran"]["model"], r["answer"]["preset"]) for r in rows} == {
+        ("raven", "scripted", "raven-qa")
+    }

@@ -13,10 +13,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ravenmem.nav import Intrinsics, MapConfig, OccupancyGrid, astar, distance_field, find_frontiers
-from ravenmem.nav.explore import ExploreConfig, Explorer
+from ravenmem.nav import MapConfig, OccupancyGrid, astar, distance_field, find_frontiers
+from ravenmem.robot.explore import ExploreConfig, Explorer
 from ravenmem.sim import create_env
-from ravenmem.types import Pose
+from ravenmem.types import Intrinsics, Pose
 
 
 def timed(fn: Callable[[], object], repeat: int = 5) -> float:

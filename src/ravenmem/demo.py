@@ -20,9 +20,9 @@ from typing import Any
 
 from .errors import InputError
 from .fsio import atomic_write_json
-from .nav.explore import ExploreConfig, ExploreReport
-from .nav.mission import explore_into, navigate_to
 from .nav.render import MapLayers, draw_map
+from .robot.explore import ExploreConfig, ExploreReport
+from .robot.mission import explore_into, navigate_to
 from .sim.base import create_env
 from .sim.queries import DemoQuery, make_queries
 

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .errors import InputError
+
 
 @dataclass(frozen=True)
 class Pose:
@@ -52,6 +54,56 @@ class Pose:
     def distance_to(self, other: Pose, planar: bool = False) -> float:
         dz = 0.0 if planar else self.z - other.z
         return math.sqrt((self.x - other.x) ** 2 + (self.y - other.y) ** 2 + dz * dz)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole camera intrinsics in pixels for an image `width` x `height` (0 x 0 = not known
+    yet: `for_image` fills them in from the first image). Shared by simulators, sources and
+    the mapper, so it lives with the other records."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int = 0
+    height: int = 0
+
+    def __post_init__(self) -> None:
+        vals = (self.fx, self.fy, self.cx, self.cy)
+        if not all(math.isfinite(v) for v in vals) or self.fx <= 0 or self.fy <= 0:
+            raise InputError(f"bad camera intrinsics: fx, fy must be > 0 and all finite: {self}")
+        if self.width < 0 or self.height < 0:
+            raise InputError(f"bad camera intrinsics: negative image size: {self}")
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, hfov_deg: float) -> Intrinsics:
+        """Square pixels and a horizontal field of view: what simulators usually state."""
+        if width <= 0 or height <= 0 or not 0.0 < hfov_deg < 180.0:
+            raise InputError(f"bad camera: width={width}, height={height}, hfov_deg={hfov_deg}")
+        f = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+        return cls(f, f, width / 2.0, height / 2.0, width, height)
+
+    @property
+    def hfov(self) -> float:
+        """Horizontal field of view in radians."""
+        return 2.0 * math.atan2(self.width / 2.0, self.fx)
+
+    def for_image(self, width: int, height: int) -> Intrinsics:
+        """These intrinsics for an image of `width` x `height`: the size is filled in when it was
+        not known, and the camera scaled when the image is a uniformly resized version of the
+        calibrated one (e.g. a 320x240 depth image of a 640x480 calibration)."""
+        if (self.width, self.height) == (width, height):
+            return self
+        if self.width == 0 or self.height == 0:
+            return replace(self, width=width, height=height)
+        sx, sy = width / self.width, height / self.height
+        if abs(sx - sy) > 1e-6:
+            raise InputError(
+                f"image is {width}x{height} but the camera was calibrated at {self.width}x{self.height} "
+                "(not a uniform resize)"
+            )
+        return Intrinsics(self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height)
 
 
 @dataclass

@@ -1,11 +1,12 @@
+import json
 import math
 
 import numpy as np
 import pytest
 
 from ravenmem.errors import InputError
-from ravenmem.nav import Intrinsics, MapConfig, OccupancyGrid
-from ravenmem.types import Pose
+from ravenmem.nav import MapConfig, OccupancyGrid
+from ravenmem.types import Intrinsics, Pose
 
 INTR = Intrinsics.from_fov(160, 120, 90.0)
 CAM_H = 1.0
@@ -120,11 +121,18 @@ def test_growth_keeps_world_positions_and_roundtrip(tmp_path) -> None:
 
 
 def test_load_errors_are_one_line(tmp_path) -> None:
-    with pytest.raises(InputError, match="no map.json"):
+    with pytest.raises(InputError, match="no map.npz"):
         OccupancyGrid.load(tmp_path)
     grid = OccupancyGrid()
     grid.mark_free_disc(0, 0, 0.5)
     grid.save(tmp_path)
+    # a version-1 map (metadata only in map.json) still loads; a malformed one is one line
+    with np.load(tmp_path / "map.npz") as z:
+        arrays = {k: z[k] for k in z.files if k != "meta"}
+    np.savez(tmp_path / "map.npz", **arrays)
+    meta = json.loads((tmp_path / "map.json").read_text()) | {"version": 1}
+    (tmp_path / "map.json").write_text(json.dumps(meta))
+    assert np.array_equal(OccupancyGrid.load(tmp_path).free, grid.free)
     (tmp_path / "map.json").write_text('{"version": 1, "resolution": 0.25}')
     with pytest.raises(InputError, match="malformed"):
         OccupancyGrid.load(tmp_path)

@@ -5,8 +5,8 @@ import pytest
 
 import ravenmem
 from ravenmem.nav import OccupancyGrid
-from ravenmem.nav.explore import ExploreConfig, Explorer
-from ravenmem.nav.mission import coverage_reference, explore_into, load_exploration, navigate_to
+from ravenmem.robot.explore import ExploreConfig, Explorer
+from ravenmem.robot.mission import coverage_reference, explore_into, load_exploration, navigate_to
 from ravenmem.sim import Environment, create_env
 from ravenmem.sim.control import follow_waypoints
 from ravenmem.sim.synthetic import SyntheticEnv

@@ -9,7 +9,7 @@ pytest.importorskip("vizdoom")
 
 from ravenmem.errors import InputError  # noqa: E402
 from ravenmem.nav import plan_path  # noqa: E402
-from ravenmem.nav.explore import ExploreConfig, Explorer  # noqa: E402
+from ravenmem.robot.explore import ExploreConfig, Explorer  # noqa: E402
 from ravenmem.sim import create_env  # noqa: E402
 from ravenmem.sim.control import follow_waypoints  # noqa: E402
 from ravenmem.sim.groundtruth import reachable_floor  # noqa: E402

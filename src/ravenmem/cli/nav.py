@@ -34,9 +34,9 @@ def explore(
     """Phase I: explore with frontiers, build the occupancy map and the memory."""
     import ravenmem
     from ravenmem.errors import InputError
-    from ravenmem.nav.explore import ExploreConfig
-    from ravenmem.nav.mission import explore_into
     from ravenmem.nav.render import MapLayers, draw_map
+    from ravenmem.robot.explore import ExploreConfig
+    from ravenmem.robot.mission import explore_into
     from ravenmem.sim.base import create_env
 
     if steps < 1:
@@ -100,8 +100,8 @@ def navigate(
     from ravenmem.demo import _answerer
     from ravenmem.errors import InputError
     from ravenmem.nav.grid import OccupancyGrid
-    from ravenmem.nav.mission import load_exploration, navigate_to
     from ravenmem.nav.render import MapLayers, draw_map
+    from ravenmem.robot.mission import load_exploration, navigate_to
     from ravenmem.sim.base import create_env
     from ravenmem.sim.queries import match_kind
 

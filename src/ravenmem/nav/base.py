@@ -1,4 +1,4 @@
-"""The navigation axis: camera intrinsics, plan results and the planner protocol.
+"""The navigation axis: plan results and the planner protocol.
 
 Planners work on a boolean traversability grid (True = the robot's centre may stand there,
 i.e. free space already inflated by the robot radius) in cell coordinates (row, col), so that
@@ -14,35 +14,9 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ..errors import InputError
 from ..registry import Registry
 
 Cell = tuple[int, int]
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole camera intrinsics in pixels (the image is `width` x `height`)."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-
-    @classmethod
-    def from_fov(cls, width: int, height: int, hfov_deg: float) -> Intrinsics:
-        """Square pixels and a horizontal field of view: what simulators usually state."""
-        if width <= 0 or height <= 0 or not 0.0 < hfov_deg < 180.0:
-            raise InputError(f"bad camera: width={width}, height={height}, hfov_deg={hfov_deg}")
-        f = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
-        return cls(f, f, width / 2.0, height / 2.0, width, height)
-
-    @property
-    def hfov(self) -> float:
-        """Horizontal field of view in radians."""
-        return 2.0 * math.atan2(self.width / 2.0, self.fx)
 
 
 @dataclass

@@ -3,26 +3,35 @@
 Cells hold log-odds of being occupied, plus two masks: `known` (some ray reached the cell) and
 `explored` (the cell was inside the camera's field of view and within `explore_range`, the
 area a person would call "looked at"). Unknown stays distinct from free: planners never drive
-through cells nobody has seen. Row index grows with world y, column index with world x; the
+through cells nobody has seen. Row index grows with map y, column index with map x; the
 grid grows by itself when the robot sees past its edge.
+
+Maps built by exploring a simulator use world x, y directly; maps built from a recording carry
+a `MapFrame` (the fitted floor plane and the map's axes in the recording's world frame) in
+`meta["frame"]`. On disk, `map.npz` holds the arrays and the metadata (one file, replaced
+atomically, so a crash never pairs new arrays with old metadata); `map.json` repeats the
+metadata for people and other tools.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
 
 from ..errors import InputError
 from ..fsio import atomic_open, atomic_write_json
-from ..types import Pose
-from .base import Cell, Intrinsics
+from ..types import Intrinsics, Pose
+from .base import Cell
+from .frame import MapFrame
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+MAP_FILE, MAP_META = "map.npz", "map.json"
 _GROW = 32  # cells added at once when the map grows
 
 
@@ -50,14 +59,39 @@ class MapConfig:
     l_free: float = -0.4
     l_clamp: float = 4.0
     require_floor: bool = True
+    robot_radius: float = 0.25
 
     def __post_init__(self) -> None:
-        if self.resolution <= 0 or self.max_range <= 0 or self.stride < 1:
+        if self.resolution <= 0 or self.max_range <= 0 or self.stride < 1 or self.robot_radius < 0:
             raise InputError(f"bad map config: {self}")
         if self.obstacle_max <= self.step_height:
             raise InputError(
                 f"bad map config: obstacle_max {self.obstacle_max} <= step_height {self.step_height}"
             )
+
+    @classmethod
+    def for_body(
+        cls,
+        step_height: float,
+        height: float,
+        resolution: float = 0.25,
+        max_range: float = 10.0,
+        radius: float = 0.25,
+    ) -> MapConfig:
+        """Obstacles are what a robot body can neither step over nor pass under."""
+        return cls(
+            resolution=resolution,
+            step_height=step_height + 0.05,
+            obstacle_max=height,
+            max_range=max_range,
+            robot_radius=radius,
+        )
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> MapConfig:
+        """Settings saved with a map; unknown keys (from a newer version) are ignored."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in names})
 
 
 class OccupancyGrid:
@@ -76,10 +110,24 @@ class OccupancyGrid:
         self.known = np.zeros(shape, bool)
         self.explored = np.zeros(shape, bool)
         self.elevation = np.full(shape, np.nan, np.float32)  # floor height (m), NaN = not seen
+        self.trajectory = np.zeros((0, 2), np.float32)  # where the robot/camera went, map metres
+        self.meta: dict[str, Any] = {"kind": "explored"}  # how the map was made (saved with it)
         self.version = 0
         self._trav_cache: tuple[tuple, np.ndarray] | None = None
 
     # --- geometry -------------------------------------------------------------------------
+    @property
+    def frame(self) -> MapFrame:
+        """Where the map lies in the world (world x, y and z-up for explored maps)."""
+        f = self.meta.get("frame")
+        return MapFrame.from_dict(f) if f else MapFrame()
+
+    @property
+    def kind(self) -> str:
+        """'explored' (a simulator's explorer built it) or 'recorded' (from depth frames), or
+        'imported' (a Nav2 map_server map)."""
+        return str(self.meta.get("kind", "explored"))
+
     @property
     def shape(self) -> tuple[int, int]:
         return (int(self.logodds.shape[0]), int(self.logodds.shape[1]))
@@ -390,55 +438,92 @@ class OccupancyGrid:
         return self.area(self.explored & self.free)
 
     # --- persistence ----------------------------------------------------------------------
-    def save(self, folder: str | Path) -> Path:
-        """Write `map.npz` (arrays) and `map.json` (resolution, origin, config) into a folder,
-        each through a temporary file and an atomic rename."""
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
-        npz = folder / "map.npz"
-        with atomic_open(npz) as f:
-            np.savez_compressed(
-                f, logodds=self.logodds, known=self.known, explored=self.explored, elevation=self.elevation
-            )
-        meta = {
+    def metadata(self) -> dict[str, Any]:
+        """Everything but the arrays: format, resolution, origin, shape, frame, config, meta."""
+        return {
             "version": FORMAT_VERSION,
             "resolution": self.resolution,
             "origin": list(self.origin),
             "shape": list(self.shape),
-            "frame": "world x east, y north, metres; row = y, col = x",
+            "frame": self.frame.as_dict(),
+            "cells": "row = map y, col = map x; cell (0, 0) has its lower-left corner at origin",
             "config": asdict(self.config),
+            "meta": self.meta,
         }
-        atomic_write_json(folder / "map.json", meta, indent=2)
+
+    def save(self, folder: str | Path) -> Path:
+        """Write `map.npz` (arrays and metadata, one atomic replace) and `map.json` (the same
+        metadata, for people and other tools) into a folder."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        npz = folder / MAP_FILE
+        meta = self.metadata()
+        with atomic_open(npz) as f:
+            np.savez_compressed(
+                f,
+                logodds=self.logodds,
+                known=self.known,
+                explored=self.explored,
+                elevation=self.elevation,
+                trajectory=np.asarray(self.trajectory, np.float32).reshape(-1, 2),
+                meta=np.asarray(json.dumps(meta)),
+            )
+        atomic_write_json(folder / MAP_META, meta, indent=2)
         return npz
 
     @classmethod
     def load(cls, folder: str | Path) -> OccupancyGrid:
+        """The map saved in a folder (a memory folder). InputError, one line, when there is none
+        or it is damaged."""
         folder = Path(folder)
-        meta_path, npz_path = folder / "map.json", folder / "map.npz"
-        if not meta_path.is_file() or not npz_path.is_file():
-            raise InputError(f"{folder}: no map.json/map.npz (run `ravenmem explore` to build a map)")
+        meta_path, npz_path = folder / MAP_META, folder / MAP_FILE
+        if not npz_path.is_file():
+            raise InputError(
+                f"{folder}: no {MAP_FILE} (build one: `ravenmem ingest` a recording with depth, "
+                "`ravenmem map`, or `ravenmem explore` in a simulator)"
+            )
         try:
-            meta = json.loads(meta_path.read_text())
-            cfg = MapConfig(**meta["config"])
+            with np.load(npz_path) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError) as e:
+            raise InputError(f"{npz_path}: unreadable map ({e})") from e
+        where = npz_path
+        try:
+            if "meta" in arrays:
+                meta = json.loads(str(arrays["meta"]))
+            else:  # version 1: the metadata lived only in map.json
+                where = meta_path
+                meta = json.loads(meta_path.read_text())
+            cfg = MapConfig.from_dict(meta["config"])
             origin = (float(meta["origin"][0]), float(meta["origin"][1]))
-        except (ValueError, KeyError, TypeError) as e:
-            raise InputError(f"{meta_path}: malformed map metadata ({e})") from e
-        if meta.get("version") != FORMAT_VERSION:
-            raise InputError(
-                f"{meta_path}: field 'version' is {meta.get('version')!r}, expected {FORMAT_VERSION}"
-            )
-        with np.load(npz_path) as z:
-            grid = cls(cfg, origin)
-            grid.logodds = z["logodds"].astype(np.float32)
-            grid.known = z["known"].astype(bool)
-            grid.explored = z["explored"].astype(bool)
-            grid.elevation = (
-                z["elevation"].astype(np.float32)
-                if "elevation" in z.files
-                else np.full(grid.logodds.shape, np.nan, np.float32)
-            )
-        if list(grid.shape) != list(meta["shape"]):
-            raise InputError(
-                f"{meta_path}: field 'shape' {meta['shape']} does not match map.npz {grid.shape}"
-            )
+            shape = [int(v) for v in meta["shape"]]
+            version = meta.get("version")
+        except (OSError, ValueError, KeyError, TypeError, IndexError) as e:
+            raise InputError(f"{where}: malformed map metadata ({e})") from e
+        if version not in (1, FORMAT_VERSION):
+            raise InputError(f"{where}: field 'version' is {version!r}, expected {FORMAT_VERSION}")
+        grid = cls(cfg, origin)
+        try:
+            grid.logodds = arrays["logodds"].astype(np.float32)
+            grid.known = arrays["known"].astype(bool)
+            grid.explored = arrays["explored"].astype(bool)
+        except KeyError as e:
+            raise InputError(f"{npz_path}: map arrays incomplete (no {e})") from e
+        el = arrays.get("elevation")
+        grid.elevation = (
+            el.astype(np.float32) if el is not None else np.full(grid.logodds.shape, np.nan, np.float32)
+        )
+        tr = arrays.get("trajectory")
+        grid.trajectory = tr.astype(np.float32).reshape(-1, 2) if tr is not None else grid.trajectory
+        grid.meta = dict(meta.get("meta") or {"kind": "explored"})
+        if list(grid.shape) != shape or grid.known.shape != grid.logodds.shape:
+            raise InputError(f"{where}: field 'shape' {shape} does not match the arrays {grid.shape}")
         return grid
+
+
+def load_map(folder: str | Path) -> OccupancyGrid:
+    """The map stored in a memory folder: `grid.free`, `grid.occupied`, `grid.unknown` (bool
+    arrays, row = map y, col = map x), `grid.origin` (map x, y of cell (0, 0)'s lower-left
+    corner), `grid.resolution` (metres per cell), `grid.trajectory` (N, 2), `grid.frame` (how
+    map x, y relate to the memory's 3-D poses) and `grid.meta` (kind, sources)."""
+    return OccupancyGrid.load(folder)

@@ -14,10 +14,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ..nav.base import Intrinsics
-from ..nav.grid import MapConfig
 from ..registry import Registry
-from ..types import Pose
+from ..types import Intrinsics, Pose
 
 
 @dataclass
@@ -61,15 +59,6 @@ class RobotSpec:
     step_height: float
     camera_height: float
     max_speed: float
-
-    def map_config(self, resolution: float = 0.25, max_range: float = 10.0) -> MapConfig:
-        """Obstacles are what the robot can neither step over nor pass under."""
-        return MapConfig(
-            resolution=resolution,
-            step_height=self.step_height + 0.05,
-            obstacle_max=self.height,
-            max_range=max_range,
-        )
 
 
 @runtime_checkable

@@ -5,11 +5,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from scipy import ndimage
 
-from ..nav.grid import OccupancyGrid
+
+class MapLike(Protocol):
+    """What coverage needs from a map (an `OccupancyGrid` has it): the simulator sits below
+    the navigation floor, so it names the shape, not the class."""
+
+    origin: tuple[float, float]
+    resolution: float
+
+    @property
+    def explored(self) -> np.ndarray: ...
+
+    @property
+    def free(self) -> np.ndarray: ...
 
 
 @dataclass
@@ -31,7 +44,7 @@ class FloorTruth:
         ok = (r >= 0) & (c >= 0) & (r < self.mask.shape[0]) & (c < self.mask.shape[1])
         return r, c, ok
 
-    def coverage(self, grid: OccupancyGrid) -> float:
+    def coverage(self, grid: MapLike) -> float:
         """Fraction of the reachable floor that the map has explored as free."""
         rr, cc = np.nonzero(grid.explored & grid.free)
         if rr.size == 0 or not self.mask.any():

@@ -14,8 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..nav.base import Intrinsics
-from ..types import Pose
+from ..types import Intrinsics, Pose
 from .base import ENVIRONMENTS, Observation, RobotSpec, SceneObject
 
 

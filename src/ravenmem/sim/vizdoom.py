@@ -19,8 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, require
-from ..nav.base import Intrinsics
-from ..types import Pose
+from ..types import Intrinsics, Pose
 from .base import ENVIRONMENTS, Observation, RobotSpec, SceneObject
 
 UNITS_PER_M = 32.0

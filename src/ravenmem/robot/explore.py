@@ -14,12 +14,17 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..sim.base import Environment, Observation
+from ..nav.frontier import Frontier, find_frontiers
+from ..nav.grid import MapConfig, OccupancyGrid
+from ..nav.planning import plan_path
+from ..sim.base import Environment, Observation, RobotSpec
 from ..sim.control import ControlConfig, follow_waypoints, turn_in_place, wrap
 from ..types import Frame
-from .frontier import Frontier, find_frontiers
-from .grid import OccupancyGrid
-from .planning import plan_path
+
+
+def map_config(robot: RobotSpec, resolution: float = 0.25, max_range: float = 10.0) -> MapConfig:
+    """The map settings for a simulated robot's body (what it can step over or pass under)."""
+    return MapConfig.for_body(robot.step_height, robot.height, resolution, max_range)
 
 
 @dataclass
@@ -92,7 +97,7 @@ class Explorer:
         self.env = env
         self.mem = mem
         self.cfg = cfg or ExploreConfig()
-        self.grid = grid or OccupancyGrid(env.robot.map_config(self.cfg.resolution))
+        self.grid = grid or OccupancyGrid(map_config(env.robot, self.cfg.resolution))
         self.coverage_ref = coverage_ref
         self.progress = progress
         self.report = ExploreReport()

@@ -11,14 +11,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..errors import InputError
 from ..fsio import atomic_write_json
+from ..nav.base import PlanResult
+from ..nav.grid import OccupancyGrid
+from ..nav.planning import plan_path
 from ..sim.base import Environment, Observation
 from ..sim.control import ControlConfig, follow_waypoints
-from .base import PlanResult
 from .explore import ExploreConfig, Explorer, ExploreReport
-from .grid import OccupancyGrid
-from .planning import plan_path
 
 EXPLORE_FILE = "explore.json"
 
@@ -49,6 +51,8 @@ def explore_into(
     )
     report = explorer.run(reset=False)
     folder = Path(mem.path)
+    explorer.grid.trajectory = np.asarray(report.trajectory, np.float32).reshape(-1, 2)
+    explorer.grid.meta = {"kind": "explored", "env": env.name}
     explorer.grid.save(folder)
     meta = {"env": env.name, "robot": env.robot.__dict__, "config": cfg.__dict__, "report": report.as_dict()}
     atomic_write_json(folder / EXPLORE_FILE, meta)

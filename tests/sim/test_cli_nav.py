@@ -1,4 +1,5 @@
 import json
+import math
 
 import pytest
 import typer
@@ -48,25 +49,46 @@ def test_explore_then_navigate_by_text_and_by_position(tmp_path) -> None:
     assert (mem / "map.npz").is_file() and (mem / "map.json").is_file() and (mem / "explore.json").is_file()
 
     r = runner.invoke(
-        app, ["navigate", "--memory", str(mem), "--to", "blue box", "--method", "embedder-only", "--json"]
+        app,
+        [
+            "navigate",
+            "--memory",
+            str(mem),
+            "--to",
+            "blue box",
+            "--method",
+            "embedder-only",
+            "--drive",
+            "--json",
+        ],
     )
     assert r.exit_code == 0, r.output
     nav = json.loads(r.stdout)
-    assert nav["found"] and nav["planned"] and nav["reached"] and nav["true_kind"] == "BlueBox"
-    assert nav["final_to_true_m"] < 3.0 and nav["path_m"] > 5.0
+    assert nav["answer"]["found"] and nav["answer"]["method"] == "embedder-only"
+    assert nav["ok"] and nav["path_length_m"] > 5.0 and len(nav["waypoints"]) >= 2
+    assert nav["pose_stamped"]["header"]["frame_id"] == "map"
+    drive = nav["drive"]
+    assert drive["reached"] and math.dist(drive["final"], (12.5, 1.5)) < 3.0  # the blue box
 
-    r = runner.invoke(app, ["navigate", "--memory", str(mem), "--x", "6.0", "--y", "3.0"])
+    # a position goal plans on the saved map alone: no simulator is started
+    r = runner.invoke(app, ["navigate", "--memory", str(mem), "--from", "2,1.5", "--to", "6.0,3.0"])
     assert r.exit_code == 0, r.output
-    assert "A* path" in r.stdout and "reached" in r.stdout
+    assert "A* path" in r.stdout and '"frame_id": "map"' in r.stdout
+
+    r = runner.invoke(app, ["map", "--memory", str(mem), "--json"])
+    assert r.exit_code == 0, r.output
+    counts = json.loads(r.stdout)
+    assert counts["kind"] == "explored" and counts["free"] > 1000 and counts["occupied"] > 100
 
 
-def test_navigate_needs_an_explored_memory(tmp_path) -> None:
+def test_navigate_needs_a_map(tmp_path, colour_embedder) -> None:
+    import ravenmem
+
     app, runner = _app(), CliRunner()
-    r = runner.invoke(app, ["navigate", "--memory", str(tmp_path), "--to", "red box"])
+    ravenmem.create(tmp_path / "m", embedder=colour_embedder, ocr=False).close()
+    r = runner.invoke(app, ["navigate", "--memory", str(tmp_path / "m"), "--to", "1,2"])
     assert r.exit_code != 0
-    assert "explore" in str(r.exception)
-    r = runner.invoke(app, ["navigate", "--memory", str(tmp_path)])
-    assert "--to" in str(r.exception)
+    assert "no map.npz" in str(r.exception)
 
 
 def test_demo_on_the_synthetic_world(tmp_path, colour_embedder) -> None:

@@ -88,3 +88,11 @@ def test_short_episode_maps_and_plans(env) -> None:
     res = follow_waypoints(env, plan.waypoints, max_steps=600, start=here)
     assert res.reached, res.reason
     assert math.dist((res.last.pose.x, res.last.pose.y), (20.0, -18.0)) < 0.5
+
+
+def test_the_simulator_writes_nothing_into_the_working_folder(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    e = create_env("vizdoom:freedoom2/MAP01")
+    e.reset()
+    e.close()
+    assert list(tmp_path.iterdir()) == []

@@ -128,13 +128,20 @@ def ingest(
     ocr: Annotated[bool, typer.Option(help="read text in keyframes (slower)")] = True,
     thumb_size: Annotated[int, typer.Option(help="thumbnail longer side in px (0 = off)")] = 320,
     batch_size: Annotated[int, typer.Option(help="frames embedded per batch")] = 16,
+    depth: Annotated[Path | None, typer.Option(help="image folders: the matching depth images")] = None,
+    depth_topic: Annotated[str | None, typer.Option(help="bag depth topic (16UC1 mm / 32FC1 m)")] = None,
+    intrinsics: Annotated[
+        str | None, typer.Option(help="depth camera: fr1 | fr2 | fr3 | kinect | fx,fy,cx,cy")
+    ] = None,
+    build_map: Annotated[bool, typer.Option("--map/--no-map", help="build the map from depth frames")] = True,
     wait: Annotated[
         bool, typer.Option("--wait", help="wait while another process writes this memory")
     ] = False,
     json_out: JsonOpt = False,
 ) -> None:
-    """Build (or extend) a memory from a recording. Frames already in it are skipped, so running
-    the same command again after an interruption resumes where it stopped."""
+    """Build (or extend) a memory from a recording, and its map from frames with depth. Frames
+    already in it are skipped, so running the same command again after an interruption resumes
+    where it stopped."""
     import ravenmem
     from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
     from ravenmem.ingest.pipeline import ALREADY
@@ -148,19 +155,24 @@ def ingest(
         cfg.fps = fps
     kwargs = {
         k: v
-        for k, v in dict(poses=poses, image_topic=image_topic, pose_topic=pose_topic).items()
+        for k, v in dict(
+            poses=poses, image_topic=image_topic, pose_topic=pose_topic, depth=depth, depth_topic=depth_topic
+        ).items()
         if v is not None
     }
     src = open_source(source, format, **kwargs)
+    mapper = _mapper(memory, src, intrinsics) if build_map else None
     mem = ravenmem.create(
         memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True, wait=wait
     )
     with mem, mem.undo_create_on_error():  # a failed first ingest leaves no folder behind
-        rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size, wait=wait)
+        rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size, wait=wait, mapper=mapper)
         total = mem.count()
     for w in rep.warnings:
         print_warning(w)
     out = rep.as_dict() | {"memory": str(memory), "memories_total": total}
+    if mapper is not None and (mapper.stats.mapped or mapper.stats.skipped or mapper.note):
+        out["map"] = mapper.summary()
     if json_out:
         print_json(out)
         return
@@ -171,8 +183,28 @@ def ingest(
     )
     for reason, n in sorted(rep.skipped.items()):
         console.print(f"  skipped {n}: {esc(reason)}")
+    if "map" in out:
+        m = out["map"]
+        cells = (
+            f", {m['free']} free / {m['occupied']} occupied cells of {m['cell_size_m']} m"
+            if "free" in m
+            else ""
+        )
+        why = "; ".join([f"{n} {r}" for r, n in m["skipped"].items()] + ([m["note"]] if "note" in m else []))
+        console.print(
+            f"  map: {m['frames_mapped']} depth frames mapped{cells}" + (f" ({esc(why)})" if why else "")
+        )
     if rep.kept == 0 and not rep.skipped.get(ALREADY):
         raise InputError(f"no frame of {source} was kept: nothing was added to {memory}")
+
+
+def _mapper(memory: Path, src: Any, intrinsics: str | None) -> Any:
+    """The memory's map builder, with the camera from --intrinsics or the source."""
+    from ravenmem.ingest.depth import parse_intrinsics
+    from ravenmem.nav.mapping import MapBuilder
+
+    intr = parse_intrinsics(intrinsics) if intrinsics else getattr(src, "intrinsics", None)
+    return MapBuilder(memory, intr, getattr(src, "camera_extrinsic", None))
 
 
 @app.command()

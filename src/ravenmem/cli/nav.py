@@ -1,4 +1,4 @@
-"""`ravenmem explore`, `ravenmem navigate` and `ravenmem demo`: the simulated robot's commands."""
+"""`ravenmem map`, `navigate`, `explore` and `demo`: maps, planning and the simulated robot."""
 
 from __future__ import annotations
 
@@ -21,6 +21,238 @@ def _say(msg: str) -> None:
     sys.stderr.write(msg + "\n")
 
 
+def _xy(text: str, what: str) -> tuple[float, float] | None:
+    """'x,y' -> (x, y); None when the text is not two numbers."""
+    parts = [p for p in text.replace(" ", "").split(",") if p]
+    if len(parts) != 2:
+        return None
+    try:
+        x, y = float(parts[0]), float(parts[1])
+    except ValueError:
+        return None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        from ravenmem.errors import InputError
+
+        raise InputError(f"{what}: not finite: {text!r}")
+    return (x, y)
+
+
+def _layers(grid: Any, mem: Any, title: str) -> Any:
+    """Trajectory, memories (on the map) and start, for a map picture."""
+    from ravenmem.nav.goals import to_map_xy
+    from ravenmem.nav.render import MapLayers
+
+    traj = [(float(x), float(y)) for x, y in grid.trajectory]
+    memories = [to_map_xy(grid, r.pose.xyz) for r in mem.all_records()] if mem is not None else []
+    return MapLayers(trajectory=traj, memories=memories, start=traj[0] if traj else None, title=title)
+
+
+def map_cmd(
+    memory: MemoryOpt,
+    out: Annotated[Path | None, typer.Option("--out", help="draw the map here (PNG)")] = None,
+    from_: Annotated[
+        list[Path] | None,
+        typer.Option("--from", help="recording(s) of this memory to build the map from (repeatable)"),
+    ] = None,
+    refresh: Annotated[
+        bool, typer.Option(help="re-read the memory's recordings and add depth frames not in the map yet")
+    ] = False,
+    rebuild: Annotated[bool, typer.Option(help="build the map again from the recordings")] = False,
+    intrinsics: Annotated[
+        str | None, typer.Option(help="depth camera when building: fr1 | fr2 | fr3 | kinect | fx,fy,cx,cy")
+    ] = None,
+    resolution: Annotated[float | None, typer.Option(help="cell size (m) when building")] = None,
+    robot_radius: Annotated[float | None, typer.Option(help="robot radius (m) when building")] = None,
+    nav2: Annotated[
+        Path | None, typer.Option("--nav2", help="also export a Nav2 map_server map: NAME.yaml (+ NAME.pgm)")
+    ] = None,
+    import_nav2: Annotated[
+        Path | None, typer.Option("--import-nav2", help="store this map_server YAML as the memory's map")
+    ] = None,
+    overwrite: Annotated[bool, typer.Option(help="with --import-nav2: replace an existing map")] = False,
+    json_out: JsonOpt = False,
+) -> None:
+    """Build (if missing) or refresh the memory's occupancy map, draw it, export it for Nav2."""
+    import ravenmem
+    from ravenmem.errors import InputError
+    from ravenmem.nav.grid import MAP_FILE, OccupancyGrid
+    from ravenmem.nav.mapping import map_counts, recording_config
+    from ravenmem.nav.nav2 import export_map_server, import_map_server
+    from ravenmem.nav.render import draw_map
+    from ravenmem.robot.maps import build_map
+
+    if (resolution is not None or robot_radius is not None) and not rebuild:
+        raise InputError("--resolution and --robot-radius change how a map is built: add --rebuild")
+    out_json: dict[str, Any] = {"memory": str(memory)}
+    with ravenmem.open(memory) as mem:
+        if import_nav2 is not None:
+            if (memory / MAP_FILE).exists() and not overwrite:
+                raise InputError(f"{memory} already has a map; pass --overwrite to replace it")
+            grid = import_map_server(import_nav2)
+            grid.save(memory)
+        elif rebuild or refresh or from_ or not (memory / MAP_FILE).exists():
+            cfg = None
+            if rebuild:
+                base = recording_config()
+                cfg = recording_config(
+                    resolution if resolution is not None else base.resolution,
+                    robot_radius if robot_radius is not None else base.robot_radius,
+                )
+            grid, rep = build_map(mem, intrinsics, cfg, rebuild=rebuild, recordings=from_ or (), say=_say)
+            out_json["built"] = rep
+        else:
+            grid = OccupancyGrid.load(memory)
+        if out is not None:
+            draw_map(grid, _layers(grid, mem, f"{memory.name}: {grid.kind} map"), out)
+            out_json["png"] = str(out)
+    if nav2 is not None:
+        yml, pgm = export_map_server(grid, nav2)
+        out_json["nav2"] = {"yaml": str(yml), "image": str(pgm)}
+    out_json |= map_counts(grid) | {
+        "kind": grid.kind,
+        "origin": list(grid.origin),
+        "shape": list(grid.shape),
+        "robot_radius_m": grid.config.robot_radius,
+        "frame": grid.frame.as_dict(),
+    }
+    if json_out:
+        sys.stdout.write(json.dumps(out_json, indent=2) + "\n")
+        return
+    m2 = grid.resolution**2
+    sys.stdout.write(
+        f"{grid.kind} map of {memory}: {out_json['free']} free ({out_json['free'] * m2:.1f} m^2), "
+        f"{out_json['occupied']} occupied, {out_json['unknown']} unknown cells of {grid.resolution:g} m; "
+        f"floor: {grid.frame.method}"
+        + (f"; picture: {out}" if out else "")
+        + (f"; Nav2 map: {nav2}" if nav2 else "")
+        + "\n"
+    )
+
+
+def navigate(
+    memory: MemoryOpt,
+    to: Annotated[str, typer.Option("--to", help="goal 'x,y' (map metres) or what to go to ('the red box')")],
+    from_: Annotated[
+        str | None, typer.Option("--from", help="start 'x,y' (default: the robot's last pose)")
+    ] = None,
+    method: Annotated[
+        str, typer.Option(help="how a text goal is answered: offline | embedder-only | ...")
+    ] = "offline",
+    robot_radius: Annotated[float | None, typer.Option(help="robot radius (m); default: the map's")] = None,
+    drive: Annotated[
+        bool, typer.Option(help="simulated memories: also drive there in the simulator, from its start")
+    ] = False,
+    max_steps: Annotated[int, typer.Option(help="with --drive: driving budget in control steps")] = 1500,
+    png: Annotated[Path | None, typer.Option(help="draw the map with the path here")] = None,
+    json_out: JsonOpt = False,
+) -> None:
+    """Plan with A* on the memory's own map to a position or to an answer; print the path and
+    the goal as a ROS PoseStamped. Unknown or blocked goals snap to the nearest reachable
+    cell that sees them, or the command fails with the reason."""
+    import ravenmem
+    from ravenmem.agent.methods import create_method
+    from ravenmem.errors import InputError
+    from ravenmem.nav.goals import GoalPlan, last_pose, plan_to_answer, plan_to_pose
+    from ravenmem.nav.grid import OccupancyGrid
+    from ravenmem.nav.render import draw_map
+
+    grid = OccupancyGrid.load(memory)
+    start = _xy(from_, "--from") if from_ is not None else None
+    if from_ is not None and start is None:
+        raise InputError(f"--from: expected 'x,y' in metres, got {from_!r}")
+    if drive and from_ is not None:
+        raise InputError("--drive starts where the simulator starts; leave out --from")
+    goal_xy = _xy(to, "--to")
+    out: dict[str, Any] = {"memory": str(memory), "to": to}
+    with ravenmem.open(memory) as mem:
+        if drive and len(grid.trajectory):
+            start = (float(grid.trajectory[0][0]), float(grid.trajectory[0][1]))  # the simulator's start
+        if start is None:
+            start = last_pose(grid, mem)
+        if goal_xy is not None:
+            plan = plan_to_pose(grid, goal_xy, start, robot_radius)
+            yaw = 0.0
+            if plan.ok and len(plan.waypoints) >= 2:
+                (ax, ay), (bx, by) = plan.waypoints[-2], plan.waypoints[-1]
+                yaw = math.atan2(by - ay, bx - ax)
+            goal = (plan.goal[0], plan.goal[1], yaw) if plan.ok and plan.goal else None
+            gp = GoalPlan(plan, goal, start, goal_xy)
+        else:
+            question = to if to.rstrip().endswith("?") else f"Where did you see the {to}?"
+            name = "offline" if method == "auto" else method
+            answer = create_method(name, mem).ask(question)
+            out["answer"] = {
+                "method": answer.method,
+                "found": answer.found,
+                "position": answer.position,
+                "text": answer.text,
+            }
+            if not answer.found or not answer.position:
+                raise InputError(f"{to!r}: not found in memory ({answer.method}); the robot stays put")
+            gp = plan_to_answer(mem, answer, start, robot_radius, grid=grid)
+    out |= gp.as_dict()
+    if not gp.ok:
+        raise InputError(gp.plan.reason)
+    if drive:
+        out["drive"] = _drive(memory, grid, (gp.goal[0], gp.goal[1]) if gp.goal else goal_xy, max_steps)
+    if png is not None:
+        layers = _layers(grid, None, f"{memory.name}: A* to {to}")
+        layers.paths = [gp.plan.waypoints]
+        layers.start = start
+        layers.goals = [gp.goal] if gp.goal else []
+        if "drive" in out:
+            layers.drives = [out["drive"].pop("trajectory")]
+        draw_map(grid, layers, png)
+        out["png"] = str(png)
+    if json_out:
+        sys.stdout.write(json.dumps(out, indent=2, default=str) + "\n")
+        return
+    g = gp.goal or (0.0, 0.0, 0.0)
+    line = (
+        f"A* path {gp.plan.length_m:.2f} m, {len(gp.plan.waypoints)} waypoints, from "
+        f"({start[0]:.2f}, {start[1]:.2f}) to ({g[0]:.2f}, {g[1]:.2f}) facing {math.degrees(g[2]):.0f} deg"
+        if start
+        else ""
+    )
+    if gp.plan.snapped:
+        line += (
+            f" (goal snapped from ({gp.target[0]:.2f}, {gp.target[1]:.2f}))" if gp.target else " (snapped)"
+        )
+    if "answer" in out:
+        line = f"answer ({out['answer']['method']}): {out['answer']['position']}; " + line
+    if "drive" in out:
+        d = out["drive"]
+        line += f"; drove {d['driven_m']:.1f} m: {d['reason']}, robot at ({d['final'][0]:.2f}, {d['final'][1]:.2f})"
+    sys.stdout.write(line + "\n")
+    sys.stdout.write(json.dumps(gp.pose_stamped()) + "\n")
+
+
+def _drive(memory: Path, grid: Any, goal: Any, max_steps: int) -> dict[str, Any]:
+    """Drive to `goal` in the simulator the memory was explored in (from its start)."""
+    from ravenmem.errors import InputError
+    from ravenmem.robot.mission import load_exploration, navigate_to
+    from ravenmem.sim.base import create_env
+
+    if goal is None:
+        raise InputError("no goal to drive to")
+    meta = load_exploration(memory)
+    sim = create_env(meta["env"])
+    try:
+        obs = sim.reset()
+        nav = navigate_to(sim, grid, (float(goal[0]), float(goal[1])), max_steps, start=obs)
+        return {
+            "env": sim.name,
+            "reached": nav.reached,
+            "reason": nav.reason,
+            "driven_m": nav.driven_m,
+            "steps": nav.steps,
+            "final": [nav.last.pose.x, nav.last.pose.y],
+            "trajectory": nav.trajectory,
+        }
+    finally:
+        sim.close()
+
+
 def explore(
     memory: MemoryOpt,
     env: EnvOpt = "vizdoom:freedoom2/MAP02",
@@ -34,7 +266,7 @@ def explore(
     """Phase I: explore with frontiers, build the occupancy map and the memory."""
     import ravenmem
     from ravenmem.errors import InputError
-    from ravenmem.nav.render import MapLayers, draw_map
+    from ravenmem.nav.render import draw_map
     from ravenmem.robot.explore import ExploreConfig
     from ravenmem.robot.mission import explore_into
     from ravenmem.sim.base import create_env
@@ -49,16 +281,7 @@ def explore(
         )
         grid, rep = explore_into(sim, mem, cfg, progress=_say)
         if png is not None:
-            draw_map(
-                grid,
-                MapLayers(
-                    trajectory=rep.trajectory,
-                    memories=[(r.pose.x, r.pose.y) for r in mem.all_records()],
-                    start=rep.trajectory[0] if rep.trajectory else None,
-                    title=sim.name,
-                ),
-                png,
-            )
+            draw_map(grid, _layers(grid, mem, sim.name), png)
         cov = rep.coverage[-1] if rep.coverage else (0, 0.0, 0.0, None)
         out: dict[str, Any] = {
             "env": sim.name,
@@ -85,116 +308,28 @@ def explore(
     )
 
 
-def navigate(
-    memory: MemoryOpt,
-    to: Annotated[str | None, typer.Option("--to", help="what to go to, e.g. 'explosive barrel'")] = None,
-    x: Annotated[float | None, typer.Option(help="or a goal position x (m)")] = None,
-    y: Annotated[float | None, typer.Option(help="goal position y (m)")] = None,
-    method: Annotated[str, typer.Option(help="auto | offline | embedder-only | random")] = "auto",
-    max_steps: Annotated[int, typer.Option(help="driving budget in control steps")] = 1500,
-    png: Annotated[Path | None, typer.Option(help="draw the map with the path here")] = None,
-    json_out: JsonOpt = False,
-) -> None:
-    """Phase II: answer from memory, plan with A* on the saved map, and drive there."""
-    import ravenmem
-    from ravenmem.demo import _answerer
-    from ravenmem.errors import InputError
-    from ravenmem.nav.grid import OccupancyGrid
-    from ravenmem.nav.render import MapLayers, draw_map
-    from ravenmem.robot.mission import load_exploration, navigate_to
-    from ravenmem.sim.base import create_env
-    from ravenmem.sim.queries import match_kind
-
-    if (to is None) == (x is None or y is None):
-        raise InputError("give either --to TEXT or both --x and --y")
-    meta = load_exploration(memory)
-    grid = OccupancyGrid.load(memory)
-    mem = ravenmem.open(memory)
-    sim = create_env(meta["env"])
-    try:
-        found, used = True, "position"
-        goal: tuple[float, float] | None = (float(x), float(y)) if x is not None and y is not None else None
-        if to is not None:
-            used, ask = _answerer(method, mem)
-            question = to if to.rstrip().endswith("?") else f"Where did you see the {to}?"
-            found, goal = ask(question)
-        out: dict[str, Any] = {"query": to, "method": used, "found": found, "answer": goal}
-        obs = sim.reset()
-        if found and goal is not None:
-            nav = navigate_to(sim, grid, goal, max_steps, start=obs)
-            obs = nav.last
-            plan = nav.plan
-            out.update(
-                planned=bool(plan and plan.ok),
-                reason=nav.reason,
-                reached=nav.reached,
-                path_m=plan.length_m if plan and plan.ok else None,
-                driven_m=nav.driven_m,
-                snapped_goal=plan.goal if plan and plan.ok and plan.snapped else None,
-            )
-            if png is not None:
-                draw_map(
-                    grid,
-                    MapLayers(
-                        trajectory=nav.trajectory,
-                        paths=nav.paths,
-                        start=nav.trajectory[0],
-                        answers=[(to or "goal", goal[0], goal[1], nav.reached)],
-                        title=sim.name,
-                    ),
-                    png,
-                )
-        out["final"] = (obs.pose.x, obs.pose.y)
-        kind = match_kind(to, [o.kind for o in sim.objects()]) if to else None
-        if kind is not None:
-            inst = [(o.x, o.y) for o in sim.objects() if o.kind == kind]
-            out["true_kind"] = kind
-            out["final_to_true_m"] = min(math.dist(out["final"], p) for p in inst)
-        mem.close()
-    finally:
-        sim.close()
-    if json_out:
-        sys.stdout.write(json.dumps(out, indent=2, default=str) + "\n")
-        return
-    if not out["found"]:
-        sys.stdout.write(f"{to!r}: not found in memory ({out['method']}); the robot stays put\n")
-        return
-    gx, gy = out["answer"]
-    line = f"answer ({out['method']}): ({gx:.2f}, {gy:.2f})"
-    if out.get("planned"):
-        line += f"; A* path {out['path_m']:.1f} m; drove {out['driven_m']:.1f} m, {out['reason']}"
-    else:
-        line += f"; no path: {out.get('reason')}"
-    line += f"; robot at ({out['final'][0]:.2f}, {out['final'][1]:.2f})"
-    if "final_to_true_m" in out:
-        line += f"; {out['final_to_true_m']:.1f} m from the nearest true {out['true_kind']}"
-    sys.stdout.write(line + "\n")
-
-
 def demo(
-    out: Annotated[Path, typer.Option("--out", help="memory folder to write")] = Path("demo.mem"),
-    env: EnvOpt = "vizdoom:freedoom2/MAP02",
-    steps: Annotated[int, typer.Option(help="exploration budget in control steps")] = 3000,
-    queries: Annotated[int, typer.Option(help="object queries in Phase II")] = 8,
-    method: Annotated[str, typer.Option(help="auto | offline | embedder-only | random")] = "auto",
-    png: Annotated[Path, typer.Option(help="map picture")] = Path("demo_map.png"),
+    out: Annotated[Path, typer.Option("--out", help="output folder (memories, maps, report)")] = Path(
+        "ravenmem-demo"
+    ),
+    maps: Annotated[
+        str | None, typer.Option(help="comma-separated environments (default: the two demo maps)")
+    ] = None,
+    steps: Annotated[int | None, typer.Option(help="exploration budget in control steps per map")] = None,
+    queries: Annotated[int, typer.Option(help="object queries per map")] = 8,
     success_radius: Annotated[float, typer.Option(help="metres from the nearest true instance")] = 3.0,
-    overwrite: Annotated[bool, typer.Option(help="replace an existing --out memory")] = False,
+    overwrite: Annotated[bool, typer.Option(help="replace an existing --out folder")] = False,
     json_out: JsonOpt = False,
 ) -> None:
-    """Explore a Freedoom map into a memory, then answer queries and drive there (offline, CPU)."""
+    """Explore Freedoom maps into memories, then find objects by picture, by oracle perception,
+    by text and at random, and drive to each answer (offline, CPU)."""
     from ravenmem.demo import DemoConfig, run_demo
 
-    cfg = DemoConfig(
-        env=env,
-        out=str(out),
-        png=str(png),
-        steps=steps,
-        queries=queries,
-        method=method,
-        success_radius=success_radius,
-        overwrite=overwrite,
-    )
+    cfg = DemoConfig(out=str(out), queries=queries, success_radius=success_radius, overwrite=overwrite)
+    if maps:
+        cfg.maps = [m.strip() for m in maps.split(",") if m.strip()]
+    if steps is not None:
+        cfg.steps = steps
     report = run_demo(cfg, progress=_say)
     if json_out:
         sys.stdout.write(json.dumps(report.as_dict(), indent=2) + "\n")
@@ -203,7 +338,8 @@ def demo(
 
 
 def register(app: typer.Typer) -> None:
-    """Add `explore`, `navigate` and `demo` to the main `ravenmem` command."""
-    app.command("explore")(explore)
+    """Add `map`, `navigate`, `explore` and `demo` to the main `ravenmem` command."""
+    app.command("map")(map_cmd)
     app.command("navigate")(navigate)
+    app.command("explore")(explore)
     app.command("demo")(demo)

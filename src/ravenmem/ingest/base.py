@@ -43,6 +43,16 @@ class FrameSource(Protocol):
     def __iter__(self) -> Iterator[Frame]: ...
 
 
+@runtime_checkable
+class FrameSink(Protocol):
+    """Fed every posed frame that carries depth, before keyframe selection: the map builder
+    (`ravenmem.nav.mapping.MapBuilder`) is one. `close` is called once, when the run ends."""
+
+    def add(self, frame: Frame) -> bool: ...
+
+    def close(self) -> None: ...
+
+
 SOURCES: Registry[FrameSource] = Registry(
     "source format",
     "ravenmem.sources",

@@ -13,10 +13,19 @@ Image time, first rule that applies: the row's `t` column (per-image rows); with
 frame_2 < frame_10); otherwise the file name's stem must be a number (`1305031229.528748.jpg`,
 seconds), integers above 1e17, 1e14 or 1e11 being read as ns, us or ms (ROS exporters' names).
 Frames come out in time order.
+
+Depth (for maps): `depth=DIR`, a folder of depth images matching the colour images by file
+stem (`000123.png` <-> `000123.png`), or else by the time in their names (nearest within
+`depth_max_gap` s). 16-bit images are divided by `depth_scale` (units per metre, 1000 = mm by
+default; TUM's is 5000), float images and `.npy` arrays are metres. The camera is
+`intrinsics=` (a preset or fx,fy,cx,cy) and `camera_frame=` says what the poses are: `body`
+(x forward, z up: a robot base or a level camera, the default) or `optical` (the camera's
+own x right, y down, z forward frame, as SLAM systems and TUM write it).
 """
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import re
 from collections.abc import Iterator
@@ -24,13 +33,15 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..types import Frame, Pose
+from ..types import Frame, Intrinsics, Pose
 from ._util import IMAGE_EXTS, build, existing, parse_start_time, read_rgb
 from .base import SOURCES, SourceStats
+from .depth import parse_intrinsics, read_depth_file
 from .identity import file_head, make_identity
 from .poses import PoseTable, PoseTrack, check_match_mode, read_pose_table
 
 SKIP_NO_ROW = "no pose row for image"
+DEPTH_EXTS = (".png", ".tif", ".tiff", ".pgm", ".npy")
 
 
 def natural_key(name: str) -> list[Any]:
@@ -64,6 +75,11 @@ class FolderSource:
         pose_match: str = "interpolate",
         max_gap: float | None = None,
         sort_poses: bool = False,
+        depth: str | Path | None = None,
+        depth_scale: float = 1000.0,
+        depth_max_gap: float = 0.02,
+        intrinsics: Intrinsics | str | None = None,
+        camera_frame: str = "body",
     ) -> None:
         self.root = existing(path, "image folder", want_dir=True)
         self.name = f"folder:{self.root.name}"
@@ -90,6 +106,42 @@ class FolderSource:
         else:
             self.track = PoseTrack.from_table(table, sort=sort_poses)
         self.items = self._timed(names, fps, start)
+        if not depth_scale > 0:
+            raise InputError(f"folder: depth_scale must be > 0, got {depth_scale}")
+        if camera_frame not in ("body", "optical"):
+            raise InputError(f"folder: camera_frame must be 'body' or 'optical', got {camera_frame!r}")
+        self.depth_scale = float(depth_scale)
+        self.camera_extrinsic = camera_frame
+        self.intrinsics: Intrinsics | None = (
+            parse_intrinsics(intrinsics) if isinstance(intrinsics, str) else intrinsics
+        )
+        self.depth_files = self._match_depth(depth, depth_max_gap) if depth is not None else {}
+
+    def _match_depth(self, folder: str | Path, max_gap: float) -> dict[str, Path]:
+        """Colour image name -> its depth image: same stem, else nearest time in the names."""
+        root = existing(folder, "depth folder", want_dir=True)
+        files = [p for p in root.iterdir() if p.is_file() and p.suffix.lower() in DEPTH_EXTS]
+        if not files:
+            raise InputError(f"{root}: no depth images ({', '.join(DEPTH_EXTS)})")
+        by_stem = {p.stem: p for p in files}
+        timed = sorted((t, p) for p in files if (t := time_from_name(p.name)) is not None)
+        ts = [t for t, _ in timed]
+        out: dict[str, Path] = {}
+        for name, _ in self.items:
+            stem = name.rsplit(".", 1)[0]
+            if stem in by_stem:
+                out[name] = by_stem[stem]
+                continue
+            t = time_from_name(name)
+            if t is None or not ts:
+                continue
+            i = bisect.bisect_left(ts, t)
+            near = min((j for j in (i - 1, i) if 0 <= j < len(ts)), key=lambda j: abs(ts[j] - t))
+            if abs(ts[near] - t) <= max_gap:
+                out[name] = timed[near][1]
+        if not out:
+            raise InputError(f"{root}: no depth image matches a colour image by name or time")
+        return out
 
     @property
     def frame_count(self) -> int:
@@ -165,8 +217,16 @@ class FolderSource:
                 continue
             self.stats.raw_bytes += image.size
             self.stats.frames_yielded += 1
+            dpath = self.depth_files.get(name)
+            depth = read_depth_file(dpath, self.depth_scale) if dpath is not None else None
             yield Frame(
-                image=image, t=t, pose=pose, source=str(self.root), index=i, path=str(self.root / name)
+                image=image,
+                t=t,
+                pose=pose,
+                source=str(self.root),
+                index=i,
+                path=str(self.root / name),
+                depth=depth,
             )
 
 

@@ -8,6 +8,7 @@ Re-running an ingest resumes it: a frame the memory already holds from the same 
 counted as `already in memory`. Every frame still goes through the keyframe rules in order, and
 the novelty rule is replayed on the stored embeddings of the skipped frames before the next new
 frame, so a run killed at any point and started again keeps the frames one run would have kept.
+Frames that carry depth also feed an optional `mapper` (every one, not only keyframes).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..types import Frame, MemoryRecord
-from .base import FrameSource
+from .base import FrameSink, FrameSource
 from .identity import source_identity
 from .keyframes import DROP_SIMILAR, KeyframeConfig, Keyframer
 
@@ -142,6 +143,7 @@ def ingest(
     batch_size: int = 16,
     progress: bool | None = None,
     wait: bool | float = False,
+    mapper: FrameSink | None = None,
 ) -> IngestReport:
     """Run a source into a memory; returns counts (also appended to the memory's manifest).
 
@@ -197,6 +199,8 @@ def ingest(
 
     try:
         for f in _posed(iter(source), report, bar, source):
+            if mapper is not None and f.depth is not None:
+                mapper.add(f)  # the map takes every depth frame, keyframe or not, stored or not
             if kf.pre(f) is not None:
                 prefiltered += 1
                 continue
@@ -215,6 +219,8 @@ def ingest(
                 flush()
         flush()
     finally:
+        if mapper is not None:
+            mapper.close()
         st = getattr(source, "stats", None)
         if st is not None:  # frames the source skipped after the last one it yielded
             bar.update(max(int(st.frames_seen) - bar.n, 0))

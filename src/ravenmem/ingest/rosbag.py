@@ -7,11 +7,21 @@ format PIL decodes: jpeg, png, ...). Poses: nav_msgs/Odometry, geometry_msgs/Pos
 geometry_msgs/PoseWithCovarianceStamped, or /tf (+ /tf_static) from `tf_parent` to `tf_child`.
 Times come from header.stamp (`time_source="header"`, falling back to the bag's receive time
 when a stamp is zero) or from the bag's receive time (`time_source="bag"`).
+
+Depth (for maps): `depth_topic` (sensor_msgs/Image, 16UC1 in mm or 32FC1 in m; by default the
+one other image topic with "depth" in its name) is paired with each colour frame by time
+(nearest within `depth_max_gap` s, streaming: a few depth images are held at once). The
+depth camera's intrinsics come from its `camera_info` topic (by default the CameraInfo in the
+depth topic's namespace, or the only one), else from `intrinsics=`. The camera's mount on
+the posed frame comes from /tf_static when it links the pose's frame to the camera_info's
+frame; a frame named `*optical*` is the optical frame itself, any other camera frame is a
+REP-103 body frame (x forward, z up).
 """
 
 from __future__ import annotations
 
 import io
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -21,12 +31,14 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
-from ..types import Frame
-from ._tf import TfTree
+from ..types import Frame, Intrinsics
+from ._tf import TfTree, norm_frame
 from ._util import build, existing, pil_to_rgb
 from .base import SOURCES, SourceStats
+from .depth import camera_info_intrinsics, decode_depth_message, parse_intrinsics
 from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
 
@@ -38,6 +50,9 @@ POSE_TYPES = (
     "geometry_msgs/msg/PoseWithCovarianceStamped",
 )
 TF = "tf2_msgs/msg/TFMessage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+# The optical frame (x right, y down, z forward) in a REP-103 camera body frame (x forward, z up).
+_OPTICAL_IN_BODY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 SKIP_DECODE = "undecodable message"
 SKIP_MALFORMED = "malformed image message"
@@ -111,6 +126,10 @@ class RosbagSource:
         time_source: str = "header",
         pose_match: str = "interpolate",
         max_gap: float | None = None,
+        depth_topic: str | None = None,
+        camera_info_topic: str | None = None,
+        depth_max_gap: float = 0.05,
+        intrinsics: Intrinsics | str | None = None,
     ) -> None:
         self.path = existing(path, "ROS bag")
         self.name = f"rosbag:{self.path.name}"
@@ -123,9 +142,11 @@ class RosbagSource:
         with self._reader() as reader:
             topics = {c.topic: c.msgtype for c in reader.connections}
             images = {t: m for t, m in topics.items() if m in (IMAGE, COMPRESSED)}
-            self.image_topic = _pick("image", images, image_topic, "image_topic")
+            colour = {t: m for t, m in images.items() if "depth" not in t.lower()} or images
+            self.image_topic = _pick("image", images if image_topic else colour, image_topic, "image_topic")
             counts = [c.msgcount for c in reader.connections if c.topic == self.image_topic]
             self.frame_count: int | None = sum(counts) if all(n > 0 for n in counts) else None
+            self.depth_topic = self._depth_topic(images, depth_topic)
             tf_topics = [t for t, m in topics.items() if m == TF]
             poses = {t: m for t, m in topics.items() if m in POSE_TYPES}
             if pose_topic is None and not poses and tf_topics:
@@ -136,6 +157,91 @@ class RosbagSource:
             else:
                 self.pose_topic = _pick("pose", poses | {t: TF for t in tf_topics}, pose_topic, "pose_topic")
                 self.track = self._pose_track(reader, self.pose_topic)
+            self.depth_max_gap = float(depth_max_gap)
+            self.intrinsics: Intrinsics | None = (
+                parse_intrinsics(intrinsics) if isinstance(intrinsics, str) else intrinsics
+            )
+            self.camera_extrinsic: np.ndarray | str = "body"
+            if self.depth_topic is not None:
+                self._camera(reader, topics, camera_info_topic, tf_topics, tf_child)
+
+    def _depth_topic(self, images: dict[str, str], wanted: str | None) -> str | None:
+        if wanted is not None:
+            if images.get(wanted) != IMAGE:
+                listing = ", ".join(t for t, m in sorted(images.items()) if m == IMAGE) or "none"
+                raise InputError(
+                    f"depth topic {wanted!r} is not a sensor_msgs/Image topic of the bag ({listing})"
+                )
+            return wanted
+        cands = [
+            t for t, m in images.items() if m == IMAGE and "depth" in t.lower() and t != self.image_topic
+        ]
+        return cands[0] if len(cands) == 1 else None
+
+    def _camera(
+        self,
+        reader: AnyReader,
+        topics: dict[str, str],
+        info_topic: str | None,
+        tf_topics: list[str],
+        child: str,
+    ) -> None:
+        """Intrinsics from the depth camera's CameraInfo, and its mount from /tf_static."""
+        infos = sorted(t for t, m in topics.items() if m == CAMERA_INFO)
+        if info_topic is None:
+            assert self.depth_topic is not None
+            ns = self.depth_topic.rsplit("/", 1)[0]
+            same = [t for t in infos if t.rsplit("/", 1)[0] == ns]
+            info_topic = same[0] if same else (infos[0] if len(infos) == 1 else None)
+        elif info_topic not in infos:
+            raise InputError(
+                f"camera_info topic {info_topic!r} not in the bag (CameraInfo topics: {infos or 'none'})"
+            )
+        self.camera_info_topic = info_topic
+        if info_topic is None:
+            return
+        conns = [c for c in reader.connections if c.topic == info_topic]
+        cam_frame = ""
+        for conn, _, raw in reader.messages(connections=conns):
+            try:
+                msg: Any = reader.deserialize(raw, conn.msgtype)
+                intr = camera_info_intrinsics(msg)
+            except Exception:
+                continue
+            self.intrinsics = self.intrinsics or intr
+            cam_frame = norm_frame(str(msg.header.frame_id))
+            break
+        self.camera_extrinsic = self._mount(reader, tf_topics, norm_frame(child), cam_frame)
+
+    def _mount(self, reader: AnyReader, tf_topics: list[str], child: str, cam: str) -> np.ndarray | str:
+        """The optical camera in the posed frame: a static /tf chain child -> camera frame."""
+        optical = "optical" in cam
+        if not cam or cam == child:
+            return "optical" if optical else "body"
+        edges: dict[str, tuple[str, np.ndarray]] = {}  # frame -> (parent, 4x4 parent_T_frame)
+        conns = [c for c in reader.connections if c.topic in tf_topics and c.topic.endswith("tf_static")]
+        for conn, _, raw in reader.messages(connections=conns):
+            try:
+                msg: Any = reader.deserialize(raw, conn.msgtype)
+            except Exception:
+                continue
+            for tfm in msg.transforms:
+                tr, r = tfm.transform.translation, tfm.transform.rotation
+                m = np.eye(4)
+                m[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+                m[:3, 3] = (tr.x, tr.y, tr.z)
+                edges[norm_frame(tfm.child_frame_id)] = (norm_frame(tfm.header.frame_id), m)
+        chain, f = np.eye(4), cam
+        while f != child:
+            if f not in edges or len(chain) > 64:
+                return "optical" if optical else "body"  # not linked: assume the camera sits at the pose
+            parent, m = edges[f]
+            chain, f = m @ chain, parent
+        if not optical:
+            body = np.eye(4)
+            body[:3, :3] = _OPTICAL_IN_BODY
+            chain = chain @ body
+        return chain
 
     def identity(self) -> str:
         """The bag's name and image topic, and the first MiB of its (first) storage file."""
@@ -216,9 +322,51 @@ class RosbagSource:
 
     def __iter__(self) -> Iterator[Frame]:
         self.stats = SourceStats()
+        if self.depth_topic is None:
+            yield from self._frames()
+            return
+        # Pair each colour frame with the nearest depth image by time, streaming: a colour
+        # frame waits until a depth image later than it (or far past it) has arrived.
+        depths: deque[tuple[float, np.ndarray]] = deque(maxlen=8)
+        waiting: deque[Frame] = deque()
+        gap = self.depth_max_gap
+
+        def paired(f: Frame) -> Frame:
+            best = min(depths, key=lambda d: abs(d[0] - f.t), default=None)
+            if best is not None and abs(best[0] - f.t) <= gap:
+                f.depth = best[1]
+            return f
+
+        for item in self._frames(with_depth=True):
+            if isinstance(item, Frame):
+                waiting.append(item)
+            else:
+                depths.append(item)
+            now = item.t if isinstance(item, Frame) else item[0]
+            while waiting and (
+                waiting[0].t <= (depths[-1][0] if depths else -np.inf) or waiting[0].t < now - max(gap, 0.5)
+            ):
+                yield paired(waiting.popleft())
+        while waiting:
+            yield paired(waiting.popleft())
+
+    def _frames(self, with_depth: bool = False) -> Iterator[Any]:
+        """Posed colour frames in bag order; with `with_depth`, also (t, metres) depth images."""
         with self._reader() as reader:
-            conns = [c for c in reader.connections if c.topic == self.image_topic]
-            for index, (conn, ns, raw) in enumerate(reader.messages(connections=conns)):
+            topics = {self.image_topic, self.depth_topic} if with_depth else {self.image_topic}
+            conns = [c for c in reader.connections if c.topic in topics]
+            index = -1
+            for conn, ns, raw in reader.messages(connections=conns):
+                if conn.topic == self.depth_topic and conn.topic != self.image_topic:
+                    try:
+                        dmsg: Any = reader.deserialize(raw, conn.msgtype)
+                    except Exception:
+                        continue
+                    depth = decode_depth_message(dmsg)
+                    if not isinstance(depth, str):
+                        yield (_stamp(dmsg, ns, self.time_source), depth)
+                    continue
+                index += 1
                 self.stats.frames_seen += 1
                 try:
                     msg: Any = reader.deserialize(raw, conn.msgtype)

@@ -6,6 +6,12 @@ paths relative to the folder; `groundtruth.txt` holds `timestamp tx ty tz qx qy 
 benchmark's own association rule); frames in a ground-truth gap are skipped and counted.
 `pose_match="interpolate"` slerps between the bracketing rows instead.
 Depth PNGs are 16-bit, 5000 units per metre; 0 (no measurement) becomes NaN.
+
+The ground truth is the colour camera's optical frame (x right, y down, z forward) in the
+motion-capture frame, whose axes are not tied to gravity: the source says so
+(`camera_extrinsic = "optical"`) and the mapper finds the floor from the depth. The camera's
+intrinsics come from `intrinsics=` (a preset name or fx,fy,cx,cy) or from the folder's name
+(`freiburg1`/`fr1` ... -> the benchmark's published values); see `ingest/depth.py`.
 """
 
 from __future__ import annotations
@@ -15,12 +21,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
 from ..errors import InputError
-from ..types import Frame
+from ..types import Frame, Intrinsics
 from ._util import build, existing, pose_track_arg, read_rgb
 from .base import SOURCES, SourceStats
+from .depth import parse_intrinsics, preset_from_name, read_depth_file
 from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
 
@@ -49,13 +55,7 @@ def read_index(path: Path) -> list[tuple[float, str]]:
 
 def read_depth(path: Path) -> np.ndarray | None:
     """A TUM depth PNG as float32 metres (NaN where the sensor had no reading), None if unreadable."""
-    try:
-        with Image.open(path) as im:
-            a = np.asarray(im, dtype=np.float32) / DEPTH_SCALE
-    except (OSError, ValueError):
-        return None
-    a[a <= 0] = np.nan
-    return a
+    return read_depth_file(path, DEPTH_SCALE)
 
 
 class TumSource:
@@ -70,6 +70,7 @@ class TumSource:
         depth: bool = True,
         depth_max_gap: float = 0.02,
         poses: str | Path | PoseTrack | None = None,
+        intrinsics: Intrinsics | str | None = None,
     ) -> None:
         self.root = existing(path, "TUM folder", want_dir=True)
         self.name = f"tum:{self.root.name}"
@@ -94,6 +95,10 @@ class TumSource:
         if depth and (self.root / "depth.txt").is_file():
             self.depth_entries = read_index(self.root / "depth.txt")
         self.depth_max_gap = depth_max_gap
+        self.camera_extrinsic = "optical"
+        self.intrinsics: Intrinsics | None = (
+            parse_intrinsics(intrinsics) if isinstance(intrinsics, str) else intrinsics
+        ) or preset_from_name(self.root.name)
 
     @property
     def frame_count(self) -> int:

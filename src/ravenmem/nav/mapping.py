@@ -195,7 +195,8 @@ class MapBuilder:
     `intrinsics` is the depth camera's; `extrinsic` the camera mount ('optical', 'body' or a
     4x4). The floor is fitted once, from the first `fit_frames` depth frames, and kept with the
     map, so later frames and later ingests land in the same cells. The map is saved every
-    `save_every` frames and on `close()`.
+    `save_every` frames and on `close()`. An existing map is read at the first frame, not
+    before: by then the ingest holds the memory's writer lock, so two writers never interleave.
     """
 
     def __init__(
@@ -216,20 +217,30 @@ class MapBuilder:
         self.stats = MapStats()
         self.note = ""
         self.grid: OccupancyGrid | None = None
+        self.config = config or recording_config()
         self._pending: list[_Pending] = []
         self._dirty = 0
-        if (self.folder / MAP_FILE).is_file() and not rebuild:
+        self._rebuild = rebuild
+        self._opened = False
+        self._done: dict[str, float] = {}
+
+    def _open(self) -> None:
+        """Read the memory's map, if it has one (once, at the first frame)."""
+        if self._opened:
+            return
+        self._opened = True
+        if (self.folder / MAP_FILE).is_file() and not self._rebuild:
             grid = OccupancyGrid.load(self.folder)
             if grid.kind != "recorded":
                 self.note = f"the memory's map was made by {grid.kind!r}; depth frames leave it as it is"
-            else:
-                self.grid = grid
-        self.config = self.grid.config if self.grid is not None else (config or recording_config())
-        self._done: dict[str, float] = dict(self.grid.meta.get("sources", {})) if self.grid else {}
+                return
+            self.grid, self.config = grid, grid.config
+            self._done = {str(k): float(v) for k, v in grid.meta.get("sources", {}).items()}
 
     # --- frames ------------------------------------------------------------------------------
     def add(self, frame: Frame) -> bool:
         """Fuse one frame (with `depth` and `pose`) into the map; False when it was skipped."""
+        self._open()
         if self.note or frame.depth is None or frame.pose is None:
             return False
         if frame.t <= self._done.get(frame.source, -math.inf):

@@ -29,6 +29,7 @@ class MapLayers:
     answers: list[tuple[str, float, float, bool]] = field(default_factory=list)  # (label, x, y, success)
     paths: list[list[tuple[float, float]]] = field(default_factory=list)
     drives: list[list[tuple[float, float]]] = field(default_factory=list)  # Phase II trajectories
+    goals: list[tuple[float, float, float]] = field(default_factory=list)  # goal poses (x, y, yaw)
     start: tuple[float, float] | None = None
     title: str = ""
 
@@ -78,17 +79,21 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
     w_m, h_m = ext[1] - ext[0], ext[3] - ext[2]
     scale = 9.0 / max(w_m, h_m, 1e-6)
     fig, ax = plt.subplots(figsize=(max(5.0, w_m * scale) + 3.2, max(4.0, h_m * scale) + 0.8))
-    ax.imshow(grid_rgb(grid)[r0:r1, c0:c1], origin="lower", extent=ext, interpolation="nearest")
-    handles: list = [
-        Patch(color=UNKNOWN, label="unknown"),
-        Patch(color=FREE, label="free, seen from afar"),
-        Patch(color=EXPLORED, label="explored free"),
-        Patch(color=OCCUPIED, label="obstacle"),
-    ]
+    img = grid_rgb(grid)[r0:r1, c0:c1]
+    ax.imshow(img, origin="lower", extent=ext, interpolation="nearest")
+    handles: list = [Patch(color=UNKNOWN, label="unknown")]
+    for colour, label in (
+        (FREE, "free, seen from afar"),
+        (EXPLORED, "explored free"),
+        (LEDGE, "ledge (floor step)"),
+    ):
+        if np.all(img == np.asarray(colour, np.float32), axis=-1).any():
+            handles.append(Patch(color=colour, label=label))
+    handles.append(Patch(color=OCCUPIED, label="obstacle"))
     if layers.trajectory:
         t = np.asarray(layers.trajectory)
         ax.plot(t[:, 0], t[:, 1], color="#f28e2b", lw=1.0, alpha=0.9)
-        handles.append(Line2D([], [], color="#f28e2b", label="exploration trajectory"))
+        handles.append(Line2D([], [], color="#f28e2b", label="trajectory"))
     if layers.memories:
         m = np.asarray(layers.memories)
         ax.scatter(m[:, 0], m[:, 1], s=6, color="#7b3294", zorder=3)
@@ -108,7 +113,11 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
     if layers.truths:
         tr = np.asarray([(x, y) for _, x, y in layers.truths])
         ax.scatter(tr[:, 0], tr[:, 1], marker="x", s=28, color="#d62728", linewidths=1.2, zorder=5)
-        handles.append(Line2D([], [], ls="", marker="x", color="#d62728", label="true object"))
+        for label, x, y in layers.truths:
+            ax.annotate(
+                label, (x, y), xytext=(3, -8), textcoords="offset points", fontsize=6, color="#d62728"
+            )
+        handles.append(Line2D([], [], ls="", marker="x", color="#d62728", label="true object (named)"))
     for label, x, y, ok in layers.answers:
         ax.scatter(
             [x],
@@ -126,6 +135,17 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
             Line2D([], [], ls="", marker="*", ms=10, color="#2ca02c", mec="black", label="answer (success)"),
             Line2D([], [], ls="", marker="*", ms=10, color="#ff7f0e", mec="black", label="answer (miss)"),
         ]
+    for x, y, yaw in layers.goals:
+        size = max(res * 4, 0.04 * max(w_m, h_m))
+        ax.annotate(
+            "",
+            (x + size * np.cos(yaw), y + size * np.sin(yaw)),
+            (x, y),
+            arrowprops={"arrowstyle": "-|>", "color": "#9467bd", "lw": 1.8},
+            zorder=7,
+        )
+    if layers.goals:
+        handles.append(Line2D([], [], color="#9467bd", marker=">", label="goal pose (heading)"))
     if layers.start is not None:
         ax.scatter(
             [layers.start[0]],

@@ -6,14 +6,21 @@ yaw from Doom's ANGLE (0 = east, counter-clockwise). Depth: ViZDoom's 8-bit dept
 linear in distance along the optical axis; its scale was measured against the map's own wall
 segments (docs/navigation.md: ViZDoom conventions) and one level is about 0.23 m. Monsters are off (`-nomonsters`)
 and the player is invulnerable (`god`), so the robot only explores.
+
+ViZDoom writes a config file (`_vizdoom.ini`) and a `_vizdoom/` folder into the working
+directory of the game process; both go into a private temporary folder instead (removed on
+`close`), so running the simulator leaves nothing in the user's folder.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import tempfile
 import time
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -32,6 +39,17 @@ DEPTH_OFFSET = 8.5
 PIXEL_ASPECT = 1.15
 SPEED_PER_DELTA = 0.32  # map units per tic of steady speed per unit of MOVE_FORWARD_BACKWARD_DELTA
 STEP_UNITS, HEIGHT_UNITS, RADIUS_UNITS, VIEW_UNITS = 24.0, 56.0, 16.0, 41.0
+
+
+@contextmanager
+def _working_dir(path: str) -> Iterator[None]:
+    """Run a block with `path` as the working directory (the game process inherits it)."""
+    old = os.getcwd()
+    os.chdir(path)
+    try:
+        yield
+    finally:
+        os.chdir(old)
 
 
 def _doom_camera(width: int, height: int, hfov_deg: float) -> Intrinsics:
@@ -102,10 +120,12 @@ class VizDoomEnv:
         if res is None:
             raise InputError(f"{self.name}: unsupported resolution {width}x{height} (try 320x240 or 640x480)")
         self._wad, self._level, self._res = wad, level, res
+        self._scratch = tempfile.TemporaryDirectory(prefix="ravenmem-vizdoom-")
         g = self._new_game(ground_truth=False)
         try:
-            g.init()
+            self._init(g)
         except Exception as e:  # vizdoom raises its own exception types for bad WADs/maps
+            self._scratch.cleanup()
             raise InputError(f"{self.name}: ViZDoom could not start ({e})") from e
         self._game = g
         self.frame_skip = max(1, int(frame_skip))
@@ -126,6 +146,11 @@ class VizDoomEnv:
         self._lines: list[tuple[float, float, float, float, bool]] = []
         self._last: Observation | None = None
 
+    def _init(self, g: Any) -> None:
+        """Start a game process with its files in the scratch folder, not the user's."""
+        with _working_dir(self._scratch.name):
+            g.init()
+
     def _new_game(self, ground_truth: bool) -> Any:
         """The robot's game renders RGB, depth and labels; a second, short-lived game reads the
         level's objects and sectors once (asking for them every tic would double the cost)."""
@@ -133,6 +158,7 @@ class VizDoomEnv:
         g = vzd.DoomGame()  # type: ignore[attr-defined]
         g.set_doom_game_path(self._wad)
         g.set_doom_map(self._level)
+        g.set_doom_config_path(os.path.join(self._scratch.name, "_vizdoom.ini"))
         g.set_screen_resolution(self._res)
         g.set_screen_format(vzd.ScreenFormat.RGB24)  # type: ignore[attr-defined]
         g.set_depth_buffer_enabled(not ground_truth)
@@ -158,7 +184,7 @@ class VizDoomEnv:
     def _load_ground_truth(self) -> None:
         g = self._new_game(ground_truth=True)
         try:
-            g.init()
+            self._init(g)
             g.new_episode()
             st = g.get_state()
             self._objects = [
@@ -250,6 +276,7 @@ class VizDoomEnv:
 
     def close(self) -> None:
         self._game.close()
+        self._scratch.cleanup()
 
     # --- ground truth for tests and coverage ----------------------------------------------
     @staticmethod

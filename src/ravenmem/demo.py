@@ -1,274 +1,451 @@
-"""`ravenmem demo`: a simulated robot explores a Freedoom map while building its memory
-(Phase I), then answers object queries from that memory and drives to each answer with A*
-on the map it built, without exploring again (Phase II). Offline, on CPU.
+"""`ravenmem demo`: a simulated robot explores Freedoom maps while building its memory
+(Phase I), then is asked "where did you see this?" about objects it passed, answers from the
+memory and drives to each answer with A* on the map it built (Phase II). Offline, on CPU.
+
+Four ways to answer the same questions, so that what works and what does not is visible:
+
+- `image`: a picture of the object (rendered by the simulator from a place the robot never
+  stored a keyframe at) through the image tool (`TOOLS["search_image"]`), top hit;
+- `oracle`: oracle perception, the simulator's ground-truth labels in place of the image
+  embedder (`ravenmem.robot.oracle`): the upper bound of memory + agent + planner;
+- `text`: the question as text, answered by the offline reasoner over the offline embedder
+  (which does not know Doom's sprites: expect little);
+- `random`: a random memory's pose, the floor.
+
+Every query starts from the map's start; success is the robot ending within `success_radius`
+metres of the nearest true instance after driving. Maps, seeds and start times are fixed, so
+results reproduce.
 
     from ravenmem.demo import DemoConfig, run_demo
-    report = run_demo(DemoConfig(out="demo.mem"))
+    report = run_demo(DemoConfig(out="ravenmem-demo"))
     print(report.table())
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import shutil
+import statistics
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from PIL import Image
+
 from .errors import InputError
 from .fsio import atomic_write_json
 from .nav.render import MapLayers, draw_map
-from .robot.explore import ExploreConfig, ExploreReport
+from .robot.explore import ExploreConfig
 from .robot.mission import explore_into, navigate_to
-from .sim.base import create_env
+from .robot.oracle import oracle_memory
+from .robot.pictures import query_picture
+from .sim.base import SceneObject, create_env
 from .sim.queries import DemoQuery, make_queries
+from .tools import TOOLS
 
-DEFAULT_ENV = "vizdoom:freedoom2/MAP02"
+DEFAULT_MAPS = ("vizdoom:freedoom2/MAP02", "vizdoom:freedoom1/E1M2")
+METHODS = ("image", "oracle", "text", "random")
+LABELS = {
+    "image": "image query",
+    "oracle": "oracle perception",
+    "text": "text (offline)",
+    "random": "random memory",
+}
+EXPLAIN = {
+    "image": "a picture of the object, rendered by the simulator from a place the robot never "
+    "stored, through the image tool (offline embedder), top hit",
+    "oracle": "the simulator's ground-truth labels as the perception (an upper bound: the real "
+    "memory, agent and planner with perfect perception)",
+    "text": "the question as text, offline reasoner over the offline embedder",
+    "random": "a random memory's pose (the floor)",
+}
+Answer = tuple[bool, tuple[float, float] | None, str]  # found, position, note
 
 
 @dataclass
 class DemoConfig:
-    """Demo settings. `method`: 'offline' (the offline reasoner), 'embedder-only' (top-1 text
-    search) or 'auto' (offline when the agent package is there). A query succeeds when the
-    robot ends within `success_radius` metres of the nearest true instance."""
+    """Demo settings. `text_method` / `oracle_method` name the agent (a `METHODS` registry
+    name) that answers text queries over the real / the oracle memory."""
 
-    env: str = DEFAULT_ENV
-    out: str = "demo.mem"
-    png: str | None = "demo_map.png"
+    maps: list[str] = field(default_factory=lambda: list(DEFAULT_MAPS))
+    out: str = "ravenmem-demo"
     steps: int = 3000
-    method: str = "auto"
     embedder: Any = "offline"  # a spec, or an Embedder instance
+    methods: tuple[str, ...] = METHODS
+    text_method: str = "offline"
+    oracle_method: str = "offline"
     queries: int = 8
     success_radius: float = 3.0
     drive_steps: int = 800
     keyframe_dist: float = 2.0
     keyframe_turn: float = math.radians(45.0)
     overwrite: bool = False
-    start_time: float | None = None
+    start_time: float = 1.7e9
+    seed: int = 0
+    png: bool = True
+
+    def __post_init__(self) -> None:
+        bad = [m for m in self.methods if m not in METHODS]
+        if bad or not self.methods:
+            raise InputError(f"demo: unknown method(s) {bad}; choose from {', '.join(METHODS)}")
+        if not self.maps:
+            raise InputError("demo: no maps given")
+        if self.queries < 1 or self.steps < 1 or self.success_radius <= 0:
+            raise InputError("demo: queries and steps must be >= 1, success_radius > 0")
 
 
 @dataclass
-class QueryResult:
-    query: str
+class Attempt:
+    """One query answered by one method and driven to."""
+
+    method: str
     kind: str
+    query: str
     found: bool
     answer: tuple[float, float] | None
-    answer_dist: float  # metres from the answer to the nearest true instance (inf if none)
+    answer_err: float  # metres from the answer to the nearest true instance (inf if none)
     final_dist: float  # metres from where the robot stopped to the nearest true instance
     success: bool
-    path_m: float  # planned A* path length (inf when no plan)
+    path_m: float  # planned A* path length from the start (inf when no plan)
     driven_m: float
     note: str = ""
 
 
 @dataclass
-class DemoReport:
-    env: str
-    method: str
-    memory: str
-    png: str | None
-    memories: int
-    explore: ExploreReport
-    coverage: float | None
-    results: list[QueryResult] = field(default_factory=list)
-    baselines: dict[str, float] = field(default_factory=dict)  # SR of the answer position, by method
-    wall_seconds: float = 0.0
-    success_radius: float = 3.0
+class MapRun:
+    """One map: exploration, then every method on every query."""
 
-    @property
-    def sr(self) -> float:
-        return sum(r.success for r in self.results) / len(self.results) if self.results else 0.0
+    env: str
+    folder: str
+    memories: int
+    steps: int
+    stop_reason: str
+    explored_m2: float
+    coverage: float | None
+    queries: list[str] = field(default_factory=list)
+    attempts: list[Attempt] = field(default_factory=list)
+    random_expected: float = 0.0
+    png: str | None = None
+    seconds: float = 0.0
+
+    def of(self, method: str) -> list[Attempt]:
+        return [a for a in self.attempts if a.method == method]
+
+
+@dataclass
+class DemoReport:
+    maps: list[MapRun]
+    methods: tuple[str, ...]
+    success_radius: float
+    out: str
+    wall_seconds: float = 0.0
+
+    def attempts(self, method: str) -> list[Attempt]:
+        return [a for m in self.maps for a in m.of(method)]
+
+    def sr(self, method: str) -> float:
+        a = self.attempts(method)
+        return sum(x.success for x in a) / len(a) if a else 0.0
 
     def table(self) -> str:
-        """The per-query table and the summary lines the CLI prints."""
-
-        def m(v: float) -> str:
-            return f"{v:.1f}" if math.isfinite(v) else "-"
-
-        rows = [
-            f"{'query':<40} {'answer (x, y) m':>17} {'answer->true m':>14} {'robot->true m':>13} "
-            f"{'success':>7} {'path m':>7}"
+        """What the CLI prints: per map a row per object, then SR, answer error and path length
+        per method; then the totals."""
+        r = self.success_radius
+        lines = [
+            f"ravenmem demo: explore, remember, answer 'where did you see the ...?', drive there with A* "
+            f"(success = robot ends within {r:g} m of a true instance)",
         ]
-        for r in self.results:
-            ans = f"({r.answer[0]:.1f}, {r.answer[1]:.1f})" if r.answer else "not found"
-            rows.append(
-                f"{r.query[:40]:<40} {ans:>17} {m(r.answer_dist):>14} {m(r.final_dist):>13} "
-                f"{('yes' if r.success else 'no'):>7} {m(r.path_m):>7}"
+        lines += [f"  {LABELS[m]:<18} = {EXPLAIN[m]}" for m in self.methods]
+        w = 20
+        for run in self.maps:
+            cov = f"{100 * run.coverage:.0f}% of the reachable floor, " if run.coverage is not None else ""
+            lines += [
+                "",
+                f"{run.env}: explored {cov}{run.explored_m2:.0f} m^2 in {run.steps} steps ({run.stop_reason}); "
+                f"{run.memories} memories; {run.seconds:.0f} s",
+                f"{'object':<26}" + "".join(f"{LABELS[m]:>{w}}" for m in self.methods),
+                f"{'':<26}" + "".join(f"{'err m  ok  path m':>{w}}" for _ in self.methods),
+            ]
+            for q in run.queries:
+                cells = []
+                for m in self.methods:
+                    a = next((x for x in run.of(m) if x.query == q), None)
+                    cells.append(_cell(a))
+                lines.append(f"{q[:26]:<26}" + "".join(f"{c:>{w}}" for c in cells))
+            lines.append(_summary_row("SR (robot within r)", run.attempts, self.methods, w, _sr_cell))
+            lines.append(_summary_row("median answer error m", run.attempts, self.methods, w, _err_cell))
+            lines.append(_summary_row("mean A* path m", run.attempts, self.methods, w, _path_cell))
+            lines.append(
+                f"{'':<26}random memory, expected SR of the answer position: {100 * run.random_expected:.0f}%"
             )
-        cov = f"{100 * self.coverage:.0f}% of the reachable floor, " if self.coverage is not None else ""
-        rows.append("")
-        rows.append(
-            f"explored: {cov}{self.explore.coverage[-1][2] if self.explore.coverage else 0:.0f} m^2 in "
-            f"{self.explore.steps} steps ({self.explore.stop_reason}); memories kept: {self.memories}"
+        lines.append("")
+        tot = ", ".join(
+            f"{LABELS[m]} {sum(a.success for a in self.attempts(m))}/{len(self.attempts(m))} = "
+            f"{100 * self.sr(m):.0f}%"
+            for m in self.methods
         )
-        rows.append(
-            f"SR ({self.method}, robot within {self.success_radius:g} m after driving): "
-            f"{sum(r.success for r in self.results)}/{len(self.results)} = {100 * self.sr:.0f}%"
+        lines.append(f"SR over {len(self.maps)} maps: {tot}")
+        lines.append(
+            f"wall time {self.wall_seconds:.0f} s; outputs in {self.out}/ (memories, maps, query pictures, demo.json)"
         )
-        if self.baselines:
-            rows.append(
-                "SR of the answer position: "
-                + ", ".join(f"{k} {100 * v:.0f}%" for k, v in self.baselines.items())
-            )
-        rows.append(
-            f"wall time: {self.wall_seconds:.0f} s; memory: {self.memory}"
-            + (f"; map: {self.png}" if self.png else "")
-        )
-        return "\n".join(rows)
+        return "\n".join(lines)
 
     def as_dict(self) -> dict[str, Any]:
-        d = {k: v for k, v in asdict(self).items() if k != "explore"}
-        d["sr"] = self.sr
-        d["explore"] = {
-            k: v for k, v in self.explore.as_dict().items() if k not in ("trajectory", "keyframes")
-        }
-        return json.loads(
-            json.dumps(d, default=lambda o: None if isinstance(o, float) and not math.isfinite(o) else o)
-        )
+        d = asdict(self)
+        d["sr"] = {m: self.sr(m) for m in self.methods}
+        d["labels"] = {m: LABELS[m] for m in self.methods}
+        return json.loads(json.dumps(d, default=str, allow_nan=True).replace("Infinity", "null"))
 
 
-def _answerer(name: str, mem: Any) -> tuple[str, Callable[[str], tuple[bool, tuple[float, float] | None]]]:
-    """A function question -> (found, position) for the chosen method, and the method's name."""
-    if name in ("auto", "offline", "random", "raven"):
-        try:
-            from .agent.methods import create_method
-
-            method = create_method("offline" if name == "auto" else name, mem)
-        except ImportError:
-            if name != "auto":
-                raise
-        else:
-
-            def ask(q: str) -> tuple[bool, tuple[float, float] | None]:
-                a = method.ask(q)
-                pos = (float(a.position[0]), float(a.position[1])) if a.position else None
-                return bool(a.found and pos is not None), pos
-
-            return method.name, ask
-    if name not in ("auto", "embedder-only"):
-        raise InputError(f"demo: unknown method {name!r}; choose auto, offline, embedder-only or random")
-
-    def top1(q: str) -> tuple[bool, tuple[float, float] | None]:
-        hits = mem.search_text(q, k=1)
-        return (True, (hits[0].memory.pose.x, hits[0].memory.pose.y)) if hits else (False, None)
-
-    return "embedder-only", top1
+def _cell(a: Attempt | None) -> str:
+    if a is None:
+        return "-"
+    if not a.found:
+        return a.note or "not found"
+    path = f"{a.path_m:6.1f}" if math.isfinite(a.path_m) else "     -"
+    return f"{a.answer_err:5.1f} {'yes' if a.success else ' no'} {path}"
 
 
-def _baselines(mem: Any, queries: list[DemoQuery], radius: float, main: dict[str, float]) -> dict[str, float]:
-    """SR of the answer position alone: the chosen method, top-1 text search, and a random
-    memory (its exact expectation: the share of memories within `radius` of an instance)."""
-    out = dict(main)
-    if queries and "embedder-only" not in out:
-        top = [mem.search_text(q.question, k=1) for q in queries]
-        out["embedder-only top-1"] = sum(
-            bool(h) and q.nearest(h[0].memory.pose.x, h[0].memory.pose.y) <= radius
-            for q, h in zip(queries, top)
-        ) / len(queries)
-    if queries:
-        recs = mem.all_records()
-        if recs:
-            out["random memory (expected)"] = sum(
-                sum(q.nearest(r.pose.x, r.pose.y) <= radius for r in recs) / len(recs) for q in queries
-            ) / len(queries)
-    return out
+def _sr_cell(a: list[Attempt]) -> str:
+    return f"{sum(x.success for x in a)}/{len(a)} {100 * sum(x.success for x in a) / max(1, len(a)):.0f}%"
 
 
-def run_demo(cfg: DemoConfig | None = None, progress: Callable[[str], None] | None = None) -> DemoReport:
-    """Run both phases and write the memory folder, `demo.json` in it and the map PNG."""
-    import ravenmem
+def _err_cell(a: list[Attempt]) -> str:
+    e = [x.answer_err for x in a if x.found and math.isfinite(x.answer_err)]
+    return f"{statistics.median(e):.1f}" if e else "-"
 
-    cfg = cfg or DemoConfig()
-    say = progress or (lambda _m: None)
-    t0 = time.perf_counter()
+
+def _path_cell(a: list[Attempt]) -> str:
+    p = [x.path_m for x in a if math.isfinite(x.path_m)]
+    return f"{statistics.mean(p):.1f}" if p else "-"
+
+
+def _summary_row(
+    name: str, attempts: list[Attempt], methods: tuple[str, ...], w: int, fmt: Callable[[list[Attempt]], str]
+) -> str:
+    return f"{name:<26}" + "".join(f"{fmt([a for a in attempts if a.method == m]):>{w}}" for m in methods)
+
+
+def _prepare_out(cfg: DemoConfig) -> Path:
     out = Path(cfg.out)
     if out.exists():
         if not cfg.overwrite:
             raise InputError(f"{out} already exists; pass --overwrite or choose another --out")
-        if not (out / "memory.json").exists() and any(out.iterdir()):
-            raise InputError(f"{out} is not a ravenmem memory folder; refusing to delete it")
+        if not (out / "demo.json").exists() and any(out.iterdir()):
+            raise InputError(f"{out} was not written by the demo (no demo.json); refusing to delete it")
         shutil.rmtree(out)
-    env = create_env(cfg.env, start_time=cfg.start_time)
+    out.mkdir(parents=True)
+    return out
+
+
+def run_demo(cfg: DemoConfig | None = None, progress: Callable[[str], None] | None = None) -> DemoReport:
+    """Run both phases on every map; write the memories, maps, query pictures and `demo.json`
+    into `cfg.out` (and nothing else anywhere)."""
+    cfg = cfg or DemoConfig()
+    say = progress or (lambda _m: None)
+    t0 = time.perf_counter()
+    out = _prepare_out(cfg)
+    report = DemoReport([], tuple(cfg.methods), cfg.success_radius, str(out))
+    for spec in cfg.maps:
+        report.maps.append(_run_map(cfg, spec, out, say))
+        report.wall_seconds = time.perf_counter() - t0
+        atomic_write_json(out / "demo.json", report.as_dict(), indent=1)
+    return report
+
+
+def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) -> MapRun:
+    import ravenmem
+
+    t0 = time.perf_counter()
+    env = create_env(spec, start_time=cfg.start_time)
     try:
-        mem = ravenmem.create(out, embedder=cfg.embedder, ocr=False)
-        say(f"phase I: exploring {env.name} for up to {cfg.steps} steps")
+        folder = out / env.name.split(":", 1)[-1].replace("/", "_")
+        mem = ravenmem.create(folder / "memory", embedder=cfg.embedder, ocr=False)
+        say(f"{env.name}, phase I: exploring for up to {cfg.steps} steps")
         ecfg = ExploreConfig(
             steps=cfg.steps, keyframe_dist=cfg.keyframe_dist, keyframe_turn=cfg.keyframe_turn
         )
         grid, rep = explore_into(env, mem, ecfg, progress=say)
-        cov = rep.coverage[-1][3] if rep.coverage else None
+        objects = env.objects()
+        kind_of = {o.id: o.kind for o in objects}
         seen = {i for vis in rep.keyframes.values() for i in vis}
-        queries = make_queries(env.objects(), seen, cfg.queries)
-        method_name, ask = _answerer(cfg.method, mem)
-        say(f"phase II: {len(queries)} queries answered by {method_name}, driven with A*")
-        results: list[QueryResult] = []
+        queries = make_queries(objects, seen, cfg.queries)
+        cov = rep.coverage[-1] if rep.coverage else (0, 0.0, 0.0, None)
+        run = MapRun(
+            env=env.name,
+            folder=str(folder),
+            memories=mem.count(),
+            steps=rep.steps,
+            stop_reason=rep.stop_reason,
+            explored_m2=float(cov[2]),
+            coverage=cov[3],
+            queries=[q.phrase for q in queries],
+        )
+        recs = mem.all_records()
+        if queries and recs:
+            run.random_expected = sum(
+                sum(q.nearest(r.pose.x, r.pose.y) <= cfg.success_radius for r in recs) / len(recs)
+                for q in queries
+            ) / len(queries)
+        answerers = _answerers(cfg, env, grid, mem, rep, objects, kind_of, queries, folder, say)
         layers = MapLayers(
             trajectory=list(rep.trajectory),
             start=rep.trajectory[0] if rep.trajectory else None,
-            memories=[(r.pose.x, r.pose.y) for r in mem.all_records()],
+            memories=[(r.pose.x, r.pose.y) for r in recs],
+            truths=[(q.phrase, x, y) for q in queries for x, y in q.instances],
         )
-        obs = env.observe()
-        answer_hits = 0
-        for i, q in enumerate(queries, start=1):
-            found, pos = ask(q.question)
-            note, path_m, driven = "", math.inf, 0.0
-            if found and pos is not None:
-                nav = navigate_to(env, grid, pos, cfg.drive_steps, start=obs)
-                obs = nav.last
-                driven = nav.driven_m
-                if nav.plan is not None and nav.plan.ok:
-                    path_m = nav.plan.length_m
-                layers.paths += nav.paths
-                layers.drives.append(nav.trajectory)
-                note = nav.reason
-                answer_hits += q.nearest(*pos) <= cfg.success_radius
-            else:
-                note = "not found in memory"
-            final = q.nearest(obs.pose.x, obs.pose.y) if found else math.inf
-            ok = found and final <= cfg.success_radius
-            results.append(
-                QueryResult(
-                    q.question,
-                    q.kind,
-                    found,
-                    pos if found else None,
-                    q.nearest(*pos) if found and pos else math.inf,
-                    final,
-                    ok,
-                    path_m,
-                    driven,
-                    note,
-                )
-            )
-            layers.truths += [(q.kind, x, y) for x, y in q.instances]
-            if found and pos is not None:
-                layers.answers.append((f"Q{i}", pos[0], pos[1], ok))
-            say(f"  Q{i} {q.phrase}: {'found' if found else 'not found'}, success={ok}")
-        main = {method_name: answer_hits / len(queries)} if queries else {}
-        report = DemoReport(
-            env=env.name,
-            method=method_name,
-            memory=str(out),
-            png=cfg.png,
-            memories=mem.count(),
-            explore=rep,
-            coverage=cov,
-            results=results,
-            baselines=_baselines(mem, queries, cfg.success_radius, main),
-            success_radius=cfg.success_radius,
+        say(
+            f"{env.name}, phase II: {len(queries)} queries x {len(answerers)} ways to answer, each driven with A*"
         )
+        for method, ask in answerers.items():
+            for q in queries:
+                run.attempts.append(_attempt(cfg, env, grid, method, q, ask(q), layers))
+            a = run.of(method)
+            say(f"  {LABELS[method]}: SR {sum(x.success for x in a)}/{len(a)}")
         if cfg.png:
-            layers.title = (
-                f"{env.name}: explored {rep.coverage[-1][2] if rep.coverage else 0:.0f} m^2, "
-                f"{report.memories} memories, SR {100 * report.sr:.0f}% ({method_name})"
-            )
-            draw_map(grid, layers, cfg.png)
-        report.wall_seconds = time.perf_counter() - t0
-        atomic_write_json(out / "demo.json", report.as_dict(), indent=1)
+            run.png = str(folder / "map.png")
+            sr = ", ".join(f"{LABELS[m]} {100 * _rate(run.of(m)):.0f}%" for m in answerers)
+            layers.title = f"{env.name}: {run.explored_m2:.0f} m^2 explored, {run.memories} memories; SR {sr}"
+            draw_map(grid, layers, run.png)
         mem.close()
-        return report
+        run.seconds = time.perf_counter() - t0
+        return run
     finally:
         env.close()
+
+
+def _rate(a: list[Attempt]) -> float:
+    return sum(x.success for x in a) / len(a) if a else 0.0
+
+
+def _answerers(
+    cfg: DemoConfig,
+    env: Any,
+    grid: Any,
+    mem: Any,
+    rep: Any,
+    objects: list[SceneObject],
+    kind_of: dict[int, str],
+    queries: list[DemoQuery],
+    folder: Path,
+    say: Callable[[str], None],
+) -> dict[str, Callable[[DemoQuery], Answer]]:
+    """question -> (found, position, note) for each method the config names."""
+    from .agent.methods import create_method
+
+    out: dict[str, Callable[[DemoQuery], Answer]] = {}
+
+    def via(method: Any) -> Callable[[DemoQuery], Answer]:
+        def ask(q: DemoQuery) -> Answer:
+            a = method.ask(q.question)
+            pos = (float(a.position[0]), float(a.position[1])) if a.found and a.position else None
+            return (pos is not None, pos, "" if pos is not None else "not found")
+
+        return ask
+
+    for m in cfg.methods:
+        if m == "image":
+            out[m] = _image_answerer(env, grid, mem, rep, objects, queries, folder, say)
+        elif m == "oracle":
+            out[m] = _oracle_answerer(cfg, mem, rep, kind_of, folder)
+        elif m == "text":
+            out[m] = via(create_method(cfg.text_method, mem))
+        else:
+            out[m] = via(create_method("random", mem, seed=cfg.seed))
+    return out
+
+
+def _oracle_answerer(
+    cfg: DemoConfig, mem: Any, rep: Any, kind_of: dict[int, str], folder: Path
+) -> Callable[[DemoQuery], Answer]:
+    """The agent over a memory whose perception is the simulator's labels; the object is then
+    placed where its label box and the depth image put it in the answering keyframe (what a
+    detector with a depth camera gives), not at the keyframe's pose."""
+    from .agent.methods import create_method
+
+    labels: dict[int, dict[int, tuple[int, float, float]]] = rep.keyframe_labels
+    px = {mid: {o: lab[0] for o, lab in labels.get(mid, {}).items()} for mid in rep.keyframes}
+    omem = oracle_memory(folder / "oracle.mem", mem, px, kind_of)
+    by_time = {r.t: r.id for r in mem.all_records()}  # oracle memory -> robot memory ids
+    method = create_method(cfg.oracle_method, omem)
+
+    def ask(q: DemoQuery) -> Answer:
+        a = method.ask(q.question)
+        if not a.found or not a.position or not a.evidence:
+            return (False, None, "not found")
+        mid = by_time.get(a.evidence[0].t)
+        seen = [lab for o, lab in labels.get(mid, {}).items() if kind_of.get(o) == q.kind] if mid else []
+        if not seen:
+            return (True, (float(a.position[0]), float(a.position[1])), "at the memory's pose")
+        _, x, y = max(seen)
+        return (True, (x, y), "")
+
+    return ask
+
+
+def _image_answerer(
+    env: Any,
+    grid: Any,
+    mem: Any,
+    rep: Any,
+    objects: list[SceneObject],
+    queries: list[DemoQuery],
+    folder: Path,
+    say: Callable[[str], None],
+) -> Callable[[DemoQuery], Answer]:
+    """Render a picture per query (the instance the robot saw most often) and answer with the
+    image tool's top hit."""
+    keyframes = np.asarray([(r.pose.x, r.pose.y) for r in mem.all_records()]).reshape(-1, 2)
+    counts: dict[int, int] = {}
+    for vis in rep.keyframes.values():
+        for i in vis:
+            counts[i] = counts.get(i, 0) + 1
+    pictures: dict[str, np.ndarray] = {}
+    (folder / "queries").mkdir(exist_ok=True)
+    for q in queries:
+        inst = [o for o in objects if o.kind == q.kind and o.id in counts]
+        if not inst:
+            continue
+        obj = max(inst, key=lambda o: (counts[o.id], -o.id))
+        pic = query_picture(env, grid, obj, keyframes, env.robot.radius)
+        if pic is not None:
+            pictures[q.kind] = pic
+            Image.fromarray(pic).save(folder / "queries" / f"{q.kind}.png")
+    say(f"  image queries: {len(pictures)} of {len(queries)} objects pictured")
+    tool = TOOLS["search_image"]
+    call = tool.validate({})
+
+    def ask(q: DemoQuery) -> Answer:
+        pic = pictures.get(q.kind)
+        if pic is None:
+            return (False, None, "no picture")
+        hits = tool.run(mem, call, 1, image=pic)
+        if not hits:
+            return (False, None, "not found")
+        p = hits[0].memory.pose
+        return (True, (p.x, p.y), "")
+
+    return ask
+
+
+def _attempt(
+    cfg: DemoConfig, env: Any, grid: Any, method: str, q: DemoQuery, ans: Answer, layers: MapLayers
+) -> Attempt:
+    found, pos, note = ans
+    if not found or pos is None:
+        return Attempt(method, q.kind, q.phrase, False, None, math.inf, math.inf, False, math.inf, 0.0, note)
+    obs = env.reset()  # every query starts from the map's start
+    nav = navigate_to(env, copy.deepcopy(grid), pos, cfg.drive_steps, start=obs)
+    final = q.nearest(nav.last.pose.x, nav.last.pose.y)
+    ok = final <= cfg.success_radius
+    path = nav.plan.length_m if nav.plan is not None and nav.plan.ok else math.inf
+    layers.answers.append((LABELS[method], pos[0], pos[1], ok))
+    layers.drives.append(nav.trajectory)
+    return Attempt(
+        method, q.kind, q.phrase, True, pos, q.nearest(*pos), final, ok, path, nav.driven_m, nav.reason
+    )

@@ -95,24 +95,29 @@ def test_demo_on_the_synthetic_world(tmp_path, colour_embedder) -> None:
     from ravenmem.demo import DemoConfig, run_demo
 
     cfg = DemoConfig(
-        env="synthetic:rooms",
-        out=str(tmp_path / "d.mem"),
-        png=str(tmp_path / "d.png"),
+        maps=["synthetic:rooms"],
+        out=str(tmp_path / "demo"),
         steps=600,
         embedder=colour_embedder,
-        method="embedder-only",
+        text_method="embedder-only",
         keyframe_dist=1.0,
         keyframe_turn=0.5,
-        start_time=1.7e9,
     )
     rep = run_demo(cfg)
-    assert [r.kind for r in rep.results] == ["RedBox", "BlueBox", "GreenBox"]
-    assert rep.sr == 1.0 and all(r.final_dist <= 3.0 and r.path_m > 0 for r in rep.results)
-    assert rep.baselines["random memory (expected)"] < 0.5
+    (run,) = rep.maps
+    assert run.queries == ["red box", "blue box", "green box"]
+    # the colour embedder reads the boxes' colours: text finds them; oracle perception too
+    assert rep.sr("text") == 1.0 and rep.sr("oracle") == 1.0
+    assert all(a.final_dist <= 3.0 and a.path_m > 0 for a in run.of("oracle"))
+    # the synthetic world cannot render pictures from elsewhere: said, not guessed
+    assert {a.note for a in run.of("image")} == {"no picture"} and rep.sr("image") == 0.0
+    assert run.random_expected < 0.5 and len(run.of("random")) == 3
     table = rep.table()
-    assert "Where did you see the red box?" in table and "SR (embedder-only" in table
-    saved = json.loads((tmp_path / "d.mem" / "demo.json").read_text())
-    assert saved["sr"] == 1.0 and len(saved["results"]) == 3
+    assert "oracle perception" in table and "SR over 1 maps" in table and "red box" in table
+    saved = json.loads((tmp_path / "demo" / "demo.json").read_text())
+    assert saved["sr"]["oracle"] == 1.0 and saved["labels"]["oracle"] == "oracle perception"
+    assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == ["demo.json", "rooms"]
+    assert (tmp_path / "demo" / "rooms" / "map.png").stat().st_size > 20_000
     # an existing folder is never silently replaced
     with pytest.raises(InputError, match="already exists"):
         run_demo(cfg)

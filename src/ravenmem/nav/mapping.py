@@ -381,24 +381,34 @@ def integrate_points(grid: OccupancyGrid, points: np.ndarray, camera: np.ndarray
     obstacle = np.zeros(h_ * w_, bool)
     obstacle[obs_flat] = True
     targets = np.unique(np.concatenate([flat[~is_obs], obs_flat]))
-    # rays from the camera to every target cell's centre, sampled every half cell
+    # Ray casting. Targets are binned by bearing from the camera, finely enough that two
+    # neighbouring rays are at most half a cell apart at the farthest target; one ray per bin,
+    # to its farthest target, sampled every half cell, stops at the first obstacle of this
+    # frame. A target is reached (seen) when it lies before its bin's first obstacle.
     tr, tc = np.divmod(targets, w_)
-    tx = grid.origin[0] + (tc + 0.5) * res
-    ty = grid.origin[1] + (tr + 0.5) * res
-    length = np.hypot(tx - c2[0], ty - c2[1])
-    n = np.maximum(1, np.ceil(length / (res / 2.0)).astype(np.int64))
-    steps = np.arange(int(n.max()))
-    frac = steps[None, :] / n[:, None]  # (R, S), < 1 on the ray, the target itself excluded
-    on_ray = steps[None, :] < n[:, None]
-    sx = c2[0] + frac * (tx - c2[0])[:, None]
-    sy = c2[1] + frac * (ty - c2[1])[:, None]
+    dx = grid.origin[0] + (tc + 0.5) * res - c2[0]
+    dy = grid.origin[1] + (tr + 0.5) * res - c2[1]
+    length = np.hypot(dx, dy)
+    ang = np.arctan2(dy, dx)
+    mid = math.atan2(float(np.sin(ang).mean()), float(np.cos(ang).mean()))
+    rel = np.arctan2(np.sin(ang - mid), np.cos(ang - mid))
+    dtheta = res / (2.0 * max(float(length.max()), res))
+    bins = np.floor((rel - rel.min()) / dtheta).astype(np.int64)
+    ubins, inv = np.unique(bins, return_inverse=True)
+    far = np.zeros(ubins.size)
+    np.maximum.at(far, inv, length)
+    theta = mid + rel.min() + (ubins + 0.5) * dtheta
+    steps = np.arange(int(np.ceil(far.max() / (res / 2.0))) + 1) * (res / 2.0)
+    on_ray = steps[None, :] <= far[:, None]
+    sx = c2[0] + steps[None, :] * np.cos(theta)[:, None]
+    sy = c2[1] + steps[None, :] * np.sin(theta)[:, None]
     sc = np.clip(np.floor((sx - grid.origin[0]) / res).astype(np.int64), 0, w_ - 1)
     sr = np.clip(np.floor((sy - grid.origin[1]) / res).astype(np.int64), 0, h_ - 1)
     sf = sr * w_ + sc
-    hit = obstacle[sf] & on_ray & (sf != targets[:, None]) & (steps[None, :] > 0)
-    blocked = np.cumsum(hit, axis=1) > 0
-    free_flat = np.unique(sf[on_ray & ~blocked])
-    reached = ~blocked.any(axis=1) | obstacle[targets]  # a target behind another obstacle stays as it was
+    hit = obstacle[sf] & on_ray & (steps[None, :] > res)  # the camera's own cell never blocks
+    first = np.where(hit.any(axis=1), steps[np.argmax(hit, axis=1)], np.inf)  # per bin
+    free_flat = np.unique(sf[on_ray & (steps[None, :] < first[:, None])])
+    reached = length < first[inv] + res
     free_flat = np.union1d(free_flat, targets[reached & ~obstacle[targets]])
     free_flat = free_flat[~obstacle[free_flat]]
     near = length <= cfg.explore_range

@@ -4,7 +4,9 @@ map_server conventions (nav2_map_server, `map_saver_cli` defaults), followed exa
 
 - YAML keys `image` (path relative to the YAML file), `mode` (`trinary` here), `resolution`
   (metres per pixel), `origin` [x, y, yaw] (the map-frame pose of the image's lower-left
-  pixel corner), `negate` (0), `occupied_thresh` (0.65), `free_thresh` (0.25).
+  pixel corner), `negate` (0), `occupied_thresh` (0.65), `free_thresh` (0.196: the value
+  map_saver has always written; with 0.25 map_server's own unknown grey, 205, would load as
+  free, since (255 - 205) / 255 = 0.196).
 - Pixel value v gives occupancy p = (255 - v) / 255 (p = v / 255 when negate is 1);
   p > occupied_thresh is occupied, p < free_thresh is free, anything between is unknown.
   Saved maps use 0 = occupied, 254 = free, 205 = unknown.
@@ -31,7 +33,7 @@ from .frame import MapFrame
 from .grid import MapConfig, OccupancyGrid
 
 FREE, OCCUPIED, UNKNOWN = 254, 0, 205
-OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.25
+OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
 
 
 def export_map_server(grid: OccupancyGrid, yaml_path: str | Path) -> tuple[Path, Path]:

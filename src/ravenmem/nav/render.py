@@ -26,7 +26,7 @@ class MapLayers:
     trajectory: list[tuple[float, float]] = field(default_factory=list)
     memories: list[tuple[float, float]] = field(default_factory=list)
     truths: list[tuple[str, float, float]] = field(default_factory=list)  # (label, x, y)
-    answers: list[tuple[str, float, float, bool]] = field(default_factory=list)  # (label, x, y, success)
+    answers: list[tuple[str, float, float, bool]] = field(default_factory=list)  # (method, x, y, success)
     paths: list[list[tuple[float, float]]] = field(default_factory=list)
     drives: list[list[tuple[float, float]]] = field(default_factory=list)  # Phase II trajectories
     goals: list[tuple[float, float, float]] = field(default_factory=list)  # goal poses (x, y, yaw)
@@ -118,22 +118,29 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
                 label, (x, y), xytext=(3, -8), textcoords="offset points", fontsize=6, color="#d62728"
             )
         handles.append(Line2D([], [], ls="", marker="x", color="#d62728", label="true object (named)"))
-    for label, x, y, ok in layers.answers:
-        ax.scatter(
-            [x],
-            [y],
-            marker="*",
-            s=110,
-            color="#2ca02c" if ok else "#ff7f0e",
-            edgecolors="black",
-            linewidths=0.5,
-            zorder=6,
+    shapes = ("*", "s", "D", "^", "v", "P", "X")
+    groups = list(dict.fromkeys(label for label, *_ in layers.answers))
+    for gi, group in enumerate(groups):
+        pts = [(x, y, ok) for label, x, y, ok in layers.answers if label == group]
+        marker = shapes[gi % len(shapes)]
+        for x, y, ok in pts:
+            ax.scatter(
+                [x],
+                [y],
+                marker=marker,
+                s=110 if marker == "*" else 45,
+                color="#2ca02c" if ok else "#ff7f0e",
+                edgecolors="black",
+                linewidths=0.5,
+                zorder=6,
+            )
+        handles.append(
+            Line2D([], [], ls="", marker=marker, ms=8, color="#bbbbbb", mec="black", label=f"answer: {group}")
         )
-        ax.annotate(label, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=7, zorder=7)
     if layers.answers:
         handles += [
-            Line2D([], [], ls="", marker="*", ms=10, color="#2ca02c", mec="black", label="answer (success)"),
-            Line2D([], [], ls="", marker="*", ms=10, color="#ff7f0e", mec="black", label="answer (miss)"),
+            Patch(color="#2ca02c", label="answer: robot got within the radius"),
+            Patch(color="#ff7f0e", label="answer: robot did not"),
         ]
     for x, y, yaw in layers.goals:
         size = max(res * 4, 0.04 * max(w_m, h_m))

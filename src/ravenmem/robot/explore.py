@@ -19,12 +19,27 @@ from ..nav.grid import MapConfig, OccupancyGrid
 from ..nav.planning import plan_path
 from ..sim.base import Environment, Observation, RobotSpec
 from ..sim.control import ControlConfig, follow_waypoints, turn_in_place, wrap
-from ..types import Frame
+from ..types import Frame, Intrinsics
 
 
 def map_config(robot: RobotSpec, resolution: float = 0.25, max_range: float = 10.0) -> MapConfig:
     """The map settings for a simulated robot's body (what it can step over or pass under)."""
     return MapConfig.for_body(robot.step_height, robot.height, resolution, max_range)
+
+
+def locate(obs: Observation, box: tuple[int, int, int, int], intr: Intrinsics) -> tuple[float, float] | None:
+    """Where a labelled object is, from its box and the depth image: the median depth of the
+    box's lowest quarter (the object's foot and the floor beside it, not the wall behind),
+    along the ray through the box's centre column. None without a depth reading there."""
+    x, y, w, h = box
+    rows = obs.depth[max(0, y + (3 * h) // 4) : y + h, max(0, x) : x + w]
+    vals = rows[np.isfinite(rows) & (rows > 0)]
+    if vals.size == 0:
+        return None
+    d = float(np.median(vals))
+    xr = (x + w / 2.0 - intr.cx) / intr.fx * d  # metres right of the optical axis
+    c, s = math.cos(obs.pose.yaw), math.sin(obs.pose.yaw)
+    return (obs.pose.x + d * c + xr * s, obs.pose.y + d * s - xr * c)
 
 
 @dataclass
@@ -52,7 +67,10 @@ class ExploreConfig:
 @dataclass
 class ExploreReport:
     """What exploration did. `coverage` rows are (step, sim seconds, explored free m^2, fraction
-    of the reference floor area or None); `keyframes` maps memory id -> visible object ids."""
+    of the reference floor area or None); `keyframes` maps memory id -> visible object ids and
+    `keyframe_labels` memory id -> {object id: (box pixels, x, y)}: the object's label box size
+    and where the box and the depth image place it (ground-truth labels: for scoring and oracle
+    perception only)."""
 
     steps: int = 0
     sim_seconds: float = 0.0
@@ -63,6 +81,7 @@ class ExploreReport:
     coverage: list[tuple[int, float, float, float | None]] = field(default_factory=list)
     trajectory: list[tuple[float, float]] = field(default_factory=list)
     keyframes: dict[int, list[int]] = field(default_factory=dict)
+    keyframe_labels: dict[int, dict[int, tuple[int, float, float]]] = field(default_factory=dict)
     seen_objects: set[int] = field(default_factory=set)
 
     def as_dict(self) -> dict[str, Any]:
@@ -76,6 +95,9 @@ class ExploreReport:
             "coverage": [list(c) for c in self.coverage],
             "trajectory": [list(p) for p in self.trajectory],
             "keyframes": {str(k): v for k, v in self.keyframes.items()},
+            "keyframe_labels": {
+                str(k): {str(o): list(lab) for o, lab in v.items()} for k, v in self.keyframe_labels.items()
+            },
             "seen_objects": sorted(self.seen_objects),
         }
 
@@ -102,7 +124,7 @@ class Explorer:
         self.progress = progress
         self.report = ExploreReport()
         self.ctrl = ControlConfig()
-        self._pending: list[tuple[Frame, list[int]]] = []
+        self._pending: list[tuple[Frame, list[int], dict[int, tuple[int, float, float]]]] = []
         self._last_kf: Observation | None = None
         self._t_start = 0.0
         self._blacklist: list[tuple[float, float]] = []
@@ -145,16 +167,22 @@ class Explorer:
         if self.mem is None:
             return
         frame = Frame(image=obs.rgb.copy(), t=obs.t, pose=obs.pose, source=self.env.name, index=obs.step)
-        self._pending.append((frame, list(obs.visible)))
+        labels = {}
+        for oid, box in obs.visible_boxes.items():
+            xy = locate(obs, box, self.env.intrinsics)
+            if xy is not None:
+                labels[oid] = (box[2] * box[3], xy[0], xy[1])
+        self._pending.append((frame, list(obs.visible), labels))
         if len(self._pending) >= self.cfg.batch:
             self._flush()
 
     def _flush(self) -> None:
         if not self._pending or self.mem is None:
             return
-        ids = self.mem.add_frames([f for f, _ in self._pending])
-        for mid, vis in zip(ids, (v for _, v in self._pending)):
+        ids = self.mem.add_frames([f for f, _, _ in self._pending])
+        for mid, (_, vis, labels) in zip(ids, self._pending):
             self.report.keyframes[int(mid)] = vis
+            self.report.keyframe_labels[int(mid)] = labels
         self._pending = []
 
     def _log_coverage(self, obs: Observation) -> None:

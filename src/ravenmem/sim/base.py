@@ -9,7 +9,7 @@ never by the robot's memory or planner.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -23,7 +23,9 @@ class Observation:
     """What the robot senses at one instant. `depth` is metres along the optical axis (0 = no
     reading), same size as `rgb`; `pose.z` is the camera's height; `t` is epoch seconds (the
     episode's start plus simulated time); `visible` holds ids of ground-truth objects in view
-    (empty where unknown)."""
+    (empty where unknown) and `visible_boxes` where they are in the picture (x, y, width,
+    height in pixels, where the backend knows it): ground truth for scoring and oracle
+    perception only, never seen by the memory or the planner."""
 
     rgb: np.ndarray
     depth: np.ndarray
@@ -32,6 +34,12 @@ class Observation:
     step: int = 0
     visible: tuple[int, ...] = ()
     floor_z: float | None = None  # height of the floor under the robot (m), when known
+    visible_boxes: dict[int, tuple[int, int, int, int]] = field(default_factory=dict)
+
+    @property
+    def visible_px(self) -> dict[int, int]:
+        """Size in the picture (box pixels) of each visible object, where known."""
+        return {k: w * h for k, (_, _, w, h) in self.visible_boxes.items()}
 
     @property
     def camera_height(self) -> float | None:

@@ -107,7 +107,7 @@ class SyntheticEnv:
         return self.observe()
 
     def observe(self) -> Observation:
-        rgb, depth, visible = self.render(self._x, self._y, self._yaw)
+        rgb, depth, boxes = self.render(self._x, self._y, self._yaw)
         pose = Pose(self._x, self._y, self.robot.camera_height, self._yaw)
         return Observation(
             floor_z=0.0,
@@ -116,7 +116,8 @@ class SyntheticEnv:
             pose=pose,
             t=self._t0 + self._steps * self.dt,
             step=self._steps,
-            visible=visible,
+            visible=tuple(sorted(boxes)),
+            visible_boxes=boxes,
         )
 
     def step(self, forward: float, turn: float) -> Observation:
@@ -149,8 +150,9 @@ class SyntheticEnv:
 
     def render(
         self, x: float, y: float, yaw: float, k_hits: int = 4
-    ) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
-        """RGB, z-depth (metres, 0 = nothing within `max_depth`) and visible box ids from a pose."""
+    ) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[int, int, int, int]]]:
+        """RGB, z-depth (metres, 0 = nothing within `max_depth`) and the visible boxes' places in
+        the picture ({box id: (x, y, width, height)} in pixels) from a pose."""
         intr = self.intrinsics
         h_cam = self.robot.camera_height
         u = np.arange(intr.width) + 0.5
@@ -202,9 +204,14 @@ class SyntheticEnv:
             base = np.where(checker, 120.0, 95.0)
             rgb[floor] = (base * (0.5 + 0.5 * shade[floor]))[:, None] * np.array([1.0, 0.95, 0.9])
         owners = self._owner[seg[wall_px]]
-        ids, counts = np.unique(owners[owners >= 0], return_counts=True)
-        visible = tuple(int(i) for i, c in zip(ids, counts) if c >= 4)
-        return np.clip(rgb, 0, 255).astype(np.uint8), depth.astype(np.float32), visible
+        rows, cols = np.nonzero(wall_px)
+        boxes: dict[int, tuple[int, int, int, int]] = {}
+        for i in np.unique(owners[owners >= 0]):
+            m = owners == i
+            if m.sum() >= 4:
+                r, c = rows[m], cols[m]
+                boxes[int(i)] = (int(c.min()), int(r.min()), int(np.ptp(c)) + 1, int(np.ptp(r)) + 1)
+        return np.clip(rgb, 0, 255).astype(np.uint8), depth.astype(np.float32), boxes
 
 
 @ENVIRONMENTS.register("synthetic")

@@ -238,17 +238,16 @@ class VizDoomEnv:
             (raw > 0) & (raw < 255), (raw.astype(np.float32) * DEPTH_SCALE + DEPTH_OFFSET) / UNITS_PER_M, 0.0
         ).astype(np.float32)
         yaw = math.atan2(math.sin(math.radians(ang)), math.cos(math.radians(ang)))
-        visible = tuple(
-            sorted(
-                {
-                    self._by_place[k]
-                    for lb in (st.labels or [])
-                    if lb.width * lb.height >= self.min_label_pixels
-                    and (k := (lb.object_name, round(lb.object_position_x), round(lb.object_position_y)))
-                    in self._by_place
-                }
-            )
-        )
+        boxes: dict[int, tuple[int, int, int, int]] = {}
+        for lb in st.labels or []:
+            box = (int(lb.x), int(lb.y), int(lb.width), int(lb.height))
+            k = (lb.object_name, round(lb.object_position_x), round(lb.object_position_y))
+            if box[2] * box[3] >= self.min_label_pixels and k in self._by_place:
+                oid = self._by_place[k]
+                old = boxes.get(oid)
+                if old is None or old[2] * old[3] < box[2] * box[3]:
+                    boxes[oid] = box
+        visible = tuple(sorted(boxes))
         self._last = Observation(
             rgb=np.ascontiguousarray(st.screen_buffer),
             depth=depth,
@@ -257,6 +256,7 @@ class VizDoomEnv:
             step=self._steps,
             visible=visible,
             floor_z=z / UNITS_PER_M,
+            visible_boxes=boxes,
         )
         return self._last
 
@@ -267,6 +267,21 @@ class VizDoomEnv:
         # One call renders once; the turn is spread over the tics it is held for.
         self._game.make_action([delta, -math.degrees(float(turn)) / self.frame_skip], self.frame_skip)
         self._steps += 1
+        return self.observe()
+
+    def view_from(self, x: float, y: float, yaw: float) -> Observation:
+        """What the camera sees from (x, y) facing `yaw` (teleports the player: for making query
+        pictures and tests, not for the robot, which must drive)."""
+        g = self._game
+        warp = f"warp {x * UNITS_PER_M:.1f} {y * UNITS_PER_M:.1f}"
+        g.send_game_command(warp)
+        g.make_action([0.0, 0.0], 20)  # the player keeps its momentum through a warp: let it stop
+        g.send_game_command(warp)
+        g.make_action([0.0, 0.0], 6)  # and the view height settle after the jump
+        cur = self.observe().pose.yaw
+        turn = math.atan2(math.sin(yaw - cur), math.cos(yaw - cur))
+        g.make_action([0.0, -math.degrees(turn)], 1)
+        g.make_action([0.0, 0.0], 2)
         return self.observe()
 
     def objects(self) -> list[SceneObject]:

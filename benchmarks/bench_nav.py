@@ -67,7 +67,9 @@ def main() -> None:
             integrate_points(g, pts @ cam[:3, :3].T + cam[:3, 3], cam[:3, 3])
 
         t = timed(one, 10)
-        print(f"recorded RGB-D 640x480 frame into a {res:g} m map (stride 4, 6-DoF, ray casting): {1000 * t:.1f} ms")
+        print(
+            f"recorded RGB-D 640x480 frame into a {res:g} m map (stride 4, 6-DoF, ray casting): {1000 * t:.1f} ms"
+        )
 
     trav = rng.random((400, 400)) > 0.25
     trav[0, :] = trav[:, -1] = True  # a guaranteed route along two borders

@@ -12,9 +12,10 @@ Four ways to answer the same questions, so that what works and what does not is 
   (which does not know Doom's sprites: expect little);
 - `random`: a random memory's pose, the floor.
 
-Every query starts from the map's start; success is the robot ending within `success_radius`
-metres of the nearest true instance after driving. Maps, seeds and start times are fixed, so
-results reproduce.
+Queries ask about object kinds the robot saw at least once, with an instance within 2 m of
+floor a robot can reach (simulator ground truth). Every query starts from the map's start;
+success is the robot ending within `success_radius` metres of the nearest true instance after
+driving. Maps, seeds and start times are fixed, so results reproduce.
 
     from ravenmem.demo import DemoConfig, run_demo
     report = run_demo(DemoConfig(out="ravenmem-demo"))
@@ -45,6 +46,7 @@ from .robot.mission import explore_into, navigate_to
 from .robot.oracle import oracle_memory
 from .robot.pictures import query_picture
 from .sim.base import SceneObject, create_env
+from .sim.groundtruth import reachable_floor
 from .sim.queries import DemoQuery, make_queries
 from .tools import TOOLS
 
@@ -88,6 +90,7 @@ class DemoConfig:
     start_time: float = 1.7e9
     seed: int = 0
     png: bool = True
+    pictures: str = "view"  # image queries: "view" (rendered elsewhere) or "sprite" (from the WAD)
 
     def __post_init__(self) -> None:
         bad = [m for m in self.methods if m not in METHODS]
@@ -95,6 +98,8 @@ class DemoConfig:
             raise InputError(f"demo: unknown method(s) {bad}; choose from {', '.join(METHODS)}")
         if not self.maps:
             raise InputError("demo: no maps given")
+        if self.pictures not in ("view", "sprite"):
+            raise InputError(f"demo: pictures must be 'view' or 'sprite', got {self.pictures!r}")
         if self.queries < 1 or self.steps < 1 or self.success_radius <= 0:
             raise InputError("demo: queries and steps must be >= 1, success_radius > 0")
 
@@ -273,7 +278,9 @@ def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) 
         grid, rep = explore_into(env, mem, ecfg, progress=say)
         objects = env.objects()
         kind_of = {o.id: o.kind for o in objects}
-        seen = {i for vis in rep.keyframes.values() for i in vis}
+        seen = {i for vis in rep.keyframes.values() for i in vis} & _reachable(
+            env, objects, cfg.success_radius
+        )
         queries = make_queries(objects, seen, cfg.queries)
         cov = rep.coverage[-1] if rep.coverage else (0, 0.0, 0.0, None)
         run = MapRun(
@@ -319,6 +326,18 @@ def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) 
         env.close()
 
 
+def _reachable(env: Any, objects: list[SceneObject], radius: float) -> set[int]:
+    """Objects a robot could get within `radius` (less a margin) of: within that of the floor
+    reachable from the start (simulator ground truth, when the backend has its walls). Asking
+    to drive to a thing on a ledge nobody can reach tests nothing of the memory."""
+    segs = getattr(env, "wall_segments", None)
+    if segs is None:
+        return {o.id for o in objects}
+    obs = env.reset()
+    truth = reachable_floor(segs(), (obs.pose.x, obs.pose.y), 0.25)
+    return {o.id for o in objects if truth.distance(o.x, o.y) <= max(0.5, radius - 1.0)}
+
+
 def _rate(a: list[Attempt]) -> float:
     return sum(x.success for x in a) / len(a) if a else 0.0
 
@@ -350,7 +369,7 @@ def _answerers(
 
     for m in cfg.methods:
         if m == "image":
-            out[m] = _image_answerer(env, grid, mem, rep, objects, queries, folder, say)
+            out[m] = _image_answerer(env, grid, mem, rep, objects, queries, folder, say, cfg.pictures)
         elif m == "oracle":
             out[m] = _oracle_answerer(cfg, mem, rep, kind_of, folder)
         elif m == "text":
@@ -397,9 +416,10 @@ def _image_answerer(
     queries: list[DemoQuery],
     folder: Path,
     say: Callable[[str], None],
+    source: str = "view",
 ) -> Callable[[DemoQuery], Answer]:
-    """Render a picture per query (the instance the robot saw most often) and answer with the
-    image tool's top hit."""
+    """A picture per query (a view of the instance the robot saw most often, or the object's
+    sprite from the WAD) answered with the image tool's top hit."""
     keyframes = np.asarray([(r.pose.x, r.pose.y) for r in mem.all_records()]).reshape(-1, 2)
     counts: dict[int, int] = {}
     for vis in rep.keyframes.values():
@@ -412,7 +432,11 @@ def _image_answerer(
         if not inst:
             continue
         obj = max(inst, key=lambda o: (counts[o.id], -o.id))
-        pic = query_picture(env, grid, obj, keyframes, env.robot.radius)
+        if source == "sprite":
+            pic = _sprite(env, q.kind)
+        else:
+            env.reset()  # a new episode: items the robot picked up while exploring are back
+            pic = query_picture(env, grid, obj, keyframes, env.robot.radius)
         if pic is not None:
             pictures[q.kind] = pic
             Image.fromarray(pic).save(folder / "queries" / f"{q.kind}.png")
@@ -431,6 +455,16 @@ def _image_answerer(
         return (True, (p.x, p.y), "")
 
     return ask
+
+
+def _sprite(env: Any, kind: str) -> np.ndarray | None:
+    """The object's sprite from the environment's WAD (None where there is none)."""
+    from .sim.sprites import has_sprite, sprite_image
+
+    wad = getattr(env, "wad_path", None)
+    if wad is None or not has_sprite(kind, wad):
+        return None
+    return sprite_image(kind, wad)
 
 
 def _attempt(

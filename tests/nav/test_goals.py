@@ -73,7 +73,9 @@ def test_goal_is_the_evidence_pose_facing_where_the_camera_looked(tum_like: rave
     assert d["ok"] and d["path_length_m"] == pytest.approx(gp.plan.length_m) and d["waypoints"]
 
 
-def test_answers_that_cannot_be_driven_to_say_why(tum_like: ravenmem.Memory, tmp_path: Path, color_embedder) -> None:
+def test_answers_that_cannot_be_driven_to_say_why(
+    tum_like: ravenmem.Memory, tmp_path: Path, color_embedder
+) -> None:
     gp = plan_to_answer(tum_like, Answer(found=False, text="not found"))
     assert not gp.ok and "no position" in gp.plan.reason and gp.goal is None
     far = Answer(found=True, position=[0.0, 0.0, 40.0])  # 40 m away along the map's x

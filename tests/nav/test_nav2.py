@@ -103,11 +103,17 @@ def test_map_command_exports_and_imports(tmp_path: Path, color_embedder) -> None
 
     def rm(*args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(
-            [sys.executable, "-m", "ravenmem.cli.main", *args], capture_output=True, text=True, env=env, timeout=300
+            [sys.executable, "-m", "ravenmem.cli.main", *args],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=300,
         )
 
     # the memory's embedder is a test class: importing a map never needs it
-    r = rm("map", "--memory", str(tmp_path / "m.mem"), "--import-nav2", str(tmp_path / "given.yaml"), "--json")
+    r = rm(
+        "map", "--memory", str(tmp_path / "m.mem"), "--import-nav2", str(tmp_path / "given.yaml"), "--json"
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["kind"] == "imported" and out["occupied"] == 2 and out["unknown"] == 5 and out["free"] == 13

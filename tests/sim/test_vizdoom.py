@@ -96,3 +96,42 @@ def test_the_simulator_writes_nothing_into_the_working_folder(tmp_path, monkeypa
     e.reset()
     e.close()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_keyframe_labels_place_objects_where_they_are(env) -> None:
+    from ravenmem.robot.explore import locate
+
+    obs = env.reset()
+    truth = {o.id: o for o in env.objects()}
+    errs = []
+    for _ in range(12):  # look around from the start
+        obs = env.step(0.0, math.radians(30))
+        for oid, box in obs.visible_boxes.items():
+            xy = locate(obs, box, env.intrinsics)
+            if xy is not None:
+                errs.append(
+                    math.dist(xy, (truth[oid].x, truth[oid].y))
+                    / max(1.0, math.dist(xy, (obs.pose.x, obs.pose.y)))
+                )
+    assert len(errs) >= 5 and np.median(errs) < 0.15  # within 15 % of the distance
+
+
+def test_a_picture_of_an_object_from_elsewhere(env, tmp_path) -> None:
+    from ravenmem.robot.explore import ExploreConfig, Explorer
+    from ravenmem.robot.pictures import query_picture
+
+    env.reset()
+    ex = Explorer(env, None, ExploreConfig(steps=200))
+    rep = ex.run(reset=False)
+    kf = np.asarray(rep.trajectory[::20])
+    pictured = 0
+    for obj in sorted((o for o in env.objects() if o.id in rep.seen_objects), key=lambda o: o.id)[:4]:
+        pic = query_picture(env, ex.grid, obj, kf, env.robot.radius)
+        if pic is None:
+            continue
+        pictured += 1
+        assert pic.shape == (240, 320, 3) and pic.dtype == np.uint8
+        here = env.observe()
+        assert min(math.dist((here.pose.x, here.pose.y), p) for p in kf) >= 0.9  # not a stored view
+        assert obj.id in here.visible_boxes  # the object is in the picture
+    assert pictured >= 2

@@ -318,6 +318,9 @@ def demo(
     steps: Annotated[int | None, typer.Option(help="exploration budget in control steps per map")] = None,
     queries: Annotated[int, typer.Option(help="object queries per map")] = 8,
     success_radius: Annotated[float, typer.Option(help="metres from the nearest true instance")] = 3.0,
+    pictures: Annotated[
+        str, typer.Option(help="image queries: view (rendered elsewhere) | sprite (from the WAD)")
+    ] = "view",
     overwrite: Annotated[bool, typer.Option(help="replace an existing --out folder")] = False,
     json_out: JsonOpt = False,
 ) -> None:
@@ -325,7 +328,9 @@ def demo(
     by text and at random, and drive to each answer (offline, CPU)."""
     from ravenmem.demo import DemoConfig, run_demo
 
-    cfg = DemoConfig(out=str(out), queries=queries, success_radius=success_radius, overwrite=overwrite)
+    cfg = DemoConfig(
+        out=str(out), queries=queries, success_radius=success_radius, overwrite=overwrite, pictures=pictures
+    )
     if maps:
         cfg.maps = [m.strip() for m in maps.split(",") if m.strip()]
     if steps is not None:

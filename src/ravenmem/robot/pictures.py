@@ -4,7 +4,9 @@ from a place the robot never stored a keyframe at (like a photo a person took of
 The viewpoint is a free, reachable-looking cell of the robot's own map between `near` metres
 of the object, with a clear line of sight on the map, at least `min_gap` metres from every
 keyframe position (so the picture is not one of the memories), the nearest such to a keyframe
-(a view a robot passing by could have had). The picture is the central `crop` of the view,
+(a view a robot passing by could have had), with a clear line of sight on the map if any.
+Items the robot picked up while exploring are gone from the running episode: reset the
+environment before asking for pictures. The picture is the central `crop` of the view,
 centred on the object as far as the frame allows.
 """
 
@@ -59,13 +61,11 @@ def query_picture(
     goal = grid.world_to_cell(obj.x, obj.y)
     if grid.contains(goal):  # the object itself (a solid one is an obstacle) does not hide itself
         see[max(0, goal[0] - 2) : goal[0] + 3, max(0, goal[1] - 2) : goal[1] + 3] = True
-    tried = 0
-    for i in cand[np.argsort(gap, kind="stable")]:
-        if tried >= tries:
-            break
-        if grid.contains(goal) and not line_of_sight(see, (int(rr[i]), int(cc[i])), goal):
-            continue
-        tried += 1
+    order = cand[np.argsort(gap, kind="stable")]
+    if grid.contains(goal):  # views with a clear line on the map first, the others after
+        clear = np.array([line_of_sight(see, (int(rr[i]), int(cc[i])), goal) for i in order], bool)
+        order = np.concatenate([order[clear], order[~clear]])
+    for i in order[:tries]:
         obs = env.view_from(float(wx[i]), float(wy[i]), math.atan2(obj.y - wy[i], obj.x - wx[i]))
         box = obs.visible_boxes.get(obj.id)
         if box is None or box[2] * box[3] < min_px:

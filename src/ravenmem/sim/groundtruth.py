@@ -4,7 +4,7 @@ state exploration coverage as a fraction and to check the mapper (never used for
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -33,6 +33,7 @@ class FloorTruth:
     walls: np.ndarray
     origin: tuple[float, float]
     resolution: float
+    _edt: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def area(self) -> float:
@@ -43,6 +44,15 @@ class FloorTruth:
         c = np.floor((np.asarray(x) - self.origin[0]) / self.resolution).astype(np.int64)
         ok = (r >= 0) & (c >= 0) & (r < self.mask.shape[0]) & (c < self.mask.shape[1])
         return r, c, ok
+
+    def distance(self, x: float, y: float) -> float:
+        """Metres from (x, y) to the nearest reachable floor cell (0 on it; inf outside the map)."""
+        if not self.mask.any():
+            return float("inf")
+        if self._edt is None:
+            self._edt = ndimage.distance_transform_edt(~self.mask) * self.resolution
+        r, c, ok = self.cells(np.asarray([x]), np.asarray([y]))
+        return float(self._edt[r[0], c[0]]) if ok[0] else float("inf")
 
     def coverage(self, grid: MapLike) -> float:
         """Fraction of the reachable floor that the map has explored as free."""

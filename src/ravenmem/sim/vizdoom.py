@@ -269,6 +269,11 @@ class VizDoomEnv:
         self._steps += 1
         return self.observe()
 
+    @property
+    def wad_path(self) -> str:
+        """The WAD file this level comes from (its sprites picture the objects)."""
+        return self._wad
+
     def view_from(self, x: float, y: float, yaw: float) -> Observation:
         """What the camera sees from (x, y) facing `yaw` (teleports the player: for making query
         pictures and tests, not for the robot, which must drive)."""

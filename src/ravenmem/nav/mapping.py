@@ -267,8 +267,12 @@ class MapBuilder:
         self.stats.mapped += 1
         if self.grid is None:
             self._pending.append(item)
-            if len(self._pending) >= self.fit_frames:
-                self._start()
+            if len(self._pending) % self.fit_frames == 0:
+                try:
+                    self._start()
+                except InputError as e:  # too little floor so far: wait for more frames, then give up
+                    if len(self._pending) >= 4 * self.fit_frames:
+                        self.note, self._pending = f"no map: {e}", []
             return True
         self._fuse(item)
         return True

@@ -32,7 +32,9 @@ def _tum(root: Path, n: int = 10) -> Path:
     for i in range(n):
         t = 1000.0 + i
         cam = look(0.15 * i, 0.0, 1.1, 0.2 * math.sin(i), math.radians(20))
-        Image.fromarray(np.full((INTR.height, INTR.width, 3), 10 * i, np.uint8)).save(root / "rgb" / f"{t}.png")
+        Image.fromarray(np.full((INTR.height, INTR.width, 3), 10 * i, np.uint8)).save(
+            root / "rgb" / f"{t}.png"
+        )
         Image.fromarray(np.round(render(cam, [(3.5, -4, 3.7, 4, 2.5)]) * 5000).astype(np.uint16)).save(
             root / "depth" / f"{t}.png"
         )

@@ -19,7 +19,7 @@ import shutil
 import threading
 import time
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -151,6 +151,31 @@ class Memory:
         if journal is not None:
             recovery.end(journal)
         return ids
+
+    def import_embeddings(
+        self, batches: Iterable[tuple[Sequence[MemoryRecord], np.ndarray]], resume: str | None = None
+    ) -> int:
+        """Bulk-add memories whose embeddings were computed elsewhere (by this memory's
+        embedder; no image is read, no thumbnail written, OCR text comes with the records).
+
+        Each batch is committed in one transaction; with `resume` (a name for this import) a
+        rerun after a crash skips what was committed. Returns how many memories were added;
+        they are searchable when this returns. See `Store.add_many`.
+        """
+
+        def checked() -> Iterator[tuple[Sequence[MemoryRecord], np.ndarray]]:
+            for records, emb in batches:
+                if np.ndim(emb) != 2 or np.shape(emb)[1] != self.dim:
+                    raise InputError(
+                        f"embeddings have shape {np.shape(emb)}, expected (N, {self.dim}) for this memory's embedder"
+                    )
+                yield records, emb
+
+        try:
+            return self.store.add_many(checked(), resume=resume)
+        finally:
+            with self._lock:
+                self._span = None
 
     def _read_text(self, image: np.ndarray) -> str:
         if self._ocr is None:

@@ -240,5 +240,76 @@ def test_source_frames_odd_names_and_repeats(open_fn: StoreOpener) -> None:
                 mine.append((10, again[0]))
             assert list(zip(got.frame_index.tolist(), got.ids.tolist())) == sorted(mine)
         assert store.source_frames(names[0]).frame_index.tolist() == [8, 9, 10, 10]
+
+
+def test_select_and_delete_match_numpy(open_fn: StoreOpener) -> None:
+    """`select` is the filter's exact id set; `delete` forgets memories from every tool, the
+    count and reopening, returns how many existed, and never lets an id come back."""
+    store = open_fn(dim=DIM)
+    recs = make_records(N, seed=4, shuffle=True)
+    emb = robot_stream(N, DIM, seed=5, jump_every=40)
+    ids = store.add(recs[:200], emb[:200]) + store.add(recs[200:], emb[200:])
+    recs = [r.with_id(i) for r, i in zip(recs, ids, strict=True)]
+    try:
+        assert store.select().tolist() == ids
+        for filt in FILTERS:
+            assert store.select(filt).tolist() == [r.id for r in recs if filt.accepts(r)]
+        t_cut = sorted(r.t for r in recs)[N // 4]
+        forget = store.select(Filter(before=t_cut)).tolist() + [ids[-1], ids[5], ids[5], 10**9]
+        gone = set(forget) - {10**9}
+        assert store.delete(np.array(forget)) == len(gone)
+        assert store.delete(sorted(gone)) == 0 and store.delete([]) == 0
+        assert store.count() == N - len(gone)
+        with pytest.raises(KeyError):
+            store.get([ids[5]])
+        with pytest.raises(InputError, match="ids"):
+            store.delete(["seven"])  # type: ignore[list-item]
+        keep = [i for i, r in enumerate(recs) if r.id not in gone]
+        left, left_emb = [recs[i] for i in keep], emb[keep]
+        assert store.select().tolist() == [r.id for r in left]
+        rng = np.random.default_rng(6)
+        for filt in [None, *FILTERS[:3]]:
+            for qi in rng.choice(N, 3, replace=False):
+                q = emb[qi] + 0.05 * rng.normal(size=DIM)
+                hits = store.search_vector(q.astype(np.float32), 8, filt)
+                assert [h[0] for h in hits] == brute_vector(left, left_emb, q, 8, filt)[0]
+        assert not gone & {i for i, _ in store.search_text("exit", 1000)}
+        chrono = sorted(left, key=lambda r: (r.t, r.id))
+        assert [g.id for g in store.by_time(0.0, 5)] == [r.id for r in chrono[:5]]
+        near = store.nearest(10.0, 0.0, None, 20)
+        d = {r.id: float(np.hypot(r.pose.x - 10.0, r.pose.y)) for r in left}
+        assert [i for i, _ in near] == sorted(d, key=lambda i: (d[i], i))[:20]
+        store.close()
+        store = open_fn(dim=DIM)
+        assert store.count() == N - len(gone) and store.select().tolist() == [r.id for r in left]
+        assert store.search_vector(emb[5], 1)[0][0] != ids[5]
+        new = store.add(make_records(2, seed=9), robot_stream(2, DIM, seed=9))
+        assert min(new) > ids[-1], "the deleted newest id must not be reused"
+    finally:
+        store.close()
+
+
+def test_add_many_imports_and_resumes(open_fn: StoreOpener) -> None:
+    store = open_fn(dim=DIM)
+    recs = make_records(N, seed=7)
+    emb = robot_stream(N, DIM, seed=8, jump_every=50)
+    batches = [(recs[s : s + 90], emb[s : s + 90]) for s in range(0, N, 90)]
+    try:
+        assert store.add_many(iter(batches[:2]), resume="run1") == 180
+        assert store.add_many(iter(batches), resume="run1") == N - 180  # continues after 180 rows
+        assert store.add_many(iter(batches), resume="run1") == 0
+        assert store.count() == N
+        got = store.get(list(range(1, N + 1)), with_embeddings=True)
+        assert [g.t for g in got] == [r.t for r in recs] and [g.ocr_text for g in got] == [
+            r.ocr_text for r in recs
+        ]
+        assert all(
+            g.embedding is not None and np.allclose(g.embedding, e, atol=1e-6) for g, e in zip(got, emb)
+        )
+        for qi in (0, 211, N - 1):
+            assert store.search_vector(emb[qi], 1)[0][0] == qi + 1
+        with pytest.raises(InputError, match="shape"):
+            store.add_many([(recs[:2], np.ones((2, DIM + 1), np.float32))])
+        assert store.add_many([(recs[:3], emb[:3])]) == 3 and store.count() == N + 3
     finally:
         store.close()

@@ -73,7 +73,7 @@ def test_damaged_index_is_rebuilt_from_sqlite(tmp_path: Path, damage: str) -> No
 def test_reopen_adds_rows_the_index_file_missed(tmp_path: Path) -> None:
     """A writer that never closed: the index file covers fewer rows than SQLite holds."""
     writer, emb = filled(tmp_path / "m", 500, save_min=10**9)
-    _, covered = VectorIndex.load(
+    _, covered, _ = VectorIndex.load(
         tmp_path / "m" / "index.faiss", DIM, bytes.fromhex(store_uid(tmp_path / "m"))
     )
     assert covered < 500
@@ -265,3 +265,110 @@ def test_bytes_per_memory_at_dim_512(tmp_path: Path) -> None:
     per = store.stats()["bytes_per_memory"]
     store.close()
     assert per is not None and 2 * 2048 < per <= 8192, per  # type: ignore[operator]
+
+
+def brute(emb: np.ndarray, q: np.ndarray, k: int, ok: np.ndarray | None = None) -> list[int]:
+    scores = emb @ (q / np.linalg.norm(q))
+    if ok is not None:
+        scores = np.where(ok, scores, -np.inf)
+    return [int(i) + 1 for i in np.argsort(-scores, kind="stable")[:k] if np.isfinite(scores[i])]
+
+
+def test_sq8_codes_rerank_and_exact_scan(tmp_path: Path) -> None:
+    """The IVF keeps 8-bit codes (a quarter of float32 in RAM); scores come back exact after
+    re-ranking, and `exact=True` scans SQLite: the ground truth, filtered or not."""
+    store, emb = filled(tmp_path / "m", 3_000, ann_threshold=1_000, background=False)
+    try:
+        st = store.stats()
+        assert st["index"] == "ivf" and st["codes"] == "sq8" and st["rerank"] == 4
+        assert st["index_ram_bytes"] < 3_000 * (DIM * 4 + 8)  # type: ignore[operator]
+        recs = make_records(3_000)
+        rng = np.random.default_rng(12)
+        for filt in (
+            None,
+            Filter(after=recs[500].t, before=recs[900].t),
+            Filter(region=Region(-9.0, 1.0, 2.5)),
+        ):
+            ok = None if filt is None else np.array([filt.accepts(r) for r in recs])
+            for qi in rng.choice(3_000, 4, replace=False):
+                q = (emb[qi] + 0.3 * rng.normal(size=DIM) / np.sqrt(DIM)).astype(np.float32)
+                exact = store.search_vector(q, 10, filt, exact=True)
+                assert [i for i, _ in exact] == brute(emb, q, 10, ok)
+                assert np.allclose(
+                    [s for _, s in exact],
+                    [float(emb[i - 1] @ q / np.linalg.norm(q)) for i, _ in exact],
+                    atol=1e-5,
+                )
+                ann = store.search_vector(q, 10, filt)
+                assert [s for _, s in ann] == pytest.approx(
+                    [float(emb[i - 1] @ q / np.linalg.norm(q)) for i, _ in ann], abs=1e-5
+                )
+    finally:
+        store.close()
+    store = open_store(str(tmp_path / "m"), DIM, ann_threshold=1_000, codes="flat", background=False)
+    assert store.stats()["codes"] == "flat" and store.stats()["rerank"] == 0  # rebuilt with float codes
+    assert_self_search(store, emb, [0, 2_999])  # type: ignore[arg-type]
+    store.close()
+    with pytest.raises(InputError, match="codes"):
+        open_store(str(tmp_path / "m"), DIM, codes="pq")
+
+
+def test_deletes_reach_saved_caches_through_the_log(tmp_path: Path) -> None:
+    """A writer deletes and never closes: a second opener finds index.faiss and columns.cache
+    from before the deletes and drops the logged ids from both (no rebuild)."""
+    store, emb = filled(tmp_path / "m", 3_000, ann_threshold=1_000, background=False)
+    store.select()  # loads the columns, so that close saves them
+    store.close()
+    folder = tmp_path / "m"
+    stamp = (folder / "index.faiss").stat().st_mtime_ns
+    writer = open_store(str(folder), DIM, ann_threshold=1_000)
+    gone = list(range(1, 1_001)) + [2_000, 3_000]
+    assert writer.delete(gone) == len(gone)  # type: ignore[attr-defined]
+    reader = open_store(str(folder), DIM, ann_threshold=1_000)
+    try:
+        assert (folder / "index.faiss").stat().st_mtime_ns == stamp  # applied, not rebuilt
+        assert reader.count() == 3_000 - len(gone)
+        left = sorted(set(range(1, 3_001)) - set(gone))
+        assert reader.select().tolist() == left  # type: ignore[attr-defined]
+        for i in (0, 500, 1_999, 2_999):  # deleted: never found
+            assert reader.search_vector(emb[i], 5)[0][0] not in gone
+        assert_self_search(reader, emb, [1_000, 2_500])  # type: ignore[arg-type]
+        ok = np.zeros(3_000, bool)
+        ok[np.array(left) - 1] = True
+        q = emb[1_500]
+        assert [i for i, _ in reader.search_vector(q, 10, exact=True)] == brute(emb, q, 10, ok)
+        assert {i for i, _ in reader.nearest(10.0, 0.0, None, 200)}.isdisjoint(gone)
+    finally:
+        reader.close()
+        writer.close()
+    _, _, dels = VectorIndex.load(folder / "index.faiss", DIM, bytes.fromhex(store_uid(folder)))
+    assert dels == len(gone)
+    store = open_store(str(folder), DIM, ann_threshold=1_000)
+    (folder / "columns.cache").write_bytes(b"garbage")  # damaged: reloaded from SQLite
+    assert store.select().tolist() == left  # type: ignore[attr-defined]
+    new = store.add(make_records(1), emb[:1])
+    assert new == [3_001]
+    store.close()
+
+
+def test_add_many_builds_the_ivf_once_from_sqlite(tmp_path: Path) -> None:
+    """An import that crosses ann_threshold skips the index while it runs (a flat index of
+    millions would not fit) and builds the IVF once at the end; searches see everything."""
+    store = open_store(str(tmp_path / "m"), DIM, ann_threshold=2_000)
+    emb = robot_stream(5_000, DIM, seed=13, jump_every=500)
+    recs = make_records(5_000)
+    store.add(recs[:100], emb[:100])
+    sizes: list[int] = []
+
+    def batches():  # type: ignore[no-untyped-def]
+        for s in range(100, 5_000, 700):
+            sizes.append(store._vi.ntotal)  # type: ignore[attr-defined]
+            yield recs[s : s + 700], emb[s : s + 700]
+
+    assert store.add_many(batches()) == 4_900  # type: ignore[attr-defined]
+    assert sizes[0] == 100 and max(sizes) < 2_000 + 700, sizes  # never a flat index past the threshold
+    st = store.stats()
+    assert st["index"] == "ivf" and st["count"] == 5_000
+    assert store._vi.trained_n == 5_000  # type: ignore[attr-defined]
+    assert_self_search(store, emb, [0, 99, 100, 2_500, 4_999])  # type: ignore[arg-type]
+    store.close()

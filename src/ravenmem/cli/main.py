@@ -319,7 +319,7 @@ def info(memory: MemoryOpt, json_out: JsonOpt = False) -> None:
 
 def _register_extensions() -> None:
     """Let the agent / nav / eval areas add their commands when their modules are present."""
-    for mod in ("agent", "nav", "eval"):
+    for mod in ("agent", "nav", "eval", "store"):
         try:
             module = importlib.import_module(f"ravenmem.cli.{mod}")
         except ModuleNotFoundError as e:

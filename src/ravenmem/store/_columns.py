@@ -2,8 +2,11 @@
 
 Why RAM and not SQL: a filter must be resolved on every filtered search, and a numpy pass over
 1M float64 values takes about a millisecond, where SQLite needs tens of milliseconds to visit
-that many rows. The columns cost 40 bytes per memory (40 MB at 1M) and are rebuilt from SQLite
-on open, so they need no persistence of their own.
+that many rows. The columns cost 40 bytes per memory (40 MB at 1M). They are a cache of
+SQLite like the vector index: saved to `columns.cache` with the index (10M rows load from it in
+about a second where reading them from SQLite took 14 s), and on open brought up to date from
+SQLite (rows added since, deletions logged since), or reloaded from SQLite if the file is
+damaged.
 
 Why a k-d tree (scipy cKDTree) for `nearest`, not an SQLite R*Tree: the tree answers exact
 k-nearest queries in O(log N), in 2-D (planar) or 3-D, with an optional radius, where an R*Tree
@@ -13,10 +16,23 @@ memories added since the last build (at most 1/16 of them) are scanned by brute 
 
 from __future__ import annotations
 
+import struct
+import zlib
+from pathlib import Path
+
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..fsio import atomic_open
 from ..types import Filter
+
+_MAGIC = b"RVMCOLS1"
+_HEADER = struct.Struct("<8sqqqI4x16s")  # magic, n, max id covered, deletions reflected, crc, store uid
+
+
+class ColumnsFileError(Exception):
+    """The columns file is missing or damaged: reload the columns from SQLite."""
+
 
 _BRUTE_MAX = 50_000  # below this many candidates a numpy scan beats a tree query with a mask
 
@@ -57,6 +73,54 @@ class Columns:
         self._xyzt[0, sl], self._xyzt[1, sl], self._xyzt[2, sl], self._xyzt[3, sl] = x, y, z, t
         self.n += m
 
+    def remove(self, ids: np.ndarray) -> int:
+        """Drop the rows of `ids` (absent ones ignored); returns how many were dropped."""
+        ids = np.asarray(ids, np.int64)
+        pos = np.searchsorted(self.ids, ids)
+        ok = pos < self.n
+        pos, ids = pos[ok], ids[ok]
+        pos = np.unique(pos[self.ids[pos] == ids])
+        if len(pos) == 0:
+            return 0
+        keep = np.ones(self.n, bool)
+        keep[pos] = False
+        m = int(keep.sum())
+        self._ids[:m] = self._ids[: self.n][keep]
+        self._xyzt[:, :m] = self._xyzt[:, : self.n][:, keep]
+        self.n = m
+        self._trees.clear()
+        return len(pos)
+
+    # --- cache file ----------------------------------------------------------------------------
+    def save(self, path: Path, max_id: int, deletions: int, uid: bytes) -> None:
+        """Atomically write the columns, recording the highest id and deletions they cover."""
+        ids = np.ascontiguousarray(self.ids, "<i8").tobytes()
+        cols = np.ascontiguousarray(self._xyzt[:, : self.n], "<f8").tobytes()
+        crc = zlib.crc32(cols, zlib.crc32(ids))
+        with atomic_open(path, "wb") as f:
+            f.write(_HEADER.pack(_MAGIC, self.n, max_id, deletions, crc, uid))
+            f.write(ids)
+            f.write(cols)
+
+    @classmethod
+    def load(cls, path: Path, uid: bytes) -> tuple[Columns, int, int]:
+        """(columns, max id covered, deletions reflected) from a file, or ColumnsFileError."""
+        try:
+            raw = path.read_bytes()
+        except OSError as e:
+            raise ColumnsFileError(f"{path.name}: {e.strerror}") from e
+        if len(raw) < _HEADER.size:
+            raise ColumnsFileError(f"{path.name} is truncated")
+        magic, n, max_id, deletions, crc, fuid = _HEADER.unpack_from(raw)
+        body = memoryview(raw)[_HEADER.size :]
+        if magic != _MAGIC or fuid != uid or n < 0 or len(body) != 40 * n or zlib.crc32(body) != crc:
+            raise ColumnsFileError(f"{path.name} is damaged or belongs to another store")
+        cols = cls()
+        ids = np.frombuffer(body[: 8 * n], "<i8").astype(np.int64)
+        xyzt = np.frombuffer(body[8 * n :], "<f8").reshape(4, n)
+        cols.append(ids, xyzt[3], xyzt[0], xyzt[1], xyzt[2])
+        return cols, int(max_id), int(deletions)
+
     def extent(self) -> dict[str, float | None]:
         out: dict[str, float | None] = {}
         for c in "xyz":
@@ -88,6 +152,13 @@ class Columns:
         if mask is None:
             return np.arange(lo, hi, dtype=np.int64)
         return np.flatnonzero(mask).astype(np.int64) + (lo if filt.region is not None else 0)
+
+    def select_ids(self, filt: Filter) -> tuple[np.ndarray, bool]:
+        """(sorted ids the filter accepts, contiguous): contiguous when they are a run of
+        consecutive positions, i.e. no stored id between the first and last is left out."""
+        pos = self.select(filt)
+        contiguous = len(pos) > 0 and int(pos[-1]) - int(pos[0]) + 1 == len(pos)
+        return self.ids[pos], contiguous
 
     # --- position tool ---------------------------------------------------------------------------
     def nearest(

@@ -36,6 +36,15 @@ def check_k(k: int) -> int:
     return int(k)
 
 
+def check_ids(ids: object) -> np.ndarray:
+    """Memory ids as a sorted unique int64 array; anything but integers is an input error."""
+    vals = ids.ravel().tolist() if isinstance(ids, np.ndarray) else list(ids)  # type: ignore[call-overload]
+    for v in vals:
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise InputError(f"ids: expected integer memory ids, got {v!r}")
+    return np.unique(np.asarray(vals, np.int64))
+
+
 def check_point(x: float, y: float, z: float | None, radius: float | None) -> None:
     """The arguments of `nearest`: finite numbers, and a radius that is not negative."""
     vals = [x, y] + ([] if z is None else [z]) + ([] if radius is None else [radius])

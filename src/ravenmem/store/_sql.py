@@ -32,6 +32,7 @@ CREATE TABLE IF NOT EXISTS memories (
 CREATE INDEX IF NOT EXISTS memories_t ON memories (t, id);
 CREATE TABLE IF NOT EXISTS vectors (id INTEGER PRIMARY KEY, v BLOB NOT NULL);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS deleted (seq INTEGER PRIMARY KEY, id INTEGER NOT NULL);
 """
 
 # Indexes added after memories were already in use: (name, DDL), built on open when missing.
@@ -111,9 +112,14 @@ def record_row(rid: int, r: MemoryRecord) -> tuple[object, ...]:
 
 
 def insert(
-    conn: sqlite3.Connection, ids: Sequence[int], records: Sequence[MemoryRecord], emb: np.ndarray
+    conn: sqlite3.Connection,
+    ids: Sequence[int],
+    records: Sequence[MemoryRecord],
+    emb: np.ndarray,
+    meta: dict[str, str] | None = None,
 ) -> None:
-    """Insert a batch in one transaction: all of it is durable on return, or none of it."""
+    """Insert a batch in one transaction: all of it is durable on return, or none of it.
+    `meta` keys are set in the same transaction (a bulk import's progress marker)."""
     conn.execute("BEGIN IMMEDIATE")
     try:
         conn.executemany(
@@ -127,10 +133,65 @@ def insert(
             "INSERT INTO ocr (rowid, folded) VALUES (?, ?)",
             [(i, norm_text(r.ocr_text)) for i, r in zip(ids, records, strict=True) if r.ocr_text],
         )
+        if meta:
+            conn.executemany("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", list(meta.items()))
         conn.execute("COMMIT")
     except BaseException:
         conn.execute("ROLLBACK")
         raise
+
+
+def delete(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
+    """Delete the memories among `ids` (sorted, unique) in one transaction: rows, vectors,
+    OCR index entries, and a line each in the deletion log that tells the index caches what
+    to drop on open. Returns the ids that existed (and are now gone)."""
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        gone: list[int] = []
+        for s in range(0, len(ids), 900):
+            chunk = [int(i) for i in ids[s : s + 900]]
+            marks = ",".join("?" * len(chunk))
+            rows = conn.execute(f"SELECT id, ocr_text FROM memories WHERE id IN ({marks})", chunk).fetchall()
+            if not rows:
+                continue
+            have = [r[0] for r in rows]
+            marks = ",".join("?" * len(have))
+            # a contentless FTS5 table forgets a row when given the text it indexed
+            conn.executemany(
+                "INSERT INTO ocr (ocr, rowid, folded) VALUES ('delete', ?, ?)",
+                [(i, norm_text(t)) for i, t in rows if t],
+            )
+            conn.execute(f"DELETE FROM memories WHERE id IN ({marks})", have)
+            conn.execute(f"DELETE FROM vectors WHERE id IN ({marks})", have)
+            conn.executemany("INSERT INTO deleted (id) VALUES (?)", [(i,) for i in have])
+            gone += have
+        conn.execute("COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+    return np.array(sorted(gone), np.int64)
+
+
+def deletions(conn: sqlite3.Connection) -> tuple[int, int]:
+    """(entries in the deletion log, highest id ever deleted)."""
+    n, top = conn.execute("SELECT COALESCE(MAX(seq), 0), COALESCE(MAX(id), 0) FROM deleted").fetchone()
+    return int(n), int(top)
+
+
+def deleted_since(conn: sqlite3.Connection, seq: int) -> np.ndarray:
+    """Ids deleted after the first `seq` entries of the deletion log, sorted."""
+    rows = conn.execute("SELECT id FROM deleted WHERE seq > ?", (seq,)).fetchall()
+    return np.unique(np.fromiter((r[0] for r in rows), np.int64, len(rows)))
+
+
+def fetch_vectors(conn: sqlite3.Connection, ids: Sequence[int] | np.ndarray) -> dict[int, bytes]:
+    """id -> float32 vector bytes for the ids that exist."""
+    out: dict[int, bytes] = {}
+    for s in range(0, len(ids), 900):
+        chunk = [int(i) for i in ids[s : s + 900]]
+        q = f"SELECT id, v FROM vectors WHERE id IN ({','.join('?' * len(chunk))})"
+        out.update(conn.execute(q, chunk).fetchall())
+    return out
 
 
 def to_record(row: Sequence[Any], emb: bytes | None = None) -> MemoryRecord:

@@ -1,16 +1,20 @@
 """The FAISS vector index of the local store, and its crash-safe file.
 
 Two kinds: `flat` (exact inner product, IndexIDMap2 over IndexFlatIP) for small stores and
-`ivf` (IndexIVFFlat, inner product) beyond a size threshold. IVF-Flat keeps exact vectors in
-its lists, so a search that probes every list is exact; the store uses that for selective
-filters. HNSW is not offered: on robot streams (long runs of near-duplicate frames) its recall
-collapsed to 0.24-0.82 at 1M where IVF-Flat with nprobe 32 kept 0.997 (project measurement).
+`ivf` (an inverted file, inner product) beyond a size threshold. The IVF keeps its vectors as
+`sq8` codes by default (8 bits per dimension of the residual to the list centroid: 384 B per
+memory at dim 384, a quarter of float32, one range widened by 20 %), so 10M memories fit in 4 GB of RAM; the store then
+re-ranks the best candidates with the exact float32 vectors it keeps in SQLite. `flat` codes
+(IVF-Flat, exact scores, 4x the RAM) and `fp16` are options. HNSW is not offered: on robot
+streams (long runs of near-duplicate frames) its recall collapsed to 0.24-0.82 at 1M where an
+IVF with nprobe 32 kept 0.997 (project measurement).
 
 File format (`index.faiss`): a 64-byte header (magic, version, dim, max id covered, vector
 count, trained size, CRC32 of the payload, the store's random uid, so that a file copied from
-another memory is refused) followed by the `faiss.write_index` payload. It is
-written to a temporary file, fsynced and renamed over the old one, so a reader sees either the
-old or the new index, never a torn one; the CRC catches a corrupted file.
+another memory is refused, and the number of deletions the file reflects) followed by the
+`faiss.write_index` payload. It is written to a temporary file, fsynced and renamed over the
+old one, so a reader sees either the old or the new index, never a torn one; the CRC catches a
+corrupted file.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import math
 import struct
 import zlib
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -31,16 +35,32 @@ from ..fsio import atomic_open
 faiss: Any = _faiss  # the SWIG stubs miss the keyword constructors and callback IO used here
 
 _MAGIC = b"RVMFAISS"
-_HEADER = struct.Struct("<8sIIqQQI4x16s")  # magic, version, dim, max_id, ntotal, trained_n, crc, store uid
+_VERSION = 2
+# magic, version, dim, max_id, ntotal, trained_n, crc, deletions reflected, store uid
+_HEADER = struct.Struct("<8sIIqQQIq4x16s")
+CODES = ("sq8", "flat", "fp16")
+_SQ = {"sq8": "QT_8bit_uniform", "fp16": "QT_fp16"}
+# 8-bit codes cover the residuals' trained range widened by 20 % on each side: memories added
+# after training (new places) would otherwise be clipped. Measured at 400k, trained on the first
+# half: with per-dimension ranges a query's own frame was among its 32 candidates 75-93 % of the
+# time; with one range widened by 20 %, always (and the same recall when trained on everything).
+_SQ_MARGIN = 0.2
+_HNSW_ASSIGN_MIN = 20_000  # rows per add from which an HNSW graph over the centroids assigns lists
 
 
 class IndexFileError(Exception):
     """The index file is missing, torn, corrupted or from another dim: rebuild from SQLite."""
 
 
-def nlist_for(n: int) -> int:
-    """About 4 * sqrt(N) lists, with at least 39 training points per list (FAISS's minimum)."""
-    return max(1, min(int(4 * math.sqrt(n)), n // 39))
+def nlist_for(n: int, max_nlist: int = 4096) -> int:
+    """About 4 * sqrt(N) lists, at most `max_nlist`, with at least 39 training points per list.
+
+    Why a cap: assigning a vector to its list costs nlist dot products and k-means training
+    nlist^2 x 40 of them. At 10M, 4 * sqrt(N) = 12,649 lists would assign 12k vectors/s on one
+    core (a 14-minute build); 4096 lists keep lists of ~2,400 codes, which an nprobe-32 query
+    scans in a few milliseconds.
+    """
+    return max(1, min(int(4 * math.sqrt(n)), n // 39, max_nlist))
 
 
 class VectorIndex:
@@ -48,6 +68,7 @@ class VectorIndex:
         self.index = index
         self.dim = dim
         self.trained_n = trained_n  # how many memories the IVF was trained at (0 for flat)
+        self._assigner: Any = None  # HNSW over the centroids, built for large adds
         # IVF only: the list each id lives in (-1: absent) and the list centroids, so that a
         # filtered search can probe just the lists that hold accepted ids
         self.list_of = np.full(0, -1, np.int32)
@@ -67,10 +88,24 @@ class VectorIndex:
         return cls(faiss.IndexIDMap2(faiss.IndexFlatIP(dim)), dim)
 
     @classmethod
-    def ivf(cls, dim: int, train: np.ndarray, n_total: int, niter: int = 10) -> VectorIndex:
-        """IVF-Flat with about 4*sqrt(n_total) lists, k-means trained on `train`."""
-        nlist = max(1, min(nlist_for(n_total), len(train) // 39))
-        index = faiss.IndexIVFFlat(faiss.IndexFlatIP(dim), dim, nlist, faiss.METRIC_INNER_PRODUCT)
+    def ivf(
+        cls,
+        dim: int,
+        train: np.ndarray,
+        n_total: int,
+        codes: str = "sq8",
+        max_nlist: int = 4096,
+        niter: int = 10,
+    ) -> VectorIndex:
+        """An IVF with about 4*sqrt(n_total) lists (capped), k-means trained on `train`."""
+        nlist = max(1, min(nlist_for(n_total, max_nlist), len(train) // 39))
+        quantizer = faiss.IndexFlatIP(dim)
+        if codes == "flat":
+            index = faiss.IndexIVFFlat(quantizer, dim, nlist, faiss.METRIC_INNER_PRODUCT)
+        else:
+            qtype = getattr(faiss.ScalarQuantizer, _SQ[codes])
+            index = faiss.IndexIVFScalarQuantizer(quantizer, dim, nlist, qtype, faiss.METRIC_INNER_PRODUCT)
+            index.sq.rangestat_arg = _SQ_MARGIN
         index.cp.niter = niter
         index.cp.max_points_per_centroid = max(39, len(train) // nlist + 1)
         index.train(np.ascontiguousarray(train, np.float32))
@@ -79,6 +114,18 @@ class VectorIndex:
     @property
     def kind(self) -> str:
         return "ivf" if isinstance(self.index, faiss.IndexIVF) else "flat"
+
+    @property
+    def codes(self) -> str:
+        """How vectors are kept: `flat` (float32, exact scores), `sq8` or `fp16`."""
+        if isinstance(self.index, faiss.IndexIVFScalarQuantizer):
+            return "fp16" if self.index.sq.qtype == faiss.ScalarQuantizer.QT_fp16 else "sq8"
+        return "flat"
+
+    @property
+    def exact_scores(self) -> bool:
+        """True when search scores are exact inner products (no re-ranking needed)."""
+        return self.codes == "flat"
 
     @property
     def ntotal(self) -> int:
@@ -92,23 +139,63 @@ class VectorIndex:
         """FAISS's imbalance factor of the IVF lists (1.0 = even; 0.0 for flat)."""
         return float(self.index.invlists.imbalance_factor()) if self.kind == "ivf" and self.ntotal else 0.0
 
+    def nbytes(self) -> int:
+        """RAM held by the vectors: codes plus ids (and the id -> list map)."""
+        if self.kind == "flat":
+            return self.ntotal * (4 * self.dim + 8)
+        return self.ntotal * (int(self.index.code_size) + 8) + self.list_of.nbytes
+
     def _grow(self, max_id: int) -> None:
         if max_id >= len(self.list_of):
             grown = np.full(max(max_id + 1, 2 * len(self.list_of)), -1, np.int32)
             grown[: len(self.list_of)] = self.list_of
             self.list_of = grown
 
+    def _assign(self, x: np.ndarray) -> np.ndarray:
+        """The list of each row: exact (flat quantizer) for small batches; for large ones an
+        HNSW graph over the centroids, 3x faster at 4096 lists and in our measurement always
+        the same list (a near miss would only cost a little recall, never correctness)."""
+        if len(x) < _HNSW_ASSIGN_MIN or self.nlist < 1024:
+            _, lists = self.index.quantizer.search(x, 1)
+        else:
+            if self._assigner is None:
+                hnsw = faiss.IndexHNSWFlat(self.dim, 32, faiss.METRIC_INNER_PRODUCT)
+                hnsw.hnsw.efConstruction = 40
+                hnsw.add(self.centroids)
+                hnsw.hnsw.efSearch = 32
+                self._assigner = hnsw
+            _, lists = self._assigner.search(x, 1)
+        return np.ascontiguousarray(lists.ravel(), np.int64)
+
     def add(self, ids: np.ndarray, vecs: np.ndarray) -> None:
         x = np.ascontiguousarray(vecs, np.float32)
         xids = np.ascontiguousarray(ids, np.int64)
-        if self.kind == "flat":
-            self.index.add_with_ids(x, xids)
+        if len(x) == 0:
             return
-        _, lists = self.index.quantizer.search(x, 1)
-        lists = np.ascontiguousarray(lists.ravel(), np.int64)
-        self.index.add_core(len(x), faiss.swig_ptr(x), faiss.swig_ptr(xids), faiss.swig_ptr(lists))
+        # a live robot's small batches: one thread (see _one_thread); imports and rebuilds: all
+        with _one_thread() if len(x) < _HNSW_ASSIGN_MIN else nullcontext():
+            if self.kind == "flat":
+                self.index.add_with_ids(x, xids)
+                return
+            lists = self._assign(x)
+            self.index.add_core(len(x), faiss.swig_ptr(x), faiss.swig_ptr(xids), faiss.swig_ptr(lists))
         self._grow(int(xids.max()))
         self.list_of[xids] = lists
+
+    def remove(self, ids: np.ndarray) -> int:
+        """Remove ids (absent ones are ignored); returns how many were removed."""
+        xids = np.ascontiguousarray(ids, np.int64)
+        if len(xids) == 0 or self.ntotal == 0:
+            return 0
+        if self.kind == "ivf":  # only the lists that hold them, not a scan of every list
+            xids = xids[(xids >= 0) & (xids < len(self.list_of))]
+            xids = xids[self.list_of[xids] >= 0]
+            if len(xids) == 0:
+                return 0
+        removed = int(self.index.remove_ids(faiss.IDSelectorBatch(len(xids), faiss.swig_ptr(xids))))
+        if self.kind == "ivf":
+            self.list_of[xids] = -1
+        return removed
 
     def search(
         self,
@@ -118,14 +205,18 @@ class VectorIndex:
         allowed: np.ndarray | None = None,
         exact: bool = False,
         filter_budget: float = 4.0,
+        contiguous: bool = False,
     ) -> list[tuple[int, float]]:
         """Top-k (id, inner product), restricted exactly to the `allowed` ids when given.
 
-        IVF with a filter ranks only the lists that hold allowed ids by centroid similarity and
-        probes the best of them until `filter_budget` times as many allowed vectors are
-        compared as an unfiltered search compares (nprobe average lists). A filter that keeps
-        few memories is thus searched exactly, and a robot's time window, which maps to few
-        places and so to few lists, stays cheap. Fewer than k found -> all those lists.
+        `allowed` is sorted; `contiguous` says that no indexed id between its first and last
+        is outside it (a time window on a chronological store), so a range test replaces the
+        bitmap. IVF with a filter ranks only the lists that hold allowed ids by centroid
+        similarity and probes the best of them until `filter_budget` times as many allowed
+        vectors are compared as an unfiltered search compares (nprobe average lists). A filter
+        that keeps few memories is thus searched exhaustively, and a robot's time window, which
+        maps to few places and so to few lists, stays cheap. Fewer than k found -> all those
+        lists. With `exact`, every list is probed (exact for flat codes).
         """
         n_sel = self.ntotal if allowed is None else len(allowed)
         want = min(k, n_sel, self.ntotal)
@@ -135,13 +226,10 @@ class VectorIndex:
             if self.kind == "flat":
                 return self._run(q, want, None)
             return self._run(q, want, faiss.SearchParametersIVF(nprobe=self.nlist if exact else nprobe))
-        mask = np.zeros(int(allowed.max()) + 1, bool)
-        mask[allowed] = True
-        bitmap = np.packbits(mask, bitorder="little")
-        sel = faiss.IDSelectorBitmap(len(bitmap), faiss.swig_ptr(bitmap))
+        sel, _buffer = _selector(allowed, contiguous)
         if self.kind == "flat":
             return self._run(q, want, faiss.SearchParameters(sel=sel))
-        per_list = np.bincount(self.list_of[allowed], minlength=self.nlist)
+        per_list = np.bincount(self.list_of[allowed], minlength=self.nlist)[: self.nlist]
         lists = np.flatnonzero(per_list)
         scores = self.centroids[lists] @ q[0]
         order = np.argsort(-scores)
@@ -176,8 +264,9 @@ class VectorIndex:
         return [(int(i), float(d)) for i, d in zip(ids[0], dist[0], strict=True) if i >= 0]
 
     # --- file ----------------------------------------------------------------------------------
-    def save(self, path: Path, max_id: int, uid: bytes) -> None:
-        """Atomically replace `path` with this index, recording that it covers ids <= max_id."""
+    def save(self, path: Path, max_id: int, uid: bytes, deletions: int = 0) -> None:
+        """Atomically replace `path` with this index, recording that it covers ids <= max_id
+        and reflects the first `deletions` entries of the store's deletion log."""
         crc = 0
         with atomic_open(path, "w+b") as f:
             f.write(b"\0" * _HEADER.size)
@@ -192,20 +281,22 @@ class VectorIndex:
             faiss.write_index(self.index, writer)
             del writer
             f.seek(0)
-            f.write(_HEADER.pack(_MAGIC, 1, self.dim, max_id, self.ntotal, self.trained_n, crc, uid))
+            head = (_MAGIC, _VERSION, self.dim, max_id, self.ntotal, self.trained_n, crc, deletions, uid)
+            f.write(_HEADER.pack(*head))
 
     @classmethod
-    def load(cls, path: Path, dim: int, uid: bytes) -> tuple[VectorIndex, int]:
-        """Read an index file; returns (index, max id covered) or raises IndexFileError."""
+    def load(cls, path: Path, dim: int, uid: bytes) -> tuple[VectorIndex, int, int]:
+        """Read an index file; returns (index, max id covered, deletions reflected) or raises
+        IndexFileError."""
         if not path.exists():
             raise IndexFileError(f"{path.name} is missing")
         with open(path, "rb") as f:
             head = f.read(_HEADER.size)
             if len(head) != _HEADER.size:
                 raise IndexFileError(f"{path.name} is truncated")
-            magic, version, fdim, max_id, ntotal, trained_n, crc, fuid = _HEADER.unpack(head)
-            if magic != _MAGIC or version != 1:
-                raise IndexFileError(f"{path.name} is not a ravenmem index file")
+            magic, version, fdim, max_id, ntotal, trained_n, crc, deletions, fuid = _HEADER.unpack(head)
+            if magic != _MAGIC or version != _VERSION:
+                raise IndexFileError(f"{path.name} is not a ravenmem index file of version {_VERSION}")
             if fdim != dim:
                 raise IndexFileError(f"{path.name} holds dim {fdim}, expected {dim}")
             if fuid != uid:
@@ -225,7 +316,22 @@ class VectorIndex:
             seen = zlib.crc32(f.read(), seen)
         if seen != crc or index.ntotal != ntotal or index.d != dim:
             raise IndexFileError(f"{path.name} failed its checksum")
-        return cls(index, dim, trained_n), max_id
+        return cls(index, dim, trained_n), max_id, deletions
+
+
+def _selector(allowed: np.ndarray, contiguous: bool) -> tuple[Any, np.ndarray | None]:
+    """A FAISS id selector for sorted `allowed` ids (and the buffer it reads, to keep alive):
+    a range test when contiguous, else a bitmap. The bitmap's bits are packed only over the
+    span of the allowed ids, not over a bool mask as long as the largest id, which at 10M
+    memories cost more than the search itself."""
+    if contiguous:
+        return faiss.IDSelectorRange(int(allowed[0]), int(allowed[-1]) + 1), None
+    lo, hi = int(allowed[0]) >> 3, int(allowed[-1]) >> 3
+    span = np.zeros((hi - lo + 1) * 8, bool)
+    span[allowed - lo * 8] = True
+    bitmap = np.zeros(hi + 1, np.uint8)
+    bitmap[lo:] = np.packbits(span, bitorder="little")
+    return faiss.IDSelectorBitmap(len(bitmap), faiss.swig_ptr(bitmap)), bitmap
 
 
 @contextmanager

@@ -12,7 +12,7 @@ turns queries into vectors and writes thumbnails. Stores are thread-safe: one th
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -50,6 +50,24 @@ class Store(Protocol):
 
     def add(self, records: Sequence[MemoryRecord], embeddings: np.ndarray) -> list[int]:
         """Store records (their `id` is ignored) with (N, dim) embeddings; return the new ids."""
+        ...
+
+    def add_many(
+        self, batches: Iterable[tuple[Sequence[MemoryRecord], np.ndarray]], resume: str | None = None
+    ) -> int:
+        """Bulk import: each (records, embeddings) batch is durable once the next one starts and
+        searchable when this returns; returns how many memories were added. With `resume` (a
+        name for this import), a rerun after a crash skips the input rows already committed."""
+        ...
+
+    def delete(self, ids: Iterable[int]) -> int:
+        """Forget memories by id (unknown ids are ignored); returns how many were deleted.
+        Crash-safe: a killed process leaves either all of them or none."""
+        ...
+
+    def select(self, filt: Filter | None = None) -> np.ndarray:
+        """Sorted int64 ids of the memories a filter accepts (all ids without one), e.g. to
+        forget everything before a time or inside a region."""
         ...
 
     def search_vector(self, query: np.ndarray, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:

@@ -1,15 +1,18 @@
 """`local`: the embedded default store, SQLite (source of truth) + a FAISS vector index.
 
 Files in the memory folder: `store.sqlite` (+ `-wal`/`-shm`; metadata, float32 vectors, FTS5
-OCR index, meta table) and `index.faiss` (see `_vindex`). Every `add` commits one SQLite
-transaction before returning, so an acknowledged memory survives a killed process. The FAISS
-index is only a cache of the vectors: it is saved atomically now and then and on close with the
-highest id it covers; on open, newer rows are added from SQLite, and a missing or corrupt file
-is rebuilt from SQLite.
+OCR index, deletion log, meta table), `index.faiss` (see `_vindex`) and `columns.cache` (see
+`_columns`). Every `add` commits one SQLite transaction before returning, so an acknowledged
+memory survives a killed process. The index and the columns are only caches: saved atomically
+now and then and on close with the highest id and the number of deletions they cover; on open,
+newer rows are added from SQLite and logged deletions applied, and a missing or corrupt file is
+rebuilt from SQLite.
 
-The index is exact (flat) below `ann_threshold` memories and IVF-Flat above it; crossing the
-threshold, or growing `retrain_growth`-fold since the last training, rebuilds it from SQLite,
-by default in a background thread while searches keep using the old index.
+The index is exact (flat) below `ann_threshold` memories and an IVF above it (8-bit codes,
+the best candidates re-ranked with the exact vectors from SQLite); crossing the threshold, or
+growing `retrain_growth`-fold since the last training, rebuilds it from SQLite, by default in
+a background thread while searches keep using the old index. `add_many` imports large batches
+of precomputed embeddings: it commits them chunk by chunk and builds the index once at the end.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import logging
 import sqlite3
 import threading
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from urllib.parse import quote
 
@@ -28,23 +31,25 @@ from ..errors import InputError
 from ..fsio import remove_stale_temp_files
 from ..types import Filter, MemoryRecord
 from . import _sql
-from ._columns import Columns
+from ._columns import Columns, ColumnsFileError
 from ._common import (
     DIM_KEY,
     check_add,
     check_dim,
     check_filter,
+    check_ids,
     check_k,
     check_point,
     check_query,
     query_words,
     rank_text,
 )
-from ._vindex import IndexFileError, VectorIndex, nlist_for
+from ._vindex import CODES, IndexFileError, VectorIndex, nlist_for
 from .base import STORES, SourceFrames
 
 log = logging.getLogger(__name__)
 UID_KEY = "store.uid"
+_RERANK_MIN = 32  # candidates re-ranked per query at least (k = 1 still gets a margin)
 
 
 class _Cancelled(Exception):
@@ -67,6 +72,9 @@ class LocalStore:
         save_fraction: float = 0.25,
         train_per_list: int = 40,
         synchronous: str = "FULL",
+        codes: str = "sq8",
+        rerank: int = 4,
+        max_nlist: int = 4096,
     ) -> None:
         if folder.exists() and not folder.is_dir():
             raise InputError(f"{folder}: not a folder (the local store needs a memory folder)")
@@ -74,14 +82,19 @@ class LocalStore:
             raise InputError(f"dim: expected a positive integer, got {dim!r}")
         if synchronous.upper() not in ("FULL", "NORMAL", "EXTRA"):
             raise InputError(f"synchronous: expected FULL, NORMAL or EXTRA, got {synchronous!r}")
+        if codes not in CODES:
+            raise InputError(f"codes: expected one of {', '.join(CODES)}, got {codes!r}")
+        if rerank < 1 or max_nlist < 1:
+            raise InputError(f"rerank and max_nlist must be >= 1, got {rerank} and {max_nlist}")
         folder.mkdir(parents=True, exist_ok=True)
         check_own_database(folder / "store.sqlite")
         self.folder, self.dim = folder, dim
         self.ann_threshold, self.nprobe, self.retrain_growth = ann_threshold, nprobe, retrain_growth
-        self.filter_budget = filter_budget
+        self.filter_budget, self.codes, self.rerank, self.max_nlist = filter_budget, codes, rerank, max_nlist
         self.background, self.save_min, self.save_fraction = background, save_min, save_fraction
         self.train_per_list = train_per_list
         self._db_path, self._index_path = folder / "store.sqlite", folder / "index.faiss"
+        self._cols_path = folder / "columns.cache"
         self._lock = threading.RLock()
         self._closed = False
         self._conn = _sql.connect(str(self._db_path), synchronous.upper())
@@ -98,48 +111,70 @@ class LocalStore:
             self._conn.close()
             self._closed = True
             raise
-        self._last_id = int(self._conn.execute("SELECT COALESCE(MAX(id), 0) FROM memories").fetchone()[0])
+        self._deletions, top_deleted = _sql.deletions(self._conn)
+        top = int(self._conn.execute("SELECT COALESCE(MAX(id), 0) FROM memories").fetchone()[0])
+        self._last_id = max(top, top_deleted)  # ids never repeat, not even a deleted newest one
         self._count = int(self._conn.execute("SELECT COUNT(*) FROM memories").fetchone()[0])
         self._cols: Columns | None = None
+        self._cols_saved = (-1, -1)  # (max id, deletions) the columns file covers
         self._worker: threading.Thread | None = None
         self._cancel = threading.Event()
         self._retry_at = 0
-        remove_stale_temp_files(folder, target="index.faiss.")  # never one a live process writes
+        self._deferred = False  # a bulk import is skipping the index (it is rebuilt at the end)
+        self._dirty = False  # deletions the index file does not reflect
+        for target in ("index.faiss.", "columns.cache."):  # never one a live process writes
+            remove_stale_temp_files(folder, target=target)
         self._vi, self._saved_max = self._open_index()
+        self._vi_upto = self._last_id  # every row up to this id is in the index, none after
         self._maintain()
 
     # --- index lifecycle ---------------------------------------------------------------------------
     def _open_index(self) -> tuple[VectorIndex, int]:
         try:
-            vi, covered = VectorIndex.load(self._index_path, self.dim, self._uid)
-            n_cov = self._conn.execute("SELECT COUNT(*) FROM memories WHERE id <= ?", (covered,)).fetchone()[
-                0
-            ]
-            if n_cov != vi.ntotal:
+            vi, covered, dels = VectorIndex.load(self._index_path, self.dim, self._uid)
+            if dels > self._deletions:
+                raise IndexFileError("index.faiss reflects deletions the SQLite log does not hold")
+            if dels < self._deletions:  # forgotten since the file was saved
+                vi.remove(_sql.deleted_since(self._conn, dels))
+                self._dirty = True
+            tail = int(
+                self._conn.execute("SELECT COUNT(*) FROM memories WHERE id > ?", (covered,)).fetchone()[0]
+            )
+            if self._count - tail != vi.ntotal:
                 raise IndexFileError(
-                    f"index.faiss covers {vi.ntotal} vectors, SQLite has {n_cov} up to id {covered}"
+                    f"index.faiss covers {vi.ntotal} vectors, SQLite has {self._count - tail} up to id {covered}"
                 )
         except IndexFileError as e:
             if self._count:
                 log.warning("%s: rebuilding the vector index from SQLite (%s)", self.folder, e)
-            vi = self._build(self._conn, self._last_id)
-            vi.save(self._index_path, self._last_id, self._uid)
-            return vi, self._last_id
+            return self._build_and_save()
+        if tail and vi.kind == "flat" and self._count >= self.ann_threshold:
+            # e.g. a bulk import was killed: build the IVF now rather than fill a flat index
+            # (float32, in RAM) far past the size it is meant for
+            return self._build_and_save()
         for ids, vecs in _sql.read_vectors(self._conn, covered, self._last_id):
             vi.add(ids, vecs)
         return vi, covered
+
+    def _build_and_save(self) -> tuple[VectorIndex, int]:
+        vi = self._build(self._conn, self._last_id)
+        vi.save(self._index_path, self._last_id, self._uid, self._deletions)
+        self._dirty = False
+        return vi, self._last_id
 
     def _build(
         self, conn: sqlite3.Connection, upto: int, check: Callable[[], None] = lambda: None
     ) -> VectorIndex:
         """A fresh index over the SQLite vectors with id <= upto: flat when small, else IVF."""
-        n = int(conn.execute("SELECT COUNT(*) FROM vectors WHERE id <= ?", (upto,)).fetchone()[0])
+        cur = conn.execute("SELECT id FROM memories WHERE id <= ?", (upto,))
+        all_ids = np.fromiter((r[0] for r in cur), np.int64)  # 80 MB at 10M, not 10M tuples
+        n = len(all_ids)
         if n < self.ann_threshold:
             vi = VectorIndex.flat(self.dim)
         else:
-            all_ids = np.array([r[0] for r in conn.execute("SELECT id FROM vectors WHERE id <= ?", (upto,))])
-            n_train = min(n, self.train_per_list * nlist_for(n))
+            n_train = min(n, self.train_per_list * nlist_for(n, self.max_nlist))
             pick = np.sort(np.random.default_rng(n).choice(all_ids, n_train, replace=False))
+            del all_ids
             parts = []
             for s in range(0, n_train, 900):
                 chunk = pick[s : s + 900].tolist()
@@ -147,7 +182,7 @@ class LocalStore:
                 parts.append(b"".join(r[0] for r in conn.execute(q, chunk)))
                 check()
             train = np.frombuffer(b"".join(parts), np.float32).reshape(n_train, self.dim)
-            vi = VectorIndex.ivf(self.dim, train, n)
+            vi = VectorIndex.ivf(self.dim, train, n, self.codes, self.max_nlist)
         for ids, vecs in _sql.read_vectors(conn, 0, upto):
             check()
             vi.add(ids, vecs)
@@ -165,11 +200,11 @@ class LocalStore:
         n, vi = self._count, self._vi
         if vi.kind == "flat":
             return n >= self.ann_threshold
-        return n < self.ann_threshold or n >= self.retrain_growth * vi.trained_n
+        return n < self.ann_threshold or n >= self.retrain_growth * vi.trained_n or vi.codes != self.codes
 
     def _maintain(self) -> None:
         """After writes: retrain when the size calls for it, else save the index now and then."""
-        if self._worker is not None and self._worker.is_alive():
+        if self._deferred or (self._worker is not None and self._worker.is_alive()):
             return
         if self._needs_rebuild() and self._count >= self._retry_at:
             if self.background:
@@ -177,9 +212,9 @@ class LocalStore:
                 self._worker = threading.Thread(target=self._rebuild_bg, args=(self._last_id,), daemon=True)
                 self._worker.start()
             else:
-                self._swap(self._build(self._conn, self._last_id), self._last_id)
+                self._swap(self._build(self._conn, self._last_id), self._last_id, self._deletions)
             return
-        if self._last_id - self._saved_max >= max(self.save_min, self.save_fraction * self._saved_max):
+        if self._vi_upto - self._saved_max >= max(self.save_min, self.save_fraction * self._saved_max):
             self._save()
 
     def _rebuild_bg(self, upto: int) -> None:
@@ -194,6 +229,7 @@ class LocalStore:
 
         try:
             while True:
+                dels = self._deletions  # rows deleted after this may still be read: dropped at the swap
                 vi = self._build(conn, upto, check)
                 for _ in range(8):  # bounded, in case adds outpace the catch-up
                     if self._last_id - upto <= 5000:
@@ -203,13 +239,13 @@ class LocalStore:
                         check()
                         vi.add(ids, vecs)
                     upto = latest
-                vi.save(self._index_path, upto, self._uid)
+                vi.save(self._index_path, upto, self._uid, dels)
                 with self._lock:
                     if self._closed:
                         return
-                    self._catch_up(vi, upto)
+                    self._dirty = self._catch_up(vi, upto, dels) > 0
                     self._saved_max = upto
-                    if not self._needs_rebuild():
+                    if self._deferred or not self._needs_rebuild():
                         return
                     upto = self._last_id
         except _Cancelled:
@@ -220,26 +256,33 @@ class LocalStore:
         finally:
             conn.close()
 
-    def _catch_up(self, vi: VectorIndex, upto: int) -> None:
-        """Add the rows written since `vi` was built from SQLite, then serve from `vi`."""
+    def _catch_up(self, vi: VectorIndex, upto: int, dels: int) -> int:
+        """Drop what was deleted since `vi` was built (after `dels` log entries), add the rows
+        written since (after id `upto`), then serve from `vi`. Returns the rows dropped."""
+        gone = vi.remove(_sql.deleted_since(self._conn, dels)) if self._deletions > dels else 0
         for ids, vecs in _sql.read_vectors(self._conn, upto, self._last_id):
             vi.add(ids, vecs)
-        self._vi = vi
+        self._vi, self._vi_upto = vi, self._last_id
+        return gone
 
-    def _swap(self, vi: VectorIndex, upto: int) -> None:
-        self._catch_up(vi, upto)
+    def _swap(self, vi: VectorIndex, upto: int, dels: int) -> None:
+        self._catch_up(vi, upto, dels)
         self._save()
 
     def _save(self) -> None:
-        self._vi.save(self._index_path, self._last_id, self._uid)
-        self._saved_max = self._last_id
+        """Write the index (and the columns, when loaded) files, covering ids <= `_vi_upto`."""
+        self._vi.save(self._index_path, self._vi_upto, self._uid, self._deletions)
+        self._saved_max, self._dirty = self._vi_upto, False
+        if self._cols is not None and self._cols_saved != (self._last_id, self._deletions):
+            self._cols.save(self._cols_path, self._last_id, self._deletions, self._uid)
+            self._cols_saved = (self._last_id, self._deletions)
 
     def rebuild_index(self) -> None:
         """Rebuild the vector index from SQLite now (e.g. after changing `ann_threshold`)."""
         self._join_worker()
         with self._lock:
             self._check_open()
-            self._swap(self._build(self._conn, self._last_id), self._last_id)
+            self._swap(self._build(self._conn, self._last_id), self._last_id, self._deletions)
 
     def wait_for_index(self) -> None:
         """Block until a background rebuild (if any) has finished and been swapped in."""
@@ -264,33 +307,173 @@ class LocalStore:
             return []
         with self._lock:
             self._check_open()
-            ids = np.arange(self._last_id + 1, self._last_id + 1 + len(records), dtype=np.int64)
-            _sql.insert(self._conn, ids.tolist(), records, emb)
-            self._last_id, self._count = int(ids[-1]), self._count + len(records)
-            self._vi.add(ids, emb)
-            if self._cols is not None:
-                cols = np.array([(r.t, r.pose.x, r.pose.y, r.pose.z) for r in records], np.float64).T
-                self._cols.append(ids, cols[0], cols[1], cols[2], cols[3])
+            ids = self._insert(records, emb)
             self._maintain()
         return ids.tolist()
+
+    def _insert(
+        self, records: Sequence[MemoryRecord], emb: np.ndarray, meta: dict[str, str] | None = None
+    ) -> np.ndarray:
+        """Commit one batch, then index it (unless a bulk import defers indexing)."""
+        ids = np.arange(self._last_id + 1, self._last_id + 1 + len(records), dtype=np.int64)
+        _sql.insert(self._conn, ids.tolist(), records, emb, meta)
+        self._last_id, self._count = int(ids[-1]), self._count + len(records)
+        if not self._deferred:
+            self._vi.add(ids, emb)
+            self._vi_upto = self._last_id
+        if self._cols is not None:
+            cols = np.array([(r.t, r.pose.x, r.pose.y, r.pose.z) for r in records], np.float64).T
+            self._cols.append(ids, cols[0], cols[1], cols[2], cols[3])
+        return ids
+
+    def add_many(
+        self, batches: Iterable[tuple[Sequence[MemoryRecord], np.ndarray]], resume: str | None = None
+    ) -> int:
+        """Import many memories with precomputed embeddings; returns how many were added.
+
+        Each batch is committed in one transaction (durable when the next one starts), so a
+        killed import leaves whole batches. With `resume`, a name for this import, the count
+        of input rows committed is kept in the same transactions, and calling again with the
+        same name skips them: rerun the same import after a crash and it continues. Indexing is
+        deferred while the store grows past the point where the index would be rebuilt anyway
+        (crossing `ann_threshold`, or doubling), and done once, from SQLite, at the end; the
+        imported memories are searchable when this returns.
+        """
+        key = None
+        if resume is not None:
+            if not isinstance(resume, str) or not resume.strip():
+                raise InputError(f"resume: expected a non-empty name, got {resume!r}")
+            key = f"import.{resume}"
+        done = int(self.get_meta(key) or 0) if key else 0
+        skip, added = done, 0
+        self.wait_for_index()  # a rebuild already under way finishes first
+        try:
+            for records, embeddings in batches:
+                if skip >= len(records):
+                    skip -= len(records)
+                    continue
+                if skip:
+                    records, embeddings, skip = records[skip:], embeddings[skip:], 0
+                emb = check_add(records, embeddings, self.dim)
+                if not len(records):
+                    continue
+                done += len(records)
+                with self._lock:
+                    self._check_open()
+                    if not self._deferred and self._vi_upto == self._last_id:
+                        self._deferred = self._rebuild_due(self._count + len(records))
+                    self._insert(records, emb, {key: str(done)} if key else None)
+                added += len(records)
+        finally:
+            self._end_bulk()
+        return added
+
+    def _rebuild_due(self, n: int) -> bool:
+        vi = self._vi
+        if vi.kind == "flat":
+            return n >= self.ann_threshold
+        return n >= self.retrain_growth * vi.trained_n or vi.codes != self.codes
+
+    def _end_bulk(self) -> None:
+        """Index what a bulk import deferred: a rebuild from SQLite when one is due, else the
+        deferred rows are added to the current index."""
+        with self._lock:
+            if self._closed:
+                return
+            self._deferred = False
+            self._maintain()
+            if (self._worker is None or not self._worker.is_alive()) and self._vi_upto < self._last_id:
+                self._catch_up(self._vi, self._vi_upto, self._deletions)
+        self.wait_for_index()
+        with self._lock:
+            if not self._closed and self._vi_upto < self._last_id:
+                raise RuntimeError(
+                    f"{self.folder}: the index rebuild after the import failed (see the log); "
+                    "the memories are stored: call rebuild_index()"
+                )
+
+    def delete(self, ids: Iterable[int]) -> int:
+        """Forget memories: their rows, vectors and OCR entries go in one SQLite transaction
+        (a crash leaves all of them or none), then the index and columns drop them. Unknown
+        ids are ignored; returns how many memories were deleted."""
+        want = check_ids(ids)
+        if len(want) == 0:
+            return 0
+        with self._lock:
+            self._check_open()
+            gone = _sql.delete(self._conn, want)
+            if len(gone) == 0:
+                return 0
+            self._deletions += len(gone)
+            self._count -= len(gone)
+            self._vi.remove(gone)
+            if self._cols is not None:
+                self._cols.remove(gone)
+            self._dirty = True
+        return len(gone)
+
+    def select(self, filt: Filter | None = None) -> np.ndarray:
+        """Ids (sorted, int64) of the memories a filter accepts; every id without one."""
+        filt = check_filter(filt)
+        with self._lock:
+            self._check_open()
+            cols = self._columns()
+            return (cols.ids if filt is None else cols.select_ids(filt)[0]).copy()
 
     # --- tools -----------------------------------------------------------------------------------
     def search_vector(
         self, query: np.ndarray, k: int, filt: Filter | None = None, exact: bool = False
     ) -> list[tuple[int, float]]:
-        """Top-k (id, cosine); `exact=True` probes every IVF list (ground truth, slower)."""
+        """Top-k (id, cosine). The IVF's 8-bit codes only pick candidates: the best
+        `rerank` x k are scored again with their exact vectors from SQLite. `exact=True` is the
+        ground truth (a scan of every vector the filter accepts; slow on big stores)."""
         q, k, filt = check_query(query, self.dim), check_k(k), check_filter(filt)
         with self._lock:
             self._check_open()
             if k == 0 or self._count == 0:
                 return []
-            if filt is None:
-                return self._vi.search(q, k, self.nprobe, exact=exact)
-            cols = self._columns()
-            pos = cols.select(filt)
-            if len(pos) == 0:
-                return []
-            return self._vi.search(q, k, self.nprobe, cols.ids[pos], exact, self.filter_budget)
+            allowed, contiguous = None, False
+            if filt is not None:
+                allowed, contiguous = self._columns().select_ids(filt)
+                if len(allowed) == 0:
+                    return []
+            vi = self._vi
+            if exact and not vi.exact_scores:
+                return self._scan(q, k, allowed, contiguous)
+            want = k if vi.exact_scores else max(self.rerank * k, _RERANK_MIN)
+            hits = vi.search(q, want, self.nprobe, allowed, exact, self.filter_budget, contiguous)
+            return hits[:k] if vi.exact_scores else self._rescore(q, [i for i, _ in hits], k)
+
+    def _rescore(self, q: np.ndarray, ids: Sequence[int], k: int) -> list[tuple[int, float]]:
+        """Exact cosine of `ids` from their SQLite vectors, best k (older first on ties)."""
+        if not ids:
+            return []
+        vecs = _sql.fetch_vectors(self._conn, ids)
+        got = np.fromiter(vecs.keys(), np.int64, len(vecs))
+        mat = np.frombuffer(b"".join(vecs.values()), np.float32).reshape(len(got), self.dim)
+        return _top(got, mat @ q[0], k)
+
+    def _scan(
+        self, q: np.ndarray, k: int, allowed: np.ndarray | None, contiguous: bool
+    ) -> list[tuple[int, float]]:
+        """Exact top-k by reading every accepted vector from SQLite (the ground truth)."""
+        if allowed is None or contiguous:
+            lo, hi = (0, self._last_id) if allowed is None else (int(allowed[0]) - 1, int(allowed[-1]))
+            chunks = _sql.read_vectors(self._conn, lo, hi)
+        else:
+            chunks = (
+                (np.array(list(v), np.int64), np.frombuffer(b"".join(v.values()), np.float32).reshape(len(v), -1))
+                for v in (_sql.fetch_vectors(self._conn, allowed[s : s + 50_000]) for s in range(0, len(allowed), 50_000))
+            )  # fmt: skip
+        best_ids, best = np.empty(0, np.int64), np.empty(0, np.float32)
+        for ids, vecs in chunks:
+            if len(ids) == 0:
+                continue
+            ids = np.concatenate([best_ids, ids])
+            scores = np.concatenate([best, vecs @ q[0]])
+            keep = np.argpartition(-scores, k - 1)[:k] if len(scores) > k else np.arange(len(scores))
+            best_ids, best = ids[keep], scores[keep]
+        return _top(best_ids, best, k)
 
     def search_text(self, text: str, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:
         """Top-k (id, score in [0, 1]) over OCR text: FTS5 finds candidates, `ocr_score` ranks."""
@@ -394,13 +577,19 @@ class LocalStore:
         return self._count
 
     def stats(self) -> dict[str, object]:
-        """Counts, time span, spatial extent, index kind, bytes on disk (SQLite + index)."""
+        """Counts, time span, spatial extent, index kind, bytes on disk (SQLite + caches)."""
         with self._lock:
             self._check_open()
             t_min, t_max = self._conn.execute("SELECT MIN(t), MAX(t) FROM memories").fetchone()
             ext = self._columns().extent()
-            files = [self._db_path, self._db_path.with_name("store.sqlite-wal"), self._index_path]
+            files = [
+                self._db_path,
+                self._db_path.with_name("store.sqlite-wal"),
+                self._index_path,
+                self._cols_path,
+            ]
             size = sum(p.stat().st_size for p in files if p.exists())
+            vi = self._vi
             return {
                 "backend": "local",
                 "count": self._count,
@@ -408,10 +597,14 @@ class LocalStore:
                 "t_min": t_min,
                 "t_max": t_max,
                 **ext,
-                "index": self._vi.kind,
-                "nlist": self._vi.nlist,
-                "ivf_imbalance": round(self._vi.imbalance(), 3),
+                "index": vi.kind,
+                "codes": vi.codes if vi.kind == "ivf" else "flat",
+                "nlist": vi.nlist,
+                "ivf_imbalance": round(vi.imbalance(), 3),
                 "nprobe": self.nprobe,
+                "rerank": 0 if vi.exact_scores else self.rerank,
+                "index_ram_bytes": vi.nbytes(),
+                "deleted": self._deletions,
                 "bytes": size,
                 "bytes_per_memory": size / self._count if self._count else None,
                 "ocr_tokenizer": self._tokenizer,
@@ -433,15 +626,17 @@ class LocalStore:
             self._conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
 
     def close(self) -> None:
-        """Finish (or cancel) a background rebuild, save the index, checkpoint the WAL."""
+        """Finish (or cancel) a background rebuild, save the caches, checkpoint the WAL."""
         if getattr(self, "_closed", True):
             return
         self._join_worker(cancel=True)
         with self._lock:
             if self._closed:
                 return
-            if self._saved_max != self._last_id:
+            if self._saved_max != self._vi_upto or self._dirty:
                 self._save()
+            elif self._cols is not None and self._cols_saved != (self._last_id, self._deletions):
+                self._cols.save(self._cols_path, self._last_id, self._deletions, self._uid)
             self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
             self._conn.close()
             self._closed = True
@@ -458,20 +653,45 @@ class LocalStore:
             raise InputError(f"{self.folder}: the store is closed")
 
     def _columns(self) -> Columns:
+        """The in-RAM columns, loaded on first use from `columns.cache` brought up to date
+        (deletions logged since, rows added since), or from SQLite when the file is unusable."""
         if self._cols is None:
-            cols = Columns()
-            last = 0
-            while True:
-                rows = self._conn.execute(
-                    "SELECT id, t, x, y, z FROM memories WHERE id > ? ORDER BY id LIMIT 200000", (last,)
-                ).fetchall()
-                if not rows:
-                    break
-                a = np.array(rows, np.float64)
-                cols.append(a[:, 0].astype(np.int64), a[:, 1], a[:, 2], a[:, 3], a[:, 4])
-                last = int(a[-1, 0])
+            cols = None
+            try:
+                cols, covered, dels = Columns.load(self._cols_path, self._uid)
+                if dels > self._deletions:
+                    raise ColumnsFileError("columns.cache reflects deletions the SQLite log does not hold")
+                if dels < self._deletions:
+                    cols.remove(_sql.deleted_since(self._conn, dels))
+                self._load_columns(cols, covered)
+                if cols.n != self._count:
+                    raise ColumnsFileError(f"columns.cache holds {cols.n} rows, SQLite {self._count}")
+                self._cols_saved = (covered, dels)
+            except ColumnsFileError as e:
+                if self._cols_path.exists():
+                    log.warning("%s: reloading the columns from SQLite (%s)", self.folder, e)
+                cols = Columns()
+                self._load_columns(cols, 0)
             self._cols = cols
         return self._cols
+
+    def _load_columns(self, cols: Columns, after: int) -> None:
+        last = after
+        while True:
+            rows = self._conn.execute(
+                "SELECT id, t, x, y, z FROM memories WHERE id > ? ORDER BY id LIMIT 200000", (last,)
+            ).fetchall()
+            if not rows:
+                break
+            a = np.array(rows, np.float64)
+            cols.append(a[:, 0].astype(np.int64), a[:, 1], a[:, 2], a[:, 3], a[:, 4])
+            last = int(a[-1, 0])
+
+
+def _top(ids: np.ndarray, scores: np.ndarray, k: int) -> list[tuple[int, float]]:
+    """The k best (id, score), best first, the older memory first on ties."""
+    order = np.lexsort((ids, -scores))[:k]
+    return [(int(ids[i]), float(scores[i])) for i in order]
 
 
 def _finite(v: object) -> bool:
@@ -491,6 +711,9 @@ _OPTIONS = {
     "save_fraction": float,
     "train_per_list": int,
     "synchronous": str,
+    "codes": str,
+    "rerank": int,
+    "max_nlist": int,
 }
 
 

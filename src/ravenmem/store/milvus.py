@@ -17,7 +17,7 @@ import logging
 import math
 import re
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,7 @@ from ._common import (
     check_add,
     check_dim,
     check_filter,
+    check_ids,
     check_k,
     check_point,
     check_query,
@@ -46,6 +47,7 @@ _FIELDS = ["id", "t", "x", "y", "z", "yaw", "has_quat", "qx", "qy", "qz", "qw", 
            "image_path", "ocr_text"]  # fmt: skip
 _STATE = "store.state"  # JSON: next id and an over-approximation of the time span and extent
 _LIMITS = {"source": 1024, "image_path": 4096, "ocr_text": 16384}
+_INSERT_ROWS = 5000  # rows per insert request: Milvus caps the size of one gRPC message
 
 
 def _num(v: float) -> str:
@@ -226,6 +228,77 @@ class MilvusStore:
                 row["id"] = rid
             self.client.insert(self.name, rows)
         return ids
+
+    def add_many(
+        self, batches: Iterable[tuple[Sequence[MemoryRecord], np.ndarray]], resume: str | None = None
+    ) -> int:
+        """Bulk import through `add`, 5,000 rows per insert. With `resume`, progress is kept in
+        meta: before each insert the ids it will take are recorded as pending, after it the
+        count of rows done; a rerun first checks whether a pending insert landed (its last id
+        exists), so a crash between the insert and the count neither loses nor repeats rows.
+        For millions of memories on a Milvus cluster, Milvus's own bulk import (files in object
+        storage) is faster: see docs/store.md."""
+        key = None
+        if resume is not None:
+            if not isinstance(resume, str) or not resume.strip():
+                raise InputError(f"resume: expected a non-empty name, got {resume!r}")
+            key = f"import.{resume}"
+        prog: dict[str, Any] = json.loads(self.get_meta(key) or '{"rows": 0}') if key else {"rows": 0}
+        if key and prog.get("pending"):
+            first, n = prog.pop("pending")
+            with self._lock:
+                if self._query(f"id == {int(first) + int(n) - 1}", ["id"]):
+                    prog["rows"] += int(n)
+            self.set_meta(key, json.dumps(prog))
+        skip, added = int(prog["rows"]), 0
+        for records, embeddings in batches:
+            if skip >= len(records):
+                skip -= len(records)
+                continue
+            if skip:
+                records, embeddings, skip = records[skip:], embeddings[skip:], 0
+            emb = check_add(records, embeddings, self.dim)
+            for s in range(0, len(records), _INSERT_ROWS):
+                part = records[s : s + _INSERT_ROWS]
+                with self._lock:
+                    if key:
+                        prog["pending"] = [int(self._state["next_id"]), len(part)]
+                        self.set_meta(key, json.dumps(prog))
+                    self.add(part, emb[s : s + _INSERT_ROWS])
+                    if key:
+                        prog.pop("pending")
+                        prog["rows"] += len(part)
+                        self.set_meta(key, json.dumps(prog))
+                added += len(part)
+        return added
+
+    def delete(self, ids: Iterable[int]) -> int:
+        """Delete by primary key (unknown ids are ignored); returns how many existed. Milvus
+        applies one delete request as a whole."""
+        want = check_ids(ids)
+        if len(want) == 0:
+            return 0
+        with self._lock:
+            self._check_open()
+            have: list[int] = []
+            for s in range(0, len(want), 1000):
+                chunk = want[s : s + 1000].tolist()
+                # Strong: a delete just made must be seen (Session lags behind deletes on 2.3)
+                rows = self.client.query(
+                    self.name, filter=f"id in {chunk}", output_fields=["id"], consistency_level="Strong"
+                )
+                have += [int(r["id"]) for r in rows]
+            if have:
+                self.client.delete(self.name, ids=sorted(have))
+        return len(have)
+
+    def select(self, filt: Filter | None = None) -> np.ndarray:
+        """Sorted ids the filter accepts (the disc test of a region is done here)."""
+        filt = check_filter(filt)
+        with self._lock:
+            self._check_open()
+            rows = self._query(_expr(filt) or "id >= 0", ["id", "x", "y"])
+        return np.array(sorted(int(r["id"]) for r in rows if _in_region(r, filt)), np.int64)
 
     def _row(self, r: MemoryRecord, e: np.ndarray) -> dict[str, Any]:
         row: dict[str, Any] = {

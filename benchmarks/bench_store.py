@@ -86,8 +86,12 @@ def records(start: int, pos: np.ndarray) -> list[MemoryRecord]:
     ]
 
 
-def stream(n: int, dim: int, seed: int, batch: int) -> Iterator[tuple[list[MemoryRecord], np.ndarray]]:
+def stream(
+    n: int, dim: int, seed: int, batch: int, work: Workload | None = None
+) -> Iterator[tuple[list[MemoryRecord], np.ndarray]]:
     for start, emb, pos in stream_arrays(n, dim, seed, batch):
+        if work is not None and not work.ready:
+            work.collect(start, emb, pos)
         yield records(start, pos), emb
 
 
@@ -95,36 +99,49 @@ class Workload:
     """Queries, filters and their exact answers for a stream of n memories (ids 1..n)."""
 
     def __init__(self, n: int, dim: int, n_queries: int, cache: Path | None) -> None:
-        self.n, self.dim = n, dim
+        self.n, self.dim, self.cache, self.ready, self.collected = n, dim, cache, False, False
         if cache is not None and cache.exists():
             z = np.load(cache)
             self.__dict__.update({k: z[k] for k in z.files})
+            self.ready = True
             return
         rng = np.random.default_rng(1)
-        pick = np.sort(rng.choice(n, n_queries, replace=False))
-        q = np.empty((n_queries, dim), np.float32)
-        spot = np.empty((n_queries, 2))
-        spot_at = rng.integers(0, n, n_queries)
-        for start, emb, pos in stream_arrays(n, dim, 0, 50_000):
-            inside = (pick >= start) & (pick < start + len(emb))
-            q[inside] = emb[pick[inside] - start]
-            inside = (spot_at >= start) & (spot_at < start + len(emb))
-            spot[inside] = pos[spot_at[inside] - start]
-        q += rng.normal(size=q.shape).astype(np.float32) * 0.5 / np.sqrt(dim)
-        self.q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        self.pick = np.sort(rng.choice(n, n_queries, replace=False))
+        self.spot_at = rng.integers(0, n, n_queries)
+        self.q = np.empty((n_queries, dim), np.float32)
+        self.spot = np.empty((n_queries, 2))
+        self.noise = rng.normal(size=self.q.shape).astype(np.float32) * 0.5 / np.sqrt(dim)
         span = 0.5 * n
         self.w10 = T0 + span * rng.uniform(0, 0.9, n_queries)
         self.w1 = T0 + span * rng.uniform(0, 0.99, n_queries)
-        self.spot = spot
         self.times = T0 + 0.5 * rng.integers(0, n, n_queries)
         self.xy = rng.uniform(0, 100, (n_queries, 2))
+
+    def collect(self, start: int, emb: np.ndarray, pos: np.ndarray) -> None:
+        """Take the query frames and spots from a chunk of the stream (during the build)."""
+        inside = (self.pick >= start) & (self.pick < start + len(emb))
+        self.q[inside] = emb[self.pick[inside] - start]
+        inside = (self.spot_at >= start) & (self.spot_at < start + len(emb))
+        self.spot[inside] = pos[self.spot_at[inside] - start]
+        self.collected = start + len(emb) >= self.n
+
+    def finish(self) -> None:
+        """Queries = frames plus noise; then the exact answers (one more pass over the stream)."""
+        if self.ready:
+            return
+        if not self.collected:
+            for chunk in stream_arrays(self.n, self.dim, 0, 50_000):
+                self.collect(*chunk)
+        q = self.q + self.noise
+        self.q = q / np.linalg.norm(q, axis=1, keepdims=True)
         t = time.perf_counter()
         self._truth()
         print(
-            f"ground truth for {n_queries} queries x 4 filters: {time.perf_counter() - t:.0f} s", flush=True
+            f"ground truth for {len(self.q)} queries x 4 filters: {time.perf_counter() - t:.0f} s", flush=True
         )
-        if cache is not None:
-            np.savez(cache, **{k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)})
+        if self.cache is not None:
+            np.savez(self.cache, **{k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)})
+        self.ready = True
 
     def filters(self, name: str) -> list[Filter | None]:
         span = 0.5 * self.n
@@ -203,16 +220,16 @@ def open_backend(
     return open_store(uri, args.dim, **opts), lambda: open_store(uri, args.dim, **opts)
 
 
-def build(store: Store, n: int, args: argparse.Namespace) -> str:
+def build(store: Store, n: int, args: argparse.Namespace, work: Workload) -> str:
     if store.count() == n:
         return "reused"
     if store.count():
         raise SystemExit(f"{store}: holds {store.count()} memories, not {n}: remove it or use another --dir")
     t, cpu = time.perf_counter(), time.process_time()
     if args.build == "bulk":
-        store.add_many(stream(n, args.dim, 0, 50_000), resume="bench")  # type: ignore[attr-defined]
+        store.add_many(stream(n, args.dim, 0, 50_000, work), resume="bench")  # type: ignore[attr-defined]
     else:
-        for recs, emb in stream(n, args.dim, 0, 1000):
+        for recs, emb in stream(n, args.dim, 0, 1000, work):
             store.add(recs, emb)
         if hasattr(store, "wait_for_index"):
             store.wait_for_index()
@@ -223,8 +240,9 @@ def build(store: Store, n: int, args: argparse.Namespace) -> str:
 
 def bench(backend: str, n: int, args: argparse.Namespace, root: Path, work: Workload) -> dict[str, float]:
     store, reopen_fn = open_backend(backend, n, args, root)
-    how = build(store, n, args)
+    how = build(store, n, args, work)
     rss_build = peak_rss_gb()
+    work.finish()
     store.close()
     t, cpu = time.perf_counter(), time.process_time()
     store = reopen_fn()

@@ -3,7 +3,8 @@
 Backends: `local` and `milvus` (Milvus Lite file in tmp) always; `milvus-server` (marked
 `server`) starts a Milvus standalone server: the `milvus-server` script from the PyPI package
 `milvus` found via $RAVENMEM_MILVUS_SERVER or PATH, or an already running one named by
-$RAVENMEM_MILVUS_URI (host:port).
+$RAVENMEM_MILVUS_URI (host:port). With $RAVENMEM_MILVUS_REQUIRED=1 (as CI sets it) a missing
+server fails the tests instead of skipping them, so that CI cannot pass without running them.
 """
 
 from __future__ import annotations
@@ -21,23 +22,28 @@ import pytest
 from tests.store.store_helpers import BACKENDS, StoreOpener, opener, port_open
 
 
+def _no_server(reason: str) -> None:
+    if os.environ.get("RAVENMEM_MILVUS_REQUIRED") == "1":
+        pytest.fail(f"RAVENMEM_MILVUS_REQUIRED=1 but {reason}")
+    pytest.skip(reason)
+
+
 @pytest.fixture(scope="session")
 def milvus_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """host:port of a Milvus server, started here from the `milvus` PyPI package's script."""
-    pytest.importorskip("pymilvus")
+    if os.environ.get("RAVENMEM_MILVUS_REQUIRED") != "1":
+        pytest.importorskip("pymilvus")
     uri = os.environ.get("RAVENMEM_MILVUS_URI")
     if uri:
         yield uri
         return
     binary = os.environ.get("RAVENMEM_MILVUS_SERVER") or shutil.which("milvus-server")
     if not binary:
-        pytest.skip(
+        _no_server(
             "no Milvus server: pip install milvus (2.3.x) and put milvus-server on PATH or in $RAVENMEM_MILVUS_SERVER"
         )
     if port_open("127.0.0.1", 19530):
-        pytest.skip(
-            "port 19530 is taken; set RAVENMEM_MILVUS_URI=127.0.0.1:19530 to test against that server"
-        )
+        _no_server("port 19530 is taken; set RAVENMEM_MILVUS_URI=127.0.0.1:19530 to test against that server")
     data = tmp_path_factory.mktemp("milvus-server")
     with open(data / "server.log", "wb") as log:
         # own process group: the script starts the real server as a child that outlives it
@@ -47,7 +53,8 @@ def milvus_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
             deadline = time.time() + 180
             while not port_open("127.0.0.1", 19530):
                 if proc.poll() is not None or time.time() > deadline:
-                    pytest.fail(f"milvus-server did not start (see {data / 'server.log'})")
+                    tail = (data / "server.log").read_text(errors="replace")[-1500:]
+                    pytest.fail(f"milvus-server did not start in 180 s (see {data / 'server.log'}):\n{tail}")
                 time.sleep(1)
             time.sleep(3)  # the proxy listens before the coordinators are ready
             yield "127.0.0.1:19530"

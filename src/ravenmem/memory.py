@@ -160,8 +160,10 @@ class Memory:
 
         Each batch is committed in one transaction; with `resume` (a name for this import) a
         rerun after a crash skips what was committed. Returns how many memories were added;
-        they are searchable when this returns. See `Store.add_many`.
+        they are searchable when this returns. See `Store.add_many`. Takes the writer lock like
+        the other writes.
         """
+        self._require_writer()
 
         def checked() -> Iterator[tuple[Sequence[MemoryRecord], np.ndarray]]:
             for records, emb in batches:

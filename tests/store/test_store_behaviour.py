@@ -240,6 +240,8 @@ def test_source_frames_odd_names_and_repeats(open_fn: StoreOpener) -> None:
                 mine.append((10, again[0]))
             assert list(zip(got.frame_index.tolist(), got.ids.tolist())) == sorted(mine)
         assert store.source_frames(names[0]).frame_index.tolist() == [8, 9, 10, 10]
+    finally:
+        store.close()
 
 
 def test_select_and_delete_match_numpy(open_fn: StoreOpener) -> None:

@@ -42,7 +42,7 @@ def import_cmd(
     with mem:
         if dim != mem.dim:
             raise InputError(
-                f"{vectors} holds {dim}-dim embeddings; memory {memory} ({mem.manifest['embedder']}) uses {mem.dim}"
+                f"{vectors} holds {dim}-dim embeddings; memory {memory} ({mem.manifest.embedder}) uses {mem.dim}"
             )
         key = import_key(vectors, meta) + (f"-{time.time_ns()}" if again else "")
         t = time.perf_counter()

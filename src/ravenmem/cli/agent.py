@@ -43,7 +43,7 @@ ImageSideOpt = Annotated[
 
 def ask(
     question: Annotated[str, typer.Argument(help="the question, e.g. 'Where did I leave the red backpack?'")],
-    memory: MemoryOpt,
+    memory: Annotated[Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)")] = None,
     image: Annotated[Path | None, typer.Option(help="a query image ('where did I see this?')")] = None,
     offline: Annotated[bool, typer.Option("--offline", help="no VLM: the offline reasoner")] = False,
     method: Annotated[
@@ -91,6 +91,9 @@ def ask(
     max_retries: RetriesOpt = None,
     config: ConfigOpt = None,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
+    server: Annotated[
+        str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
+    ] = None,
 ) -> None:
     """Answer a question from a memory: position, time, yes/no, duration or text, with evidence."""
     import ravenmem
@@ -99,11 +102,28 @@ def ask(
     from ravenmem.agent.methods import require_model
     from ravenmem.errors import InputError
     from ravenmem.imageio import read_image
+    from ravenmem.server.client import ServerClient, resolve_server
 
     if offline and method not in (None, "offline"):
         raise InputError(f"--offline and --method {method} contradict each other")
     name = "offline" if offline else (method or "raven")
     get_preset(preset)  # an unknown preset is an error before anything is opened
+    url = resolve_server(server, memory)
+    if url:  # a running service answers, with its own VLM settings
+        local_only = [base_url, model, api_key, tool_mode, timeout, question_timeout, max_retries, config]
+        local_only += [trace, temperature, seed, time_mode, frames, segment_frames, image_max_side]
+        if any(v is not None for v in local_only) or hide_scores:
+            raise InputError(
+                "with --server the service's own VLM settings are used: give only --method/--offline, "
+                "--preset, --top-k and --max-tool-calls"
+            )
+        with ServerClient(url) as remote:
+            method_asked = None if method is None and not offline else name
+            data = remote.ask(question, method_asked, parse_top_k(top_k), max_tool_calls, image, preset)
+        for ev in data["evidence"]:
+            ev["image_file"] = ev.get("image")
+        _output(data, json_out)
+        return
     vlm = None
     if needs_vlm(name):
         vlm = VLMConfig.resolve(
@@ -131,6 +151,7 @@ def ask(
         "segment_frames": segment_frames,
         "image_max_side": image_max_side,
     }
+    assert memory is not None  # resolve_server asked for one of the two
     with ravenmem.open(memory) as mem:
         m = create_method(name, mem, preset=preset, **opts)
         ans = m.ask(question, image=img)
@@ -139,11 +160,15 @@ def ask(
     for ev in data["evidence"]:
         p = ev.get("image_path")
         ev["image_file"] = str(root / p) if p and not Path(p).is_absolute() else p
+    _output(data, json_out)
+
+
+def _output(data: dict[str, Any], json_out: bool) -> None:
     if json_out:
         sys.stdout.write(json.dumps(data, indent=2) + "\n")
     else:
         _render(data)
-    if ans.failed:
+    if data["failed"]:
         raise typer.Exit(1)
 
 

@@ -35,12 +35,16 @@ app = typer.Typer(
 console = out_console()
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
+MemoryOrServerOpt = Annotated[Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)")]
+ServerOpt = Annotated[
+    str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
+]
 
 
 def short_path(p: str | None) -> str:
     """Paths relative to the working directory when under it: tables stay readable."""
-    if not p:
-        return ""
+    if not p or "://" in p:  # a URL (results from --server) is shown as it is
+        return p or ""
     try:
         return os.path.relpath(p) if not os.path.relpath(p).startswith("..") else p
     except ValueError:
@@ -209,7 +213,7 @@ def _mapper(memory: Path, src: Any, intrinsics: str | None) -> Any:
 
 @app.command()
 def search(
-    memory: MemoryOpt,
+    memory: MemoryOrServerOpt = None,
     text: Annotated[str | None, typer.Argument(help="text query")] = None,
     image: Annotated[Path | None, typer.Option(help="query image file")] = None,
     like: Annotated[int | None, typer.Option("--like", help="memory id: more views like this memory")] = None,
@@ -220,11 +224,13 @@ def search(
     before: Annotated[str | None, typer.Option(help="only memories at or before this time")] = None,
     near: Annotated[str | None, typer.Option(help="only memories within x,y,r (metres)")] = None,
     radius: Annotated[float | None, typer.Option(help="with --position: max distance (m)")] = None,
+    server: ServerOpt = None,
     json_out: JsonOpt = False,
 ) -> None:
     """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
     import ravenmem
     from ravenmem.imageio import read_image
+    from ravenmem.server.client import ServerClient, resolve_server
     from ravenmem.tools import check_k, get_tool, hit_json
 
     given = {"text": text, "image": image if image is not None else like, "time": time, "position": position}
@@ -254,15 +260,21 @@ def search(
         args.update(x=xyz[0], y=xyz[1], z=xyz[2] if len(xyz) == 3 else None, radius=radius)
     tool = get_tool(mode)
     call = tool.validate(args)
-    with ravenmem.open(memory) as mem:
-        hits = tool.run(mem, call, k, image=query_image)
-        t0 = mem.time_span()[0]
+    url = resolve_server(server, memory)
+    if url:
+        with ServerClient(url) as remote:
+            rows = remote.search(tool, call, k, image)["results"]
+    else:
+        assert memory is not None
+        with ravenmem.open(memory) as mem:
+            hits = tool.run(mem, call, k, image=query_image)
+            t0 = mem.time_span()[0]
 
-        def image_file(rec: Any) -> str | None:
-            p = mem.image_file(rec)
-            return str(p) if p else rec.image_path
+            def image_file(rec: Any) -> str | None:
+                p = mem.image_file(rec)
+                return str(p) if p else rec.image_path
 
-        rows = [hit_json(h, i + 1, t0, image_file) for i, h in enumerate(hits)]
+            rows = [hit_json(h, i + 1, t0, image_file) for i, h in enumerate(hits)]
     if json_out:
         print_json({"mode": mode, "tool": tool.name, "results": rows})
         return
@@ -287,12 +299,18 @@ def search(
 
 
 @app.command()
-def info(memory: MemoryOpt, json_out: JsonOpt = False) -> None:
+def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: JsonOpt = False) -> None:
     """Counts, time span, extent, embedder, bytes per memory and compression of a memory."""
     import ravenmem
+    from ravenmem.server.client import ServerClient, resolve_server
 
-    with ravenmem.open(memory) as mem:
-        data = mem.info()
+    url = resolve_server(server, memory)
+    if url:
+        with ServerClient(url) as remote:
+            data = remote.info()
+    else:
+        with ravenmem.open(memory) as mem:  # type: ignore[arg-type]
+            data = mem.info()
     if json_out:
         print_json(data)
         return
@@ -319,7 +337,7 @@ def info(memory: MemoryOpt, json_out: JsonOpt = False) -> None:
 
 def _register_extensions() -> None:
     """Let the agent / nav / eval areas add their commands when their modules are present."""
-    for mod in ("agent", "nav", "eval", "store"):
+    for mod in ("agent", "nav", "eval", "store", "serve"):
         try:
             module = importlib.import_module(f"ravenmem.cli.{mod}")
         except ModuleNotFoundError as e:

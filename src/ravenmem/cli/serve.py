@@ -1,0 +1,111 @@
+"""`ravenmem serve` (a long-running memory over HTTP, with the page and MCP) and `ravenmem mcp`
+(the memory as MCP tools over stdio). Both are thin: everything lives in `ravenmem.server`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
+MethodOpt = Annotated[
+    str | None,
+    typer.Option(help="default way to answer questions (default: raven with a VLM configured, else offline)"),
+]
+ModelOpt = Annotated[str | None, typer.Option("--model", help="VLM model name (or RAVENMEM_VLM_MODEL)")]
+BaseUrlOpt = Annotated[
+    str | None, typer.Option("--base-url", help="OpenAI-compatible VLM endpoint (or RAVENMEM_VLM_BASE_URL)")
+]
+ConfigOpt = Annotated[Path | None, typer.Option("--config", help="config file with a [vlm] section")]
+TopKOpt = Annotated[int, typer.Option(help="memories per tool call when answering questions")]
+
+
+def _vlm(
+    config: Path | None, base_url: str | None, model: str | None, tool_mode: str | None = None
+) -> object:
+    from ravenmem.agent.config import VLMConfig
+
+    return VLMConfig.resolve(config_path=config, base_url=base_url, model=model, tool_mode=tool_mode)
+
+
+def serve(
+    memory: MemoryOpt,
+    host: Annotated[
+        str, typer.Option(help="address to listen on; anything but loopback needs --token")
+    ] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="port (0: a free one, printed)")] = 8765,
+    token: Annotated[
+        str | None,
+        typer.Option(
+            envvar="RAVENMEM_TOKEN", help="bearer token every request must send (or RAVENMEM_TOKEN)"
+        ),
+    ] = None,
+    keyframes: Annotated[
+        str | None,
+        typer.Option(help="live-add keyframe rule, as for ingest, e.g. 'fps=2,min_translation=0.1'"),
+    ] = None,
+    method: MethodOpt = None,
+    model: ModelOpt = None,
+    base_url: BaseUrlOpt = None,
+    tool_mode: Annotated[str | None, typer.Option(help="auto | native | json")] = None,
+    config: ConfigOpt = None,
+    top_k: TopKOpt = 5,
+    max_upload_mb: Annotated[float, typer.Option(help="largest request body (uploads), MiB")] = 16.0,
+    timeout: Annotated[float, typer.Option(help="seconds a search, question or add may take")] = 120.0,
+    read_only: Annotated[bool, typer.Option("--read-only", help="no live adds")] = False,
+    log_level: Annotated[str, typer.Option(help="critical | error | warning | info | debug")] = "info",
+) -> None:
+    """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds."""
+    from ravenmem.ingest.keyframes import parse_keyframes
+    from ravenmem.server.run import serve as run_serve
+    from ravenmem.server.service import ServiceConfig
+
+    cfg = ServiceConfig(
+        keyframes=parse_keyframes(keyframes),
+        method=method,
+        vlm=_vlm(config, base_url, model, tool_mode),  # type: ignore[arg-type]
+        top_k=top_k,
+        max_upload_bytes=int(max_upload_mb * 2**20),
+        timeout_s=timeout,
+        writable=not read_only,
+    )
+    run_serve(memory, host=host, port=port, token=token or None, cfg=cfg, log_level=log_level)
+
+
+def mcp(
+    memory: MemoryOpt,
+    method: MethodOpt = None,
+    model: ModelOpt = None,
+    base_url: BaseUrlOpt = None,
+    config: ConfigOpt = None,
+    top_k: TopKOpt = 5,
+) -> None:
+    """Serve a memory's tools (search_text, search_image, search_time, search_position, ask) to an
+    MCP client over stdio, e.g. `{"command": "ravenmem", "args": ["mcp", "--memory", "DIR"]}`."""
+    import anyio
+
+    import ravenmem
+    from ravenmem.errors import require
+    from ravenmem.server.service import Service, ServiceConfig
+
+    require("mcp", "serve")
+    from ravenmem.server.mcp_tools import run_stdio
+
+    cfg = ServiceConfig(
+        method=method,
+        vlm=_vlm(config, base_url, model),  # type: ignore[arg-type]
+        top_k=top_k,
+        writable=False,
+    )
+    service = Service(ravenmem.open(memory), cfg)
+    try:
+        anyio.run(run_stdio, service)
+    finally:
+        service.close()
+
+
+def register(app: typer.Typer) -> None:
+    """Add `serve` and `mcp` to the ravenmem command."""
+    app.command("serve")(serve)
+    app.command("mcp")(mcp)

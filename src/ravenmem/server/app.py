@@ -1,0 +1,416 @@
+"""The HTTP API (FastAPI): thin routes over `Service`.
+
+The search routes are generated from `ravenmem.tools.TOOLS`: each tool's argument model (plus
+`k`) is the route's query model, so an argument added to a tool appears here, checked and
+documented in `/openapi.json`, without editing this file. Every error is a JSON body
+`{"error": "<one line>"}` with a 4xx status (a 500 says only that the log has the details).
+"""
+
+# no `from __future__ import annotations` here: FastAPI reads the generated query models from
+# the route functions' annotations at run time.
+import asyncio
+import json
+import logging
+import math
+from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import asynccontextmanager
+from importlib import resources
+from typing import Annotated, Any, TypeVar
+
+from fastapi import FastAPI, File, Form, Query, Request, UploadFile
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException
+from starlette.routing import Route
+
+from ..errors import InputError, RavenmemError
+from ..tools import MAX_K, TOOLS, Tool, ToolArgs
+from ..types import MemoryRecord, Pose
+from .events import StreamRefused
+from .images import decode_base64_image, decode_image
+from .live import BusyError
+from .security import Guard
+from .service import NotFound, Service
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+SHORT_NAMES = {"q": "query", "t": "time"}  # short query names some clients prefer
+KEEPALIVE_S = 15.0
+STATIC = resources.files("ravenmem.server") / "static"
+
+
+class AskBody(BaseModel):
+    """A question, as `ravenmem ask` takes it. The VLM is the service's own (never the caller's)."""
+
+    model_config = ConfigDict(extra="forbid")
+    question: str = Field(..., min_length=1, max_length=2000, description="the question")
+    method: str | None = Field(
+        None, description="raven | offline | embedder-only | vlm-only | caption | random"
+    )
+    top_k: int | None = Field(None, ge=1, le=MAX_K, description="memories per tool call")
+    max_tool_calls: int | None = Field(
+        None, ge=1, le=20, description="tool calls before the model must answer"
+    )
+    image: str | None = Field(None, description="a query picture: base64 JPEG/PNG or a data: URL")
+    image_memory_id: int | None = Field(
+        None, ge=0, description="use this memory's picture as the query picture"
+    )
+
+
+def create_app(service: Service, token: str | None = None, loopback: bool = True) -> FastAPI:
+    """The service's ASGI app; its lifespan starts and closes `service` (and the memory)."""
+    from mcp.server.streamable_http_manager import StreamableHTTPASGIApp, StreamableHTTPSessionManager
+    from mcp.server.transport_security import TransportSecuritySettings
+
+    from .mcp_tools import build_server
+
+    cfg = service.cfg
+    mcp_manager = StreamableHTTPSessionManager(
+        app=build_server(service),
+        json_response=True,
+        stateless=True,
+        # the Guard below already checks Host and Origin on every route, /mcp included
+        security_settings=TransportSecuritySettings(enable_dns_rebinding_protection=False),
+        max_request_body_size=cfg.max_upload_bytes,
+    )
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        service.start()
+        try:
+            async with mcp_manager.run():
+                yield
+        finally:
+            await run_in_threadpool(service.close)
+
+    app = FastAPI(
+        title="ravenmem",
+        version="0.1.0",
+        summary="A robot's long-term visual memory: search it, ask it, add to it.",
+        lifespan=lifespan,
+    )
+    app.add_middleware(Guard, token=token, loopback=loopback, max_body=cfg.max_upload_bytes)
+    _errors(app)
+
+    def image_url_for(request: Request) -> Callable[[MemoryRecord], str | None]:
+        base = str(request.base_url).rstrip("/")
+        return lambda rec: f"{base}/memories/{rec.id}/image"
+
+    async def blocking(fn: Callable[[], T]) -> T:
+        """Run memory work off the event loop, bounded in time (504 when it takes too long)."""
+        try:
+            return await asyncio.wait_for(run_in_threadpool(fn), cfg.timeout_s)
+        except asyncio.TimeoutError:
+            raise HTTPException(504, f"no answer within {cfg.timeout_s:g} s") from None
+
+    # ---------------------------------------------------------------- status
+    @app.get("/health", tags=["status"])
+    async def health() -> dict[str, Any]:
+        """Up and serving; how many memories it holds."""
+        return {"status": "ok", "memories": service.mem.count()}
+
+    @app.get("/info", tags=["status"])
+    async def info() -> dict[str, Any]:
+        """What `ravenmem info --json` prints, plus the live counts and how questions are answered."""
+        return await blocking(service.info)
+
+    # ---------------------------------------------------------------- searches (from TOOLS)
+    for tool in TOOLS.values():
+        _search_route(app, tool, service, blocking, image_url_for)
+    _image_upload_route(app, service, blocking, image_url_for)
+
+    # ---------------------------------------------------------------- questions
+    @app.post("/ask", tags=["ask"])
+    async def ask(body: AskBody, request: Request) -> dict[str, Any]:
+        """Answer a question as `ravenmem ask --json` does (evidence images as URLs)."""
+        picture = None
+        if body.image is not None and body.image_memory_id is not None:
+            raise InputError("give image or image_memory_id, not both")
+        if body.image is not None:
+            picture = decode_base64_image(body.image, cfg.max_pixels)
+
+        def run() -> dict[str, Any]:
+            img = picture
+            if body.image_memory_id is not None:
+                img = service.mem.load_image(service.record(body.image_memory_id))
+                if img is None:
+                    raise InputError(f"memory {body.image_memory_id} has no stored picture")
+            ans, note = service.ask(body.question, body.method, body.top_k, body.max_tool_calls, img)
+            data = service.answer_json(ans, note, image_url_for(request))
+            service.publish_answer(data)
+            return data
+
+        return await blocking(run)
+
+    # ---------------------------------------------------------------- memories
+    @app.post("/memories", tags=["memories"], status_code=201)
+    async def add_memory(
+        request: Request,
+        image: Annotated[UploadFile, File(description="the camera frame, JPEG or PNG")],
+        x: Annotated[float, Form(description="map x, metres")],
+        y: Annotated[float, Form(description="map y, metres")],
+        z: Annotated[float, Form(description="height, metres")] = 0.0,
+        yaw: Annotated[float | None, Form(description="heading, radians (or give qx..qw)")] = None,
+        qx: Annotated[float | None, Form()] = None,
+        qy: Annotated[float | None, Form()] = None,
+        qz: Annotated[float | None, Form()] = None,
+        qw: Annotated[float | None, Form()] = None,
+        t: Annotated[float | None, Form(description="Unix seconds (default: now)")] = None,
+        source: Annotated[
+            str, Form(max_length=200, description="camera name: keyframes are per source")
+        ] = "live",
+    ) -> Response:
+        """Live add: the frame goes through the online keyframe rule, the embedder and the store.
+        201 with the new memory once it is durable, or 200 with the reason it was skipped."""
+        if service.writer is None:
+            raise InputError("this service is read-only")
+        pose = _pose(x, y, z, yaw, (qx, qy, qz, qw))
+        data = await image.read()
+        rgb = await run_in_threadpool(decode_image, data, cfg.max_pixels, "image")
+        when = _now() if t is None else t
+        fut = service.writer.submit(rgb, pose, when, source)
+        try:
+            res = await asyncio.wait_for(asyncio.wrap_future(fut), cfg.timeout_s)
+        except asyncio.TimeoutError:
+            raise HTTPException(504, f"the frame was not stored within {cfg.timeout_s:g} s") from None
+        body = res.as_json()
+        if not res.stored:
+            return JSONResponse(body, status_code=200)
+        assert res.id is not None
+        rec = await blocking(lambda: service.record(res.id))  # type: ignore[arg-type]
+        body["memory"] = service.record_json(rec, image_url_for(request))
+        return JSONResponse(body, status_code=201)
+
+    @app.get("/memories/{memory_id}", tags=["memories"])
+    async def get_memory(memory_id: int, request: Request) -> dict[str, Any]:
+        """One memory: time, pose, OCR text, image URL."""
+        rec = await blocking(lambda: service.record(memory_id))
+        return service.record_json(rec, image_url_for(request))
+
+    @app.get("/memories/{memory_id}/image", tags=["memories"], response_class=FileResponse)
+    async def memory_image(memory_id: int) -> FileResponse:
+        """The memory's picture (its stored thumbnail); only files inside the memory folder."""
+        rec = await blocking(lambda: service.record(memory_id))
+        path = service.image_file(rec)
+        if path is None:
+            raise NotFound(f"memory {memory_id} has no picture stored in the memory folder")
+        return FileResponse(path, headers={"Cache-Control": "private, max-age=3600"})
+
+    @app.get("/trajectory", tags=["memories"])
+    async def trajectory(
+        max_points: Annotated[
+            int, Query(ge=2, le=100_000, description="thin the path to this many")
+        ] = 20_000,
+    ) -> dict[str, Any]:
+        """Every memory's [id, t, x, y, yaw], chronological (the page's map)."""
+        return await blocking(lambda: service.trajectory(max_points))
+
+    @app.get("/events", tags=["memories"], response_class=StreamingResponse)
+    async def events() -> StreamingResponse:
+        """Server-sent events: `memory` (a new memory), `skipped` (a frame the keyframe rule
+        dropped) and `answer` (a question answered), as they happen."""
+        try:
+            sub = service.bus.subscribe()
+        except StreamRefused as e:
+            raise HTTPException(503, str(e)) from None
+
+        async def stream() -> AsyncIterator[str]:
+            with sub:
+                yield _sse("hello", {"type": "hello", "memories": service.mem.count()})
+                while True:
+                    try:
+                        ev = await sub.next(KEEPALIVE_S)
+                    except asyncio.TimeoutError:
+                        yield ": keep-alive\n\n"
+                        continue
+                    if ev is None:
+                        return
+                    yield _sse(str(ev["type"]), ev)
+
+        return StreamingResponse(
+            stream(),
+            media_type="text/event-stream",
+            headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
+        )
+
+    # ---------------------------------------------------------------- the page and MCP
+    @app.get("/", include_in_schema=False)
+    async def page() -> Response:
+        html = (STATIC / "index.html").read_text(encoding="utf-8")
+        return Response(html, media_type="text/html; charset=utf-8", headers={"Cache-Control": "no-store"})
+
+    app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
+    app.router.routes.append(
+        Route("/mcp", endpoint=StreamableHTTPASGIApp(mcp_manager), include_in_schema=False)
+    )
+    service.set_image_url(lambda rec: f"/memories/{rec.id}/image")
+    return app
+
+
+# ---------------------------------------------------------------------------- search routes
+class _Short(BaseModel):
+    """Query-string conveniences: `q`/`t` for `query`/`time`; lists as `1,2,3` or repeated."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _query_string(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        fields = cls.model_fields
+        for short, full in SHORT_NAMES.items():
+            if short in data and full in fields and short not in fields:
+                data.setdefault(full, data.pop(short))
+        for name, f in fields.items():
+            v = data.get(name)
+            if "list" in str(f.annotation) and isinstance(v, list) and all(isinstance(s, str) for s in v):
+                data[name] = [p for s in v for p in s.split(",") if p.strip()]
+        return data
+
+
+def query_model(tool: Tool) -> type[BaseModel]:
+    """The tool's argument model plus `k`, read from the query string."""
+    fields: dict[str, Any] = {
+        "k": (int, Field(5, ge=1, le=MAX_K, description=f"how many results (1 to {MAX_K})")),
+    }
+    from pydantic import create_model
+
+    return create_model(  # type: ignore[call-overload, no-any-return]
+        f"{tool.name}_query", __base__=(tool.args, _Short), __doc__=tool.summary, **fields
+    )
+
+
+def _split(model: BaseModel, tool: Tool) -> tuple[ToolArgs, int]:
+    data = model.model_dump()
+    k = int(data.pop("k"))
+    return tool.validate(data), k
+
+
+def _search_route(
+    app: FastAPI,
+    tool: Tool,
+    service: Service,
+    blocking: Callable[[Callable[[], Any]], Awaitable[Any]],
+    image_url_for: Callable[[Request], Callable[[MemoryRecord], str | None]],
+) -> None:
+    model = query_model(tool)
+
+    async def search(request: Request, params: Annotated[model, Query()]) -> dict[str, Any]:  # type: ignore[valid-type]
+        args, k = _split(params, tool)
+        hits = await blocking(lambda: service.search(tool, args, k))
+        return {"mode": tool.key, "tool": tool.name, "results": service.rows(hits, image_url_for(request))}
+
+    search.__doc__ = f"{tool.description()} (`{tool.name}`: the same JSON as `ravenmem search --json`)"
+    app.get(f"/search/{tool.key}", tags=["search"], name=tool.name, summary=tool.summary)(search)
+
+
+def _image_upload_route(
+    app: FastAPI,
+    service: Service,
+    blocking: Callable[[Callable[[], Any]], Awaitable[Any]],
+    image_url_for: Callable[[Request], Callable[[MemoryRecord], str | None]],
+) -> None:
+    tool = TOOLS["search_image"]
+    model = query_model(tool)
+
+    async def search_upload(
+        request: Request,
+        params: Annotated[model, Query()],  # type: ignore[valid-type]
+        image: Annotated[UploadFile, File(description="the query picture, JPEG or PNG")],
+    ) -> dict[str, Any]:
+        """Memories that look like an uploaded picture (filters as in the query string)."""
+        args, k = _split(params, tool)
+        if getattr(args, "memory_id", None) is not None:
+            raise InputError("give memory_id or an uploaded image, not both")
+        rgb = await run_in_threadpool(decode_image, await image.read(), service.cfg.max_pixels, "image")
+        hits = await blocking(lambda: service.search(tool, args, k, image=rgb))
+        return {"mode": tool.key, "tool": tool.name, "results": service.rows(hits, image_url_for(request))}
+
+    app.post("/search/image", tags=["search"], name="search_image_upload", summary=tool.summary)(
+        search_upload
+    )
+
+
+# ---------------------------------------------------------------------------- helpers
+def _pose(x: float, y: float, z: float, yaw: float | None, quat: tuple[float | None, ...]) -> Pose:
+    given = [q is not None for q in quat]
+    try:
+        if any(given):
+            if not all(given):
+                raise InputError("give all of qx, qy, qz, qw, or none")
+            if yaw is not None:
+                raise InputError("give yaw or a quaternion (qx..qw), not both")
+            qx, qy, qz, qw = (float(q) for q in quat)  # type: ignore[arg-type]
+            return Pose.from_quaternion(x, y, z, qx, qy, qz, qw)
+        return Pose(x, y, z, 0.0 if yaw is None else yaw)
+    except ValueError as e:
+        raise InputError(f"pose: {e}") from None
+
+
+def _now() -> float:
+    import time
+
+    return time.time()
+
+
+def _sse(kind: str, data: dict[str, Any]) -> str:
+    seq = data.get("seq")
+    head = f"id: {seq}\n" if seq is not None else ""
+    return f"{head}event: {kind}\ndata: {json.dumps(data, allow_nan=False, default=_finite)}\n\n"
+
+
+def _finite(v: Any) -> Any:
+    return None if isinstance(v, float) and not math.isfinite(v) else str(v)
+
+
+def _one_line(text: str, limit: int = 300) -> str:
+    line = " ".join(str(text).split())
+    return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
+def _errors(app: FastAPI) -> None:
+    """Every failure as `{"error": "<one line>"}`: 4xx for the caller's mistakes, a bare 500 else."""
+
+    def reply(status: int, message: str, headers: dict[str, str] | None = None) -> JSONResponse:
+        return JSONResponse({"error": _one_line(message)}, status_code=status, headers=headers)
+
+    @app.exception_handler(BusyError)
+    async def busy(request: Request, exc: BusyError) -> JSONResponse:
+        return reply(503, str(exc), {"Retry-After": "1"})
+
+    @app.exception_handler(RavenmemError)
+    async def user_error(request: Request, exc: RavenmemError) -> JSONResponse:
+        return reply(400, str(exc))
+
+    @app.exception_handler(NotFound)
+    async def not_found(request: Request, exc: NotFound) -> JSONResponse:
+        return reply(404, str(exc))
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errs = exc.errors()
+        if not errs:
+            return reply(422, "invalid request")
+        e = errs[0]
+        loc = [str(p) for p in e.get("loc", ())]
+        if len(loc) > 1 and loc[0] in ("query", "body", "path", "form", "header"):
+            loc = loc[1:]
+        where = ".".join(loc) or "request"
+        return reply(422, f"{where}: {e.get('msg', 'invalid')}")
+
+    @app.exception_handler(HTTPException)
+    async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
+        return reply(exc.status_code, str(exc.detail), dict(exc.headers or {}))
+
+    @app.exception_handler(TimeoutError)
+    async def timeout(request: Request, exc: TimeoutError) -> JSONResponse:
+        return reply(504, "timed out")
+
+    @app.exception_handler(Exception)
+    async def crash(request: Request, exc: Exception) -> JSONResponse:
+        log.error("%s %s failed", request.method, request.url.path, exc_info=exc)
+        return reply(500, "internal error; the service log has the details")

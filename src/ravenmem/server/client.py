@@ -1,0 +1,111 @@
+"""The HTTP client behind `ravenmem search/ask/info --server URL`: a warm service answers
+instead of a cold process, with the same JSON (`image` is then a URL, not a file path).
+
+Only httpx (already a dependency of the agent's OpenAI client) is needed, not the web stack.
+The token comes from `RAVENMEM_TOKEN`; errors are one-line `InputError`s naming the service.
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from ..tools import Tool, ToolArgs
+
+ENV_SERVER = "RAVENMEM_SERVER"
+ENV_TOKEN = "RAVENMEM_TOKEN"
+
+
+def resolve_server(server: str | None, memory: Path | None) -> str | None:
+    """Which service answers: `--server`, else $RAVENMEM_SERVER when no `--memory` is given.
+
+    Returns None when the command should open the memory itself. Both `--server` and
+    `--memory` is a contradiction (one line, exit 2); neither is one too.
+    """
+    if server and memory is not None:
+        raise InputError("give --memory (open it here) or --server (ask a running service), not both")
+    url = server or (os.environ.get(ENV_SERVER) if memory is None else None)
+    if not url and memory is None:
+        raise InputError(f"give --memory DIR, or --server URL (or set {ENV_SERVER})")
+    return url or None
+
+
+class ServerClient:
+    """A running `ravenmem serve`, by URL."""
+
+    def __init__(self, url: str, token: str | None = None, timeout: float = 600.0) -> None:
+        import httpx
+
+        if not url.startswith(("http://", "https://")):
+            raise InputError(f"--server must be an http:// or https:// URL, got {url!r}")
+        self.url = url.rstrip("/")
+        token = token if token is not None else os.environ.get(ENV_TOKEN)
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self._http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout)
+
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> ServerClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _call(self, method: str, path: str, **kw: Any) -> Any:
+        import httpx
+
+        try:
+            r = self._http.request(method, path, **kw)
+        except httpx.HTTPError as e:
+            raise InputError(f"cannot reach the ravenmem service at {self.url}: {e}") from None
+        try:
+            body = r.json()
+        except ValueError:
+            body = None
+        if r.status_code >= 400:
+            msg = body.get("error") if isinstance(body, dict) else None
+            raise InputError(f"service {self.url}: {msg or f'HTTP {r.status_code}'}")
+        return body
+
+    def info(self) -> dict[str, Any]:
+        return dict(self._call("GET", "/info"))
+
+    def search(self, tool: Tool, args: ToolArgs, k: int, image: Path | None = None) -> dict[str, Any]:
+        """One tool call, as `ravenmem search --json` prints it (`image` uploads a query picture)."""
+        params: list[tuple[str, str | int | float]] = [("k", k)]
+        for name, value in args.model_dump(exclude_none=True).items():
+            for v in value if isinstance(value, list) else [value]:
+                params.append((name, v))
+        if image is None:
+            return dict(self._call("GET", f"/search/{tool.key}", params=params))
+        data = _read(image)
+        files = {"image": (image.name, data, "application/octet-stream")}
+        return dict(self._call("POST", f"/search/{tool.key}", params=params, files=files))
+
+    def ask(
+        self,
+        question: str,
+        method: str | None = None,
+        top_k: int | None = None,
+        max_tool_calls: int | None = None,
+        image: Path | None = None,
+    ) -> dict[str, Any]:
+        """A question, answered as `ravenmem ask --json` prints it (evidence images as URLs)."""
+        body: dict[str, Any] = {"question": question}
+        for key, val in (("method", method), ("top_k", top_k), ("max_tool_calls", max_tool_calls)):
+            if val is not None:
+                body[key] = val
+        if image is not None:
+            body["image"] = base64.b64encode(_read(image)).decode()
+        return dict(self._call("POST", "/ask", json=body))
+
+
+def _read(path: Path) -> bytes:
+    try:
+        return Path(path).read_bytes()
+    except OSError as e:
+        raise InputError(f"image file {path} cannot be read: {e.strerror}") from None

@@ -1,0 +1,279 @@
+"""Live adds: the one writer of a served memory.
+
+A robot streams frames (RGB + pose + time) into a running memory. Every frame goes through the
+same online keyframe rule as a recorded ingest (`ingest.keyframes.Keyframer`, one per source so
+two cameras do not thin each other out), then the embedder, then `Memory.add_frames`. One thread
+does all of it, in arrival order, so the keyframe state and the store see one writer; searches
+run meanwhile on other threads.
+
+An add is answered only after `add_frames` returned, i.e. after the store made it durable: an
+acknowledged memory survives a crash of the service. Every front end that adds frames (the HTTP
+route, the Zenoh link) calls `LiveWriter.add` (blocking) or `LiveWriter.submit` (a future):
+
+    writer = LiveWriter(mem, KeyframeConfig(fps=2))
+    writer.start()
+    result = writer.add(rgb, Pose(1.0, 2.0, yaw=0.3), t=time.time(), source="front")
+    result.id or result.skipped   # the new memory's id, or why the frame was not kept
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import numbers
+import queue
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..ingest.keyframes import KeyframeConfig, Keyframer
+from ..memory import Memory
+from ..types import Frame, MemoryRecord, Pose
+
+log = logging.getLogger(__name__)
+
+SKIP_TIME = "non-monotonic timestamp"  # the ingest pipeline's name for the same rule
+MAX_SOURCES = 64  # keyframe state is kept per source name; a bound keeps a client from growing it
+
+
+class BusyError(InputError):
+    """The writer's queue is full: the client should slow down (HTTP 503)."""
+
+
+@dataclass(frozen=True)
+class AddResult:
+    """What became of one frame: stored under `id`, or `skipped` with the keyframe rule's reason."""
+
+    t: float
+    source: str
+    id: int | None = None
+    skipped: str | None = None
+
+    @property
+    def stored(self) -> bool:
+        return self.id is not None
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "stored": self.stored,
+            "id": self.id,
+            "skipped": self.skipped,
+            "t": self.t,
+            "source": self.source,
+        }
+
+
+@dataclass
+class LiveStats:
+    """Counts since the writer started, per outcome (what `/info` shows under `live`)."""
+
+    seen: int = 0
+    kept: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"frames_seen": self.seen, "kept": self.kept, "skipped": dict(self.skipped)}
+
+
+@dataclass
+class _Job:
+    frame: Frame
+    future: Future[AddResult]
+
+
+class _Source:
+    """Keyframe state of one camera: the keyframer and the last timestamp seen."""
+
+    def __init__(self, cfg: KeyframeConfig) -> None:
+        self.keyframer = Keyframer(cfg)
+        self.last_t = -math.inf
+        self.frames = 0
+
+
+class LiveWriter:
+    """One thread that keyframes, embeds and stores frames in arrival order.
+
+    `on_result(result, record)` is called from the writer thread after each frame (the record is
+    None for a skipped frame); the service uses it to publish events. `max_pending` bounds the
+    queue: beyond it `submit` raises `BusyError` instead of letting memory grow. Frames waiting
+    together are embedded and stored in one batch of at most `batch` (same result as one by one:
+    the keyframe rules still see them in order).
+    """
+
+    def __init__(
+        self,
+        mem: Memory,
+        keyframes: KeyframeConfig | None = None,
+        on_result: Callable[[AddResult, MemoryRecord | None], None] | None = None,
+        max_pending: int = 256,
+        batch: int = 16,
+    ) -> None:
+        self.mem = mem
+        self.cfg = keyframes or KeyframeConfig()
+        self.on_result = on_result
+        self.batch = max(1, batch)
+        self.stats = LiveStats()
+        self._queue: queue.Queue[_Job | None] = queue.Queue(maxsize=max(1, max_pending))
+        self._sources: dict[str, _Source] = {}
+        self._thread: threading.Thread | None = None
+        self._closed = False
+        self._lock = threading.Lock()
+
+    # ---------------------------------------------------------------- lifecycle
+    def start(self) -> LiveWriter:
+        with self._lock:
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="ravenmem-writer", daemon=True)
+                self._thread.start()
+        return self
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Finish the frames already queued, then stop (later submits are refused)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            thread = self._thread
+        if thread is not None:
+            self._queue.put(None)
+            thread.join(timeout)
+
+    # ---------------------------------------------------------------- adding
+    def submit(self, image: np.ndarray, pose: Pose, t: float, source: str = "live") -> Future[AddResult]:
+        """Queue one frame; the future resolves once it is stored (or skipped)."""
+        frame = _checked_frame(image, pose, t, source)
+        fut: Future[AddResult] = Future()
+        with self._lock:
+            if self._closed:
+                raise InputError("the memory is closing: no more frames are taken")
+            if self._thread is None:
+                raise InputError("the writer is not started")
+            try:
+                self._queue.put_nowait(_Job(frame, fut))
+            except queue.Full:
+                raise BusyError(f"{self._queue.maxsize} frames are waiting to be stored: slow down") from None
+        return fut
+
+    def add(
+        self, image: np.ndarray, pose: Pose, t: float, source: str = "live", timeout: float | None = 60.0
+    ) -> AddResult:
+        """Add one frame and wait until it is durable (or skipped); the blocking form of `submit`."""
+        return self.submit(image, pose, t, source).result(timeout)
+
+    # ---------------------------------------------------------------- the writer thread
+    def _run(self) -> None:
+        stop = False
+        while not stop:
+            job = self._queue.get()
+            if job is None:
+                break
+            jobs = [job]
+            while len(jobs) < self.batch:
+                try:
+                    nxt = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if nxt is None:
+                    stop = True
+                    break
+                jobs.append(nxt)
+            self._write(jobs)
+
+    def _write(self, jobs: list[_Job]) -> None:
+        try:
+            self._store(jobs)
+        except Exception as e:  # a failed batch fails its frames, not the writer
+            if not isinstance(e, InputError):
+                log.exception("storing %d live frame(s) failed", len(jobs))
+            for j in jobs:
+                if not j.future.done():
+                    j.future.set_exception(e)
+
+    def _store(self, jobs: list[_Job]) -> None:
+        candidates: list[tuple[_Job, _Source]] = []
+        for j in jobs:
+            self.stats.seen += 1
+            try:
+                src = self._source(j.frame.source)
+            except InputError as e:
+                j.future.set_exception(e)
+                continue
+            j.frame.index, src.frames = src.frames, src.frames + 1
+            reason = SKIP_TIME if j.frame.t < src.last_t else src.keyframer.pre(j.frame)
+            if reason is None:
+                src.last_t = j.frame.t
+                candidates.append((j, src))
+            else:
+                self._skip(j, reason)
+        if not candidates:
+            return
+        emb = self.mem.embedder.embed_images([j.frame.image for j, _ in candidates])
+        kept: list[int] = []
+        for i, (j, src) in enumerate(candidates):
+            reason = src.keyframer.post(emb[i])
+            if reason is None:
+                kept.append(i)
+            else:
+                self._skip(j, reason)
+        if not kept:
+            return
+        frames = [candidates[i][0].frame for i in kept]
+        ids = self.mem.add_frames(frames, embeddings=emb[kept])
+        records = self.mem.get(ids)
+        self.stats.kept += len(ids)
+        for i, mid, rec in zip(kept, ids, records):
+            j = candidates[i][0]
+            res = AddResult(t=j.frame.t, source=j.frame.source, id=mid)
+            j.future.set_result(res)
+            self._notify(res, rec)
+
+    def _source(self, name: str) -> _Source:
+        src = self._sources.get(name)
+        if src is None:
+            if len(self._sources) >= MAX_SOURCES:
+                raise InputError(f"more than {MAX_SOURCES} live sources; reuse a source name")
+            src = self._sources[name] = _Source(self.cfg)
+        return src
+
+    def _skip(self, j: _Job, reason: str) -> None:
+        self.stats.skipped[reason] = self.stats.skipped.get(reason, 0) + 1
+        res = AddResult(t=j.frame.t, source=j.frame.source, skipped=reason)
+        j.future.set_result(res)
+        self._notify(res, None)
+
+    def _notify(self, res: AddResult, rec: MemoryRecord | None) -> None:
+        if self.on_result is None:
+            return
+        try:
+            self.on_result(res, rec)
+        except Exception:  # a listener's bug must not stop the writer
+            log.exception("live result listener failed")
+
+    def report(self) -> dict[str, Any]:
+        """The live counts in the shape of an ingest report (appended to the manifest on close)."""
+        return {
+            "source": "live",
+            "frames_seen": self.stats.seen,
+            "kept": self.stats.kept,
+            "skipped": dict(self.stats.skipped),
+            "ended": time.time(),
+        }
+
+
+def _checked_frame(image: np.ndarray, pose: Pose, t: float, source: str) -> Frame:
+    """A frame the store will take, or a one-line `InputError` naming what is wrong."""
+    if not isinstance(image, np.ndarray) or image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise InputError(f"image must be an RGB uint8 array (H, W, 3), got {getattr(image, 'shape', None)}")
+    if not isinstance(pose, Pose):
+        raise InputError("pose must be a ravenmem.Pose")
+    if isinstance(t, bool) or not isinstance(t, numbers.Real) or not math.isfinite(t):
+        raise InputError(f"t must be a finite number of Unix seconds, got {t!r}")
+    if not source or len(source) > 200 or not source.isprintable():
+        raise InputError("source must be a printable name of 1 to 200 characters")
+    return Frame(image=image, t=float(t), pose=pose, source=source, index=0)

@@ -1,0 +1,111 @@
+"""Start the service: check the address and token, open the memory, load the models, listen.
+
+The models are loaded (and run once) before the port opens, so a service that answers
+`/health` answers searches at warm speed. The listening socket is opened here rather than by
+uvicorn so that a taken port is a one-line error, and `port=0` picks a free one (printed).
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+from ..errors import InputError, require
+from .security import check_bind, is_loopback
+from .service import Service, ServiceConfig
+
+log = logging.getLogger(__name__)
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """A bound, listening TCP socket (IPv6 when the host is an IPv6 address)."""
+    if not 0 <= port <= 65535:
+        raise InputError(f"--port must be from 0 to 65535, got {port}")
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as e:
+        raise InputError(f"cannot listen on {host}: {e.strerror}") from None
+    family, _, _, _, addr = infos[0]
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(addr)
+        sock.listen(128)
+    except OSError as e:
+        sock.close()
+        raise InputError(f"cannot listen on {host}:{port}: {e.strerror}") from None
+    sock.set_inheritable(True)
+    return sock
+
+
+def warm_up(service: Service) -> None:
+    """Load the embedder and run it once, so the first question is as fast as the next."""
+    import numpy as np
+
+    emb = service.mem.embedder
+    emb.embed_texts(["warm up"])
+    if service.cfg.writable:
+        emb.embed_images([np.zeros((32, 32, 3), np.uint8)])
+
+
+def serve(
+    memory: Path,
+    host: str = "127.0.0.1",
+    port: int = 8765,
+    token: str | None = None,
+    cfg: ServiceConfig | None = None,
+    log_level: str = "info",
+    out: TextIO | None = None,
+) -> None:
+    """Serve a memory until interrupted (Ctrl-C or SIGTERM store what is queued, then close)."""
+    check_bind(host, token)
+    require("fastapi", "serve")
+    uvicorn = require("uvicorn", "serve")
+    import ravenmem
+
+    from .app import create_app
+
+    cfg = cfg or ServiceConfig()
+    sock = listen(host, port)
+    try:
+        mem = ravenmem.open(memory)
+        service = Service(mem, cfg)
+        warm_up(service)
+        app = create_app(service, token=token, loopback=is_loopback(host))
+    except BaseException:
+        sock.close()
+        raise
+    bound = sock.getsockname()[1]
+    shown = f"[{host}]" if ":" in host else host
+    url = f"http://{shown}:{bound}/"
+    out = out or sys.stdout
+    out.write(
+        f"ravenmem: serving {memory} ({mem.count()} memories) at {url}"
+        f"{'#token=<your token>' if token else ''}  (API: {url}docs, MCP: {url}mcp)\n"
+    )
+    out.flush()
+    config = uvicorn.Config(  # type: ignore[attr-defined]
+        app,
+        log_level=log_level,
+        timeout_graceful_shutdown=3,
+        timeout_keep_alive=30,
+        h11_max_incomplete_event_size=64 * 1024,  # request line + headers
+        server_header=False,
+    )
+    make_server(config, service).run(sockets=[sock])
+
+
+def make_server(config: Any, service: Service) -> Any:
+    """A uvicorn server that ends the event streams as soon as it starts shutting down (an open
+    stream would otherwise hold the graceful shutdown until its timeout)."""
+    import uvicorn
+
+    class ServiceServer(uvicorn.Server):
+        async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+            service.stop_streams()
+            await super().shutdown(sockets)
+
+    return ServiceServer(config)

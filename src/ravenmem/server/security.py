@@ -1,0 +1,140 @@
+"""Who may talk to the service, and how much they may send.
+
+- On a loopback address no token is needed, but a request must name a loopback host (so a web
+  page elsewhere cannot reach the service through DNS rebinding) and must not come from another
+  origin (so a page elsewhere cannot make the browser post frames or questions: no CORS).
+- On any other address the service refuses to start without a token, and every route that
+  touches the memory (searches, images, events, MCP, the page's API calls) needs
+  `Authorization: Bearer <token>`. The page's own files and the API description are public:
+  they hold nothing of the memory.
+- A body over the size limit is refused (413): before it is read when its Content-Length says
+  so, and at the limit while it is read otherwise (chunked uploads).
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import json
+from urllib.parse import urlsplit
+
+from starlette.exceptions import HTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from ..errors import InputError
+
+PUBLIC = ("/", "/static/", "/docs", "/docs/oauth2-redirect", "/openapi.json", "/redoc", "/favicon.ico")
+LOOPBACK_NAMES = ("localhost", "localhost.")
+MIN_TOKEN = 16
+
+
+def is_loopback(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 and localhost: addresses no other machine can reach."""
+    h = host.strip("[]").lower()
+    if h in LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(h).is_loopback
+    except ValueError:
+        return False
+
+
+def check_bind(host: str, token: str | None) -> None:
+    """Refuse (one line) to serve a non-loopback address without a token, or with a weak one."""
+    if token is not None and len(token) < MIN_TOKEN:
+        raise InputError(f"--token must be at least {MIN_TOKEN} characters (e.g. `openssl rand -hex 16`)")
+    if not is_loopback(host) and not token:
+        raise InputError(
+            f"refusing to serve {host} without a token: other machines could read the memory; "
+            "pass --token or RAVENMEM_TOKEN, or bind 127.0.0.1"
+        )
+
+
+def is_public(path: str) -> bool:
+    return path == "/" or path.startswith("/static/") or path in PUBLIC
+
+
+class Guard:
+    """ASGI middleware enforcing the rules of the module docstring on HTTP and WebSocket."""
+
+    def __init__(self, app: ASGIApp, token: str | None, loopback: bool, max_body: int | None = None) -> None:
+        self.app = app
+        self.token = token.encode() if token else None
+        self.loopback = loopback
+        self.max_body = max_body
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] not in ("http", "websocket"):
+            await self.app(scope, receive, send)
+            return
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        host = headers.get("host", "")
+        refusal = self._refuse(scope, headers, host)
+        if refusal is None:
+            await self.app(scope, self._limited(receive) if self.max_body else receive, send)
+            return
+        status, message = refusal
+        if scope["type"] == "websocket":
+            await send({"type": "websocket.close", "code": 1008})
+            return
+        body = json.dumps({"error": message}).encode()
+        extra = [(b"www-authenticate", b"Bearer")] if status == 401 else []
+        await send(
+            {
+                "type": "http.response.start",
+                "status": status,
+                "headers": [
+                    (b"content-type", b"application/json"),
+                    (b"content-length", str(len(body)).encode()),
+                ]
+                + extra,
+            }
+        )
+        await send({"type": "http.response.body", "body": body})
+
+    def _limited(self, receive: Receive) -> Receive:
+        """`receive` that stops a body at the limit (the app answers the HTTPException with 413)."""
+        limit, seen = self.max_body or 0, 0
+
+        async def counted() -> Message:
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > limit:
+                    raise HTTPException(413, f"request body is over the limit of {limit} bytes")
+            return message
+
+        return counted
+
+    def _refuse(self, scope: Scope, headers: dict[str, str], host: str) -> tuple[int, str] | None:
+        if self.loopback and not self.token and not is_loopback(_hostname(host)):
+            return 403, f"host {host!r} is not a loopback name; this service answers on loopback only"
+        origin = headers.get("origin")
+        if origin is not None and not _same_origin(origin, host):
+            return 403, "requests from another origin are refused (no CORS)"
+        if self.token is None or is_public(scope.get("path", "")):
+            return None
+        auth = headers.get("authorization", "")
+        scheme, _, given = auth.partition(" ")
+        if scheme.lower() != "bearer" or not hmac.compare_digest(given.strip().encode(), self.token):
+            return 401, "missing or wrong bearer token (send Authorization: Bearer <token>)"
+        size = headers.get("content-length", "")
+        if self.max_body is not None and size.isdigit() and int(size) > self.max_body:
+            return 413, f"request body of {int(size)} bytes is over the limit of {self.max_body}"
+        return None
+
+
+def _hostname(host: str) -> str:
+    """`127.0.0.1:8765` -> `127.0.0.1`, `[::1]:8765` -> `::1`."""
+    if host.startswith("["):
+        return host[1 : host.find("]")] if "]" in host else host
+    return host.rsplit(":", 1)[0] if host.count(":") == 1 else host
+
+
+def _same_origin(origin: str, host: str) -> bool:
+    try:
+        parts = urlsplit(origin)
+    except ValueError:
+        return False
+    return parts.scheme in ("http", "https") and parts.netloc.lower() == host.lower()

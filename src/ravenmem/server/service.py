@@ -1,0 +1,241 @@
+"""The served memory: one `Memory`, its one writer, the event stream and the agent, shared by
+every front end (HTTP, the page, MCP, the robot link).
+
+No search logic lives here: searches go through `ravenmem.tools`, questions through the agent's
+methods, adds through `LiveWriter`. What this adds is what a long-running process needs: models
+loaded once, the results in the one JSON shape (`tools.hit_json`) with images as URLs, and
+paths that never leave the memory folder.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..agent.base import METHODS
+from ..agent.config import VLMConfig
+from ..agent.schema import Answer
+from ..errors import EmptyMemoryError, InputError
+from ..ingest.keyframes import KeyframeConfig
+from ..memory import Memory
+from ..tools import Tool, ToolArgs, check_k, hit_json
+from ..types import Hit, MemoryRecord
+from .events import EventBus
+from .live import AddResult, LiveWriter
+
+log = logging.getLogger(__name__)
+
+VLM_METHODS = ("raven", "vlm-only", "caption")
+MAX_TRAJECTORY = 100_000  # points the map may ask for at once
+ImageUrl = Callable[[MemoryRecord], str | None]
+
+
+@dataclass
+class ServiceConfig:
+    """How the service answers. `method` is the default for questions (None: `raven` when a VLM
+    model is configured, else `offline`); `vlm` is the service's own model endpoint (clients never
+    choose one); sizes and times bound every request."""
+
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    method: str | None = None
+    vlm: VLMConfig | None = None
+    top_k: int = 5
+    max_tool_calls: int = 3
+    max_upload_bytes: int = 16 * 2**20
+    max_pixels: int = 40_000_000
+    timeout_s: float = 120.0
+    writable: bool = True
+
+    def __post_init__(self) -> None:
+        check_k(self.top_k)
+        if self.max_upload_bytes <= 0 or self.max_pixels <= 0 or self.timeout_s <= 0:
+            raise InputError("upload size, pixel count and timeout must be > 0")
+        if self.method is not None:
+            METHODS.get(self.method)  # an unknown name is a one-line error now, not on the first question
+
+    @property
+    def default_method(self) -> str:
+        if self.method:
+            return self.method
+        return "raven" if self.vlm is not None and self.vlm.configured else "offline"
+
+
+class NotFound(InputError):
+    """A memory id that the memory does not hold (HTTP 404)."""
+
+
+class Service:
+    """A memory served to many clients; see the module docstring."""
+
+    def __init__(self, mem: Memory, cfg: ServiceConfig | None = None) -> None:
+        self.mem = mem
+        self.cfg = cfg or ServiceConfig()
+        self.bus = EventBus()
+        self.writer: LiveWriter | None = (
+            LiveWriter(mem, self.cfg.keyframes, on_result=self._on_result) if self.cfg.writable else None
+        )
+        self._traj_lock = threading.Lock()
+        self._traj: tuple[int, list[list[float]]] | None = None
+        self._image_url: ImageUrl = lambda rec: None
+
+    # ---------------------------------------------------------------- lifecycle
+    def start(self) -> Service:
+        if self.writer is not None:
+            self.writer.start()
+        return self
+
+    def stop_streams(self) -> None:
+        """End the open event streams (the server is stopping; listeners reconnect elsewhere)."""
+        self.bus.close()
+
+    def close(self) -> None:
+        """Store what is queued, note the live counts in the manifest, end the streams, close."""
+        self.bus.close()
+        if self.writer is not None:
+            self.writer.close()
+            if self.writer.stats.seen:
+                try:
+                    self.mem.record_ingest(self.writer.report())
+                except OSError:
+                    log.exception("could not note the live counts in the manifest")
+        self.mem.close()
+
+    def set_image_url(self, fn: ImageUrl) -> None:
+        """How events name a memory's image (the HTTP app sets its URL)."""
+        self._image_url = fn
+
+    # ---------------------------------------------------------------- reading
+    def t0(self) -> float:
+        try:
+            return self.mem.time_span()[0]
+        except EmptyMemoryError:
+            return 0.0
+
+    def search(self, tool: Tool, args: ToolArgs, k: int, image: np.ndarray | None = None) -> list[Hit]:
+        return tool.run(self.mem, args, k, image=image)
+
+    def rows(self, hits: list[Hit], image_url: ImageUrl) -> list[dict[str, Any]]:
+        """Hits in the `--json` shape of the CLI, images as URLs."""
+        t0 = self.t0()
+        return [hit_json(h, i + 1, t0, image_url) for i, h in enumerate(hits)]
+
+    def record(self, memory_id: int) -> MemoryRecord:
+        try:
+            return self.mem.get([memory_id])[0]
+        except KeyError:
+            raise NotFound(f"memory {memory_id}: no such memory") from None
+
+    def record_json(self, rec: MemoryRecord, image_url: ImageUrl) -> dict[str, Any]:
+        """One memory in the hit shape, without the fields that only a search gives."""
+        row = hit_json(Hit(memory=rec), 0, self.t0(), image_url)
+        for key in ("rank", "score", "distance", "ocr_match"):
+            row.pop(key)
+        return row
+
+    def image_file(self, rec: MemoryRecord) -> Path | None:
+        """The memory's image file when it lies inside the memory folder (never a path outside it:
+        a memory built without thumbnails points at the original frames, which are not served)."""
+        p = self.mem.image_file(rec)
+        if p is None:
+            return None
+        root = self.mem.path.resolve()
+        try:
+            real = p.resolve(strict=True)
+            real.relative_to(root)
+        except (OSError, ValueError):
+            return None
+        return real if real.is_file() else None
+
+    def trajectory(self, max_points: int = 20_000) -> dict[str, Any]:
+        """The path for the map: [id, t, x, y, yaw] per memory, chronological, thinned to at most
+        `max_points` by an even stride (the last memory always included)."""
+        if isinstance(max_points, bool) or not 2 <= int(max_points) <= MAX_TRAJECTORY:
+            raise InputError(f"max_points must be from 2 to {MAX_TRAJECTORY}")
+        n = self.mem.count()
+        with self._traj_lock:
+            if self._traj is None or self._traj[0] != n:
+                recs = self.mem.all_records()
+                pts = [[r.id, r.t, r.pose.x, r.pose.y, r.pose.yaw] for r in recs]
+                self._traj = (len(pts), pts)
+            pts = self._traj[1]
+        stride = max(1, -(-len(pts) // max_points))
+        picked = pts[::stride]
+        if pts and picked[-1] is not pts[-1]:
+            picked.append(pts[-1])
+        return {"count": len(pts), "stride": stride, "fields": ["id", "t", "x", "y", "yaw"], "points": picked}
+
+    def info(self) -> dict[str, Any]:
+        """`Memory.info()` as a client may see it: the folder's name, not its path on this machine."""
+        data = self.mem.info()
+        data["path"] = self.mem.path.name
+        data["live"] = self.writer.stats.as_dict() if self.writer is not None else None
+        data["ask"] = {
+            "default_method": self.cfg.default_method,
+            "vlm": bool(self.cfg.vlm is not None and self.cfg.vlm.configured),
+            "methods": METHODS.names(),
+        }
+        return data
+
+    # ---------------------------------------------------------------- asking
+    def ask(
+        self,
+        question: str,
+        method: str | None = None,
+        top_k: int | None = None,
+        max_tool_calls: int | None = None,
+        image: np.ndarray | None = None,
+    ) -> tuple[Answer, str]:
+        """Answer a question as `ravenmem ask` does; returns the answer and the method's note."""
+        from ..agent.methods import create_method
+
+        name = method or self.cfg.default_method
+        METHODS.get(name)
+        vlm = None
+        if name in VLM_METHODS:
+            vlm = self.cfg.vlm
+            if vlm is None or not vlm.configured:
+                raise InputError(
+                    f"method {name} needs a VLM and this service has none (start it with --model and "
+                    "--base-url, or RAVENMEM_VLM_*); ask with method offline"
+                )
+        k = check_k(top_k if top_k is not None else self.cfg.top_k)
+        calls = self.cfg.max_tool_calls if max_tool_calls is None else int(max_tool_calls)
+        if not 1 <= calls <= 20:
+            raise InputError(f"max_tool_calls must be from 1 to 20, got {calls}")
+        m = create_method(name, self.mem, vlm=vlm, top_k=k, max_tool_calls=calls)
+        ans = m.ask(question, image=image)
+        return ans, str(getattr(m, "note", "") or "")
+
+    def answer_json(self, ans: Answer, note: str, image_url: ImageUrl) -> dict[str, Any]:
+        """The answer as `ravenmem ask --json` gives it, evidence images as URLs (no paths)."""
+        data = ans.model_dump(mode="json")
+        ids = [ev["id"] for ev in data["evidence"]]
+        recs = {}
+        if ids:
+            try:
+                recs = {r.id: r for r in self.mem.get(ids)}
+            except KeyError:
+                recs = {}
+        for ev in data["evidence"]:
+            ev.pop("image_path", None)
+            rec = recs.get(ev["id"])
+            ev["image"] = image_url(rec) if rec is not None else None
+        if note:
+            data["note"] = note
+        return data
+
+    def publish_answer(self, data: dict[str, Any]) -> None:
+        self.bus.publish("answer", {"answer": data})
+
+    # ---------------------------------------------------------------- writing
+    def _on_result(self, res: AddResult, rec: MemoryRecord | None) -> None:
+        if rec is None:
+            self.bus.publish("skipped", res.as_json())
+            return
+        self.bus.publish("memory", {"memory": self.record_json(rec, self._image_url)})

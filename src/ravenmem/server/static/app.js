@@ -1,0 +1,365 @@
+// The ravenmem page: a map of where the robot went, search, ask, and live updates.
+// Plain JS, no build step, nothing fetched from outside this service. With a token the service
+// needs `Authorization: Bearer`: the page takes it from the URL fragment (#token=...) or the
+// token box, keeps it in sessionStorage, and sends it on every call (pictures included, which
+// are fetched and shown as blob URLs for that reason).
+"use strict";
+
+const state = {
+  token: sessionStorage.getItem("ravenmem-token") || "",
+  points: [],          // [id, t, x, y, yaw], chronological
+  hits: [],            // last search results
+  answer: null,        // last answer {x, y, yaw}
+  live: [],            // ids added live (newest last)
+  view: null,          // {cx, cy, scale} world centre and pixels per metre
+  t0: null,
+};
+const $ = (id) => document.getElementById(id);
+const SVG = "http://www.w3.org/2000/svg";
+
+// ------------------------------------------------------------------ talking to the service
+function headers(extra) {
+  const h = Object.assign({}, extra || {});
+  if (state.token) h["Authorization"] = "Bearer " + state.token;
+  return h;
+}
+
+async function api(path, options) {
+  const opts = Object.assign({}, options || {});
+  opts.headers = headers(opts.headers);
+  const r = await fetch(path, opts);
+  if (r.status === 401) {
+    $("token-box").hidden = false;
+    throw new Error("this memory needs a token");
+  }
+  let body = null;
+  try { body = await r.json(); } catch (e) { body = null; }
+  if (!r.ok) throw new Error((body && body.error) || ("HTTP " + r.status));
+  return body;
+}
+
+const imageCache = new Map();
+async function imageSrc(url) {
+  if (!url) return "";
+  if (imageCache.has(url)) return imageCache.get(url);
+  const r = await fetch(url, { headers: headers() });
+  if (!r.ok) return "";
+  const src = URL.createObjectURL(await r.blob());
+  imageCache.set(url, src);
+  return src;
+}
+
+function say(text, isError) {
+  const s = $("status");
+  s.textContent = text || "";
+  s.style.color = isError ? "#ff8a80" : "";
+}
+
+// ------------------------------------------------------------------ the map
+function fit() {
+  const pts = state.points;
+  const xs = pts.map((p) => p[2]).concat(state.hits.map((h) => h.x));
+  const ys = pts.map((p) => p[3]).concat(state.hits.map((h) => h.y));
+  if (state.answer) { xs.push(state.answer.x); ys.push(state.answer.y); }
+  const { width, height } = size();
+  if (!xs.length) { state.view = { cx: 0, cy: 0, scale: 50 }; return; }
+  const minx = Math.min(...xs), maxx = Math.max(...xs), miny = Math.min(...ys), maxy = Math.max(...ys);
+  const span = Math.max(maxx - minx, maxy - miny, 0.5);
+  state.view = { cx: (minx + maxx) / 2, cy: (miny + maxy) / 2, scale: 0.85 * Math.min(width, height) / span };
+}
+
+function size() {
+  const wrap = $("map-wrap");
+  return { width: wrap.clientWidth, height: wrap.clientHeight };
+}
+
+function toScreen(x, y) {
+  const { width, height } = size();
+  const v = state.view;
+  return [width / 2 + (x - v.cx) * v.scale, height / 2 - (y - v.cy) * v.scale];
+}
+
+function draw() {
+  if (!state.view) fit();
+  const canvas = $("map-canvas");
+  const { width, height } = size();
+  const dpr = window.devicePixelRatio || 1;
+  canvas.width = width * dpr; canvas.height = height * dpr;
+  const ctx = canvas.getContext("2d");
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  ctx.clearRect(0, 0, width, height);
+  drawGrid(ctx, width, height);
+  const pts = state.points;
+  if (pts.length) {
+    ctx.strokeStyle = "#9e9e9e"; ctx.lineWidth = 1.5; ctx.beginPath();
+    pts.forEach((p, i) => { const [sx, sy] = toScreen(p[2], p[3]); if (i) ctx.lineTo(sx, sy); else ctx.moveTo(sx, sy); });
+    ctx.stroke();
+    ctx.fillStyle = "#546e7a";
+    const step = Math.max(1, Math.floor(pts.length / 4000));
+    for (let i = 0; i < pts.length; i += step) {
+      const [sx, sy] = toScreen(pts[i][2], pts[i][3]);
+      ctx.fillRect(sx - 1.5, sy - 1.5, 3, 3);
+    }
+  }
+  drawMarks();
+}
+
+function drawGrid(ctx, width, height) {
+  const v = state.view;
+  let stepM = Math.pow(10, Math.floor(Math.log10(120 / v.scale)));
+  if (stepM * v.scale < 40) stepM *= 5;
+  ctx.strokeStyle = "#eceff1"; ctx.lineWidth = 1; ctx.fillStyle = "#90a4ae"; ctx.font = "10px sans-serif";
+  const [x0, y1] = [v.cx - width / 2 / v.scale, v.cy + height / 2 / v.scale];
+  for (let gx = Math.ceil(x0 / stepM) * stepM; gx < x0 + width / v.scale; gx += stepM) {
+    const [sx] = toScreen(gx, 0); ctx.beginPath(); ctx.moveTo(sx, 0); ctx.lineTo(sx, height); ctx.stroke();
+    ctx.fillText(gx.toFixed(stepM < 1 ? 1 : 0) + " m", sx + 2, height - 4);
+  }
+  for (let gy = Math.floor(y1 / stepM) * stepM; gy > y1 - height / v.scale; gy -= stepM) {
+    const [, sy] = toScreen(0, gy); ctx.beginPath(); ctx.moveTo(0, sy); ctx.lineTo(width, sy); ctx.stroke();
+    ctx.fillText(gy.toFixed(stepM < 1 ? 1 : 0) + " m", 2, sy - 2);
+  }
+}
+
+function el(name, attrs, parent) {
+  const e = document.createElementNS(SVG, name);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, v);
+  if (parent) parent.appendChild(e);
+  return e;
+}
+
+function drawMarks() {
+  const svg = $("map-marks");
+  svg.replaceChildren();
+  const byId = new Map(state.points.map((p) => [p[0], p]));
+  for (const id of state.live.slice(-5)) {
+    const p = byId.get(id); if (!p) continue;
+    const [sx, sy] = toScreen(p[2], p[3]);
+    const g = el("g", { class: "live-mark", "data-id": id }, svg);
+    el("circle", { cx: sx, cy: sy, r: 7 }, g);
+  }
+  state.hits.forEach((h) => {
+    const [sx, sy] = toScreen(h.x, h.y);
+    const g = el("g", { class: "hit-mark", "data-id": h.id }, svg);
+    el("circle", { cx: sx, cy: sy, r: 8 }, g);
+    el("text", { x: sx, y: sy }, g).textContent = h.rank;
+  });
+  if (state.answer) {
+    const a = state.answer;
+    const [sx, sy] = toScreen(a.x, a.y);
+    const g = el("g", { class: "answer-mark" }, svg);
+    if (a.yaw !== null && a.yaw !== undefined) {
+      el("line", { x1: sx, y1: sy, x2: sx + 24 * Math.cos(a.yaw), y2: sy - 24 * Math.sin(a.yaw) }, g);
+    }
+    el("circle", { cx: sx, cy: sy, r: 9 }, g);
+  }
+}
+
+function setupMapInput() {
+  const wrap = $("map-wrap");
+  let drag = null;
+  wrap.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; });
+  window.addEventListener("mouseup", () => { drag = null; });
+  window.addEventListener("mousemove", (e) => {
+    if (!drag || !state.view) return;
+    state.view.cx -= (e.clientX - drag[0]) / state.view.scale;
+    state.view.cy += (e.clientY - drag[1]) / state.view.scale;
+    drag = [e.clientX, e.clientY];
+    draw();
+  });
+  wrap.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    if (state.view) { state.view.scale *= e.deltaY < 0 ? 1.2 : 1 / 1.2; draw(); }
+  }, { passive: false });
+  wrap.addEventListener("dblclick", () => { fit(); draw(); });
+  window.addEventListener("resize", draw);
+}
+
+// ------------------------------------------------------------------ cards (hits and evidence)
+function fmtTime(row) {
+  const off = state.t0 !== null ? ` (+${(row.t - state.t0).toFixed(1)} s)` : "";
+  return (row.time || new Date(row.t * 1000).toISOString()) + off;
+}
+
+function card(row, label) {
+  const c = document.createElement("div");
+  c.className = "card"; c.dataset.id = row.id;
+  const img = document.createElement("img");
+  img.alt = "memory " + row.id;
+  imageSrc(row.image).then((src) => { if (src) img.src = src; });
+  const yawDeg = row.yaw_deg !== undefined ? row.yaw_deg : (row.yaw * 180 / Math.PI);
+  const lines = [label, fmtTime(row), `x ${row.x.toFixed(2)} y ${row.y.toFixed(2)} z ${row.z.toFixed(2)} yaw ${yawDeg.toFixed(0)}°`];
+  c.appendChild(img);
+  for (const text of lines) {
+    const m = document.createElement("div"); m.className = "meta"; m.textContent = text; c.appendChild(m);
+  }
+  c.addEventListener("click", () => {
+    document.querySelectorAll(".card.active").forEach((e) => e.classList.remove("active"));
+    c.classList.add("active");
+    if (state.view) { state.view.cx = row.x; state.view.cy = row.y; draw(); }
+  });
+  return c;
+}
+
+// ------------------------------------------------------------------ search and ask
+async function search(ev) {
+  ev.preventDefault();
+  const q = $("q").value.trim();
+  if (!q) return;
+  say("searching...");
+  try {
+    const params = new URLSearchParams({ query: q, k: $("k").value || "8" });
+    const data = await api("/search/text?" + params);
+    state.hits = data.results;
+    const box = $("hits");
+    box.replaceChildren(...data.results.map((h) => {
+      const score = h.score === null ? "" : ` score ${h.score.toFixed(3)}`;
+      return card(h, `#${h.rank}${score}${h.ocr_match ? " (text)" : ""}`);
+    }));
+    say(`${data.results.length} hit(s) for "${q}"`);
+    fit(); draw();
+  } catch (e) { say(e.message, true); }
+}
+
+async function ask(ev) {
+  ev.preventDefault();
+  const question = $("question").value.trim();
+  if (!question) return;
+  say("thinking...");
+  try {
+    const data = await api("/ask", {
+      method: "POST",
+      headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ question, method: $("method").value || null }),
+    });
+    showAnswer(data);
+    say(`answered by ${data.method} in ${data.cost.wall_s.toFixed(2)} s`);
+  } catch (e) { say(e.message, true); }
+}
+
+function showAnswer(a) {
+  $("answer").hidden = false;
+  $("answer-text").textContent = a.text || (a.found ? "found" : "not found");
+  const facts = [`${a.question_type} question`, a.found ? "found" : "not found"];
+  if (a.position) facts.push(`at x ${a.position[0].toFixed(2)} y ${a.position[1].toFixed(2)}` +
+    (a.yaw !== null ? `, heading ${(a.yaw * 180 / Math.PI).toFixed(0)}°` : ""));
+  if (a.time !== null) facts.push("seen " + new Date(a.time * 1000).toISOString());
+  if (a.duration !== null) facts.push(`for ${a.duration.toFixed(1)} s`);
+  if (a.error) facts.push("error: " + a.error);
+  $("answer-facts").textContent = facts.join(" · ");
+  $("evidence").replaceChildren(...a.evidence.map((e) => card(e, `evidence ${e.id}` +
+    (e.score !== null && e.score !== undefined ? ` score ${e.score.toFixed(3)}` : ""))));
+  state.answer = a.position ? { x: a.position[0], y: a.position[1], yaw: a.yaw } : null;
+  fit(); draw();
+}
+
+// ------------------------------------------------------------------ live updates
+function logLine(text) {
+  const li = document.createElement("li");
+  li.textContent = text;
+  const log = $("log");
+  log.prepend(li);
+  while (log.children.length > 50) log.lastChild.remove();
+}
+
+function onEvent(kind, data) {
+  if (kind === "hello") { $("live").className = "on"; return; }
+  if (kind === "memory") {
+    const m = data.memory;
+    if (!state.points.length || state.points[state.points.length - 1][0] < m.id) {
+      state.points.push([m.id, m.t, m.x, m.y, m.yaw]);
+    }
+    if (state.t0 === null) state.t0 = m.t;
+    state.live.push(m.id);
+    $("count").textContent = String(Number($("count").textContent || 0) + 1);
+    logLine(`memory ${m.id} at x ${m.x.toFixed(2)} y ${m.y.toFixed(2)}`);
+    draw();
+  } else if (kind === "skipped") {
+    logLine(`frame skipped: ${data.skipped}`);
+  } else if (kind === "answer") {
+    logLine(`answered: ${data.answer.question} -> ${data.answer.text}`);
+  }
+}
+
+async function listen() {
+  for (let wait = 1000; ; wait = Math.min(wait * 2, 30000)) {
+    try {
+      const r = await fetch("/events", { headers: headers() });
+      if (r.ok && r.body) {
+        wait = 1000;
+        const reader = r.body.getReader();
+        const dec = new TextDecoder();
+        let buf = "";
+        for (;;) {
+          const { value, done } = await reader.read();
+          if (done) break;
+          buf += dec.decode(value, { stream: true });
+          let cut;
+          while ((cut = buf.indexOf("\n\n")) >= 0) {
+            const block = buf.slice(0, cut); buf = buf.slice(cut + 2);
+            let kind = "message", data = "";
+            for (const line of block.split("\n")) {
+              if (line.startsWith("event: ")) kind = line.slice(7);
+              else if (line.startsWith("data: ")) data += line.slice(6);
+            }
+            if (data) onEvent(kind, JSON.parse(data));
+          }
+        }
+      } else if (r.status === 401) {
+        $("token-box").hidden = false;
+      }
+    } catch (e) { /* reconnect below */ }
+    $("live").className = "off";
+    await new Promise((res) => setTimeout(res, wait));
+  }
+}
+
+// ------------------------------------------------------------------ start
+async function load() {
+  const info = await api("/info");
+  $("memory-name").textContent = info.path;
+  $("count").textContent = String(info.memories);
+  state.t0 = info.t_min !== undefined ? info.t_min : null;
+  const methods = $("method");
+  methods.replaceChildren(...info.ask.methods.map((m) => {
+    const o = document.createElement("option"); o.value = m; o.textContent = m;
+    o.selected = m === info.ask.default_method; return o;
+  }));
+  const traj = await api("/trajectory");
+  state.points = traj.points;
+  fit(); draw();
+}
+
+function takeToken() {
+  const m = /(?:^|[#&])token=([^&]+)/.exec(location.hash);
+  if (m) {
+    state.token = decodeURIComponent(m[1]);
+    sessionStorage.setItem("ravenmem-token", state.token);
+    history.replaceState(null, "", location.pathname + location.search);
+  }
+}
+
+async function main() {
+  takeToken();
+  setupMapInput();
+  $("search-form").addEventListener("submit", search);
+  $("ask-form").addEventListener("submit", ask);
+  $("token-box").addEventListener("submit", (ev) => {
+    ev.preventDefault();
+    state.token = $("token").value.trim();
+    sessionStorage.setItem("ravenmem-token", state.token);
+    $("token-box").hidden = true;
+    start();
+  });
+  start();
+}
+
+let listening = false;
+async function start() {
+  try {
+    await load();
+    say("");
+    if (!listening) { listening = true; listen(); }
+  } catch (e) { say(e.message, true); }
+}
+
+main();

@@ -1,0 +1,104 @@
+"""A real service on 127.0.0.1 (uvicorn in a thread, a free port) over a small real memory.
+
+The memory uses the colour test embedder (exact and instant), so route tests check behaviour,
+not model quality; `ravenmem serve` itself runs on a real offline-embedder memory in
+test_serve_cli.py.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import pytest
+
+pytest.importorskip("fastapi", reason="the service needs the serve extra: pip install 'ravenmem[serve]'")
+pytest.importorskip("mcp", reason="the service needs the serve extra: pip install 'ravenmem[serve]'")
+import uvicorn  # noqa: E402
+
+import ravenmem
+from ravenmem.server.app import create_app
+from ravenmem.server.run import make_server
+from ravenmem.server.service import Service, ServiceConfig
+from ravenmem.types import Frame, Pose
+from tests.conftest import ColorEmbedder, solid
+
+T0 = 1_700_000_000.0
+TOKEN = "s3cret-token-for-tests-0123456789"
+# (colour, x, y): a walk along x with a few colours repeated
+SCENE = [
+    ("green", 0.0, 0.0), ("red", 1.0, 0.0), ("yellow", 2.0, 0.0), ("blue", 3.0, 1.0), ("white", 4.0, 1.0),
+    ("cyan", 5.0, 2.0), ("blue", 6.0, 2.0), ("magenta", 7.0, 3.0), ("red", 8.0, 3.0), ("green", 9.0, 3.0),
+    ("blue", 10.0, 4.0), ("black", 11.0, 4.0),
+]  # fmt: skip
+
+
+def make_memory(path: Path) -> ravenmem.Memory:
+    mem = ravenmem.create(path, embedder=ColorEmbedder(), ocr=False, thumb_size=32)
+    mem.add_frames([
+        Frame(image=solid(c), t=T0 + 10 * i, pose=Pose(x, y, 0.5, 0.1 * i), source="test", index=i)
+        for i, (c, x, y) in enumerate(SCENE)
+    ])  # fmt: skip
+    return mem
+
+
+class ServerThread:
+    """uvicorn serving an app in a thread on a socket bound here (port 0: a free one)."""
+
+    def __init__(self, app, service: Service, host: str = "127.0.0.1") -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind((host, 0))
+        self.port = self.sock.getsockname()[1]
+        self.url = f"http://{host}:{self.port}"
+        cfg = uvicorn.Config(app, log_level="warning", timeout_graceful_shutdown=1)
+        self.server = make_server(cfg, service)
+        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
+
+    def __enter__(self) -> ServerThread:
+        self.thread.start()
+        deadline = time.monotonic() + 30
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("the test server did not start")
+            time.sleep(0.02)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(30)
+        self.sock.close()
+
+
+@dataclass
+class Served:
+    url: str
+    service: Service
+    mem: ravenmem.Memory
+    token: str | None = None
+
+    def client(self, token: str | None = None, **kw) -> httpx.Client:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        return httpx.Client(base_url=self.url, headers=headers, timeout=30, **kw)
+
+
+def serve_memory(mem: ravenmem.Memory, token: str | None = None, **cfg) -> Iterator[Served]:
+    service = Service(mem, ServiceConfig(**cfg))
+    app = create_app(service, token=token, loopback=True)
+    with ServerThread(app, service) as srv:
+        yield Served(srv.url, service, mem, token)
+
+
+@pytest.fixture
+def served(tmp_path) -> Iterator[Served]:
+    yield from serve_memory(make_memory(tmp_path / "scene.mem"))
+
+
+@pytest.fixture
+def served_token(tmp_path) -> Iterator[Served]:
+    yield from serve_memory(make_memory(tmp_path / "scene.mem"), token=TOKEN)

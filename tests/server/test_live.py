@@ -1,0 +1,222 @@
+"""Live adds under load: one writer, searches meanwhile, and no acknowledged memory lost."""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+
+import ravenmem
+from ravenmem.ingest.keyframes import KeyframeConfig
+from ravenmem.server.live import BusyError, LiveWriter
+from ravenmem.types import Pose
+from tests.conftest import ColorEmbedder, solid
+from tests.server.conftest import SCENE, T0, Served, make_memory
+
+REPO = Path(__file__).resolve().parents[2]
+COLOURS = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0), (0, 255, 255), (255, 0, 255)]
+
+
+def png(i: int) -> bytes:
+    buf = io.BytesIO()
+    Image.new("RGB", (24, 16), COLOURS[i % len(COLOURS)]).save(buf, "PNG")
+    return buf.getvalue()
+
+
+def add(c: httpx.Client, i: int, source: str) -> httpx.Response:
+    return c.post(
+        "/memories",
+        files={"image": ("f.png", png(i), "image/png")},
+        data={"x": str(100 + i), "y": str(len(source)), "t": str(T0 + 1000 + i), "source": source},
+    )
+
+
+def test_concurrent_adds_and_searches(served: Served):
+    errors: list[str] = []
+    acked: dict[int, tuple[float, float]] = {}
+    searches = [0]
+    stop = threading.Event()
+    lock = threading.Lock()
+
+    def adder(source: str) -> None:
+        with served.client() as c:
+            for i in range(15):
+                r = add(c, i, source)
+                if r.status_code != 201:
+                    errors.append(f"add {r.status_code} {r.text}")
+                    continue
+                m = r.json()["memory"]
+                with lock:
+                    acked[m["id"]] = (m["x"], m["y"])
+
+    def searcher(n: int) -> None:
+        with served.client() as c:
+            while not stop.is_set():
+                for path, params in (
+                    ("/search/text", {"q": "red", "k": 5}),
+                    ("/search/time", {"t": "+0s", "k": 5}),
+                    ("/search/position", {"x": 105, "y": 3, "k": 3}),
+                ):
+                    r = c.get(path, params=params)
+                    if r.status_code != 200:
+                        errors.append(f"search {r.status_code} {r.text}")
+                    with lock:
+                        searches[0] += 1
+
+    adders = [threading.Thread(target=adder, args=(s,)) for s in ("cam_a", "cam_bb", "cam_ccc")]
+    readers = [threading.Thread(target=searcher, args=(n,)) for n in range(3)]
+    for th in readers + adders:
+        th.start()
+    for th in adders:
+        th.join(120)
+    stop.set()
+    for th in readers:
+        th.join(60)
+    assert errors == []
+    assert len(acked) == 45 and searches[0] > 10
+    assert served.mem.count() == len(SCENE) + 45
+    recs = {r.id: r for r in served.mem.get(sorted(acked))}
+    assert {i: (r.pose.x, r.pose.y) for i, r in recs.items()} == acked
+    # each source kept its own order (its frame_index counts its frames)
+    for source in ("cam_a", "cam_bb", "cam_ccc"):
+        mine = sorted((r.t, r.frame_index) for r in recs.values() if r.source == source)
+        assert [fi for _, fi in mine] == list(range(15))
+
+
+def test_writer_bounds_its_queue_and_stops_cleanly(tmp_path):
+    mem = make_memory(tmp_path / "m.mem")
+
+    class Slow(ColorEmbedder):
+        def embed_images(self, images):
+            time.sleep(0.2)
+            return super().embed_images(images)
+
+    mem._embedder = Slow()
+    w = LiveWriter(mem, KeyframeConfig(), max_pending=2, batch=1).start()
+    futures = []
+    with pytest.raises(BusyError, match="waiting"):
+        for i in range(10):
+            futures.append(w.submit(solid("red"), Pose(0, 0), T0 + 2000 + i))
+    assert 2 <= len(futures) <= 3  # two queued (plus, perhaps, one the writer took already)
+    w.close()
+    assert all(f.result(10).stored for f in futures)  # queued frames are stored before it stops
+    with pytest.raises(ravenmem.errors.InputError, match="closing"):
+        w.submit(solid("red"), Pose(0, 0), T0 + 3000)
+    with pytest.raises(ravenmem.errors.InputError, match="RGB"):
+        LiveWriter(mem).start().submit(np.zeros((4, 4), np.uint8), Pose(0, 0), T0)
+    mem.close()
+
+
+def serve_subprocess(mem_path: Path, *extra: str) -> tuple[subprocess.Popen[str], str]:
+    env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
+    env.pop("RAVENMEM_TOKEN", None)
+    proc = subprocess.Popen(
+        [sys.executable, str(REPO / "tests" / "server" / "serve_color.py"), "serve", "--memory", str(mem_path),
+         "--port", "0", "--log-level", "warning", *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    m = re.search(r"at (http://127\.0\.0\.1:\d+)/", line)
+    if m is None:
+        proc.kill()
+        raise AssertionError(f"no URL in {line!r}: {proc.stderr.read() if proc.stderr else ''}")
+    url = m.group(1)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(url + "/health", timeout=2).status_code == 200:
+                return proc, url
+        except httpx.HTTPError:
+            time.sleep(0.1)
+    proc.kill()
+    raise AssertionError("the service did not answer /health")
+
+
+def test_sigkill_right_after_acknowledged_adds_loses_none(tmp_path):
+    path = tmp_path / "m.mem"
+    make_memory(path).close()
+    proc, url = serve_subprocess(path)
+    acked: dict[int, float] = {}
+    try:
+        with httpx.Client(base_url=url, timeout=30) as c:
+            for i in range(25):
+                r = add(c, i, "robot")
+                assert r.status_code == 201, r.text
+                acked[r.json()["id"]] = r.json()["memory"]["x"]
+        proc.send_signal(signal.SIGKILL)  # no chance to flush, close or save anything
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    mem = ravenmem.open(path)
+    try:
+        assert mem.count() == len(SCENE) + 25
+        assert {r.id: r.pose.x for r in mem.get(sorted(acked))} == acked
+    finally:
+        mem.close()
+
+
+def test_sigkill_during_a_stream_of_adds_keeps_every_acknowledged_one(tmp_path):
+    path = tmp_path / "m.mem"
+    make_memory(path).close()
+    proc, url = serve_subprocess(path)
+    acked: list[int] = []
+    failed = threading.Event()
+
+    def stream() -> None:
+        with httpx.Client(base_url=url, timeout=30) as c:
+            for i in range(10_000):
+                try:
+                    r = add(c, i, "robot")
+                except httpx.HTTPError:
+                    failed.set()
+                    return
+                acked.append(r.json()["id"])
+
+    th = threading.Thread(target=stream, daemon=True)
+    th.start()
+    while len(acked) < 30:
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(30)
+    th.join(30)
+    assert failed.is_set()
+    mem = ravenmem.open(path)
+    try:
+        n = mem.count()
+        assert n >= len(SCENE) + len(acked)  # a frame stored but not yet answered may be there too
+        assert len(mem.get(acked)) == len(acked)
+    finally:
+        mem.close()
+
+
+def test_sigterm_stores_the_queue_and_notes_the_live_counts(tmp_path):
+    path = tmp_path / "m.mem"
+    make_memory(path).close()
+    proc, url = serve_subprocess(path)
+    with httpx.Client(base_url=url, timeout=30) as c:
+        for i in range(4):
+            assert add(c, i, "robot").status_code == 201
+        assert add(c, 0, "robot").json()["skipped"] == "non-monotonic timestamp"
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(60) in (0, -signal.SIGTERM)  # uvicorn re-raises the signal after a clean stop
+    mem = ravenmem.open(path)
+    try:
+        assert mem.count() == len(SCENE) + 4
+        live = [r for r in mem.manifest["ingests"] if r.get("source") == "live"]
+        assert live and live[-1]["frames_seen"] == 5 and live[-1]["kept"] == 4
+        assert live[-1]["skipped"] == {"non-monotonic timestamp": 1}
+    finally:
+        mem.close()

@@ -7,7 +7,12 @@ test_serve_cli.py.
 
 from __future__ import annotations
 
+import os
+import re
 import socket
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -28,6 +33,7 @@ from ravenmem.server.service import Service, ServiceConfig
 from ravenmem.types import Frame, Pose
 from tests.conftest import ColorEmbedder, solid
 
+REPO = Path(__file__).resolve().parents[2]
 T0 = 1_700_000_000.0
 TOKEN = "s3cret-token-for-tests-0123456789"
 # (colour, x, y): a walk along x with a few colours repeated
@@ -102,3 +108,38 @@ def served(tmp_path) -> Iterator[Served]:
 @pytest.fixture
 def served_token(tmp_path) -> Iterator[Served]:
     yield from serve_memory(make_memory(tmp_path / "scene.mem"), token=TOKEN)
+
+
+def serve_subprocess(
+    mem_path: Path, *extra: str, colour: bool = True, health_token: str | None = None
+) -> tuple[subprocess.Popen[str], str]:
+    """`ravenmem serve --port 0` in a subprocess (with the colour test embedder registered unless
+    `colour=False`); returns it and its URL once /health answers. Its log goes to a file (a pipe
+    nobody reads could fill up and stop it)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("RAVENMEM_TOKEN", "RAVENMEM_SERVER")}
+    env["PYTHONPATH"] = f"{REPO / 'src'}{os.pathsep}{REPO}"
+    entry = [str(REPO / "tests" / "server" / "serve_color.py")] if colour else ["-m", "ravenmem.cli.main"]
+    log = tempfile.TemporaryFile("w+")  # noqa: SIM115 - lives as long as the process
+    proc = subprocess.Popen(
+        [sys.executable, *entry, "serve", "--memory", str(mem_path), "--port", "0", "--log-level", "warning", *extra],
+        stdout=subprocess.PIPE, stderr=log, text=True, env=env,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    m = re.search(r"at (http://127\.0\.0\.1:\d+)/", line)
+    if m is None:
+        proc.kill()
+        proc.wait()
+        log.seek(0)
+        raise AssertionError(f"no URL in {line!r}: {log.read()[-2000:]}")
+    url = m.group(1)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            auth = {"Authorization": f"Bearer {health_token}"} if health_token else {}
+            if httpx.get(url + "/health", headers=auth, timeout=2).status_code == 200:
+                return proc, url
+        except httpx.HTTPError:
+            time.sleep(0.1)
+    proc.kill()
+    raise AssertionError("the service did not answer /health")

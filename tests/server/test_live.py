@@ -3,14 +3,9 @@
 from __future__ import annotations
 
 import io
-import os
-import re
 import signal
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import httpx
 import numpy as np
@@ -22,9 +17,8 @@ from ravenmem.ingest.keyframes import KeyframeConfig
 from ravenmem.server.live import BusyError, LiveWriter
 from ravenmem.types import Pose
 from tests.conftest import ColorEmbedder, solid
-from tests.server.conftest import SCENE, T0, Served, make_memory
+from tests.server.conftest import SCENE, T0, Served, make_memory, serve_subprocess
 
-REPO = Path(__file__).resolve().parents[2]
 COLOURS = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0), (0, 255, 255), (255, 0, 255)]
 
 
@@ -118,32 +112,6 @@ def test_writer_bounds_its_queue_and_stops_cleanly(tmp_path):
     mem.close()
 
 
-def serve_subprocess(mem_path: Path, *extra: str) -> tuple[subprocess.Popen[str], str]:
-    env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
-    env.pop("RAVENMEM_TOKEN", None)
-    proc = subprocess.Popen(
-        [sys.executable, str(REPO / "tests" / "server" / "serve_color.py"), "serve", "--memory", str(mem_path),
-         "--port", "0", "--log-level", "warning", *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-    )  # fmt: skip
-    assert proc.stdout is not None
-    line = proc.stdout.readline()
-    m = re.search(r"at (http://127\.0\.0\.1:\d+)/", line)
-    if m is None:
-        proc.kill()
-        raise AssertionError(f"no URL in {line!r}: {proc.stderr.read() if proc.stderr else ''}")
-    url = m.group(1)
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(url + "/health", timeout=2).status_code == 200:
-                return proc, url
-        except httpx.HTTPError:
-            time.sleep(0.1)
-    proc.kill()
-    raise AssertionError("the service did not answer /health")
-
-
 def test_sigkill_right_after_acknowledged_adds_loses_none(tmp_path):
     path = tmp_path / "m.mem"
     make_memory(path).close()
@@ -220,3 +188,24 @@ def test_sigterm_stores_the_queue_and_notes_the_live_counts(tmp_path):
         assert live[-1]["skipped"] == {"non-monotonic timestamp": 1}
     finally:
         mem.close()
+
+
+def test_a_robot_can_start_from_an_empty_memory(tmp_path):
+    path = tmp_path / "new.mem"
+    proc, url = serve_subprocess(path, "--create", "--embedder", "test-color", "--no-ocr")
+    try:
+        with httpx.Client(base_url=url, timeout=30) as c:
+            assert c.get("/health").json()["memories"] == 0
+            empty = c.get("/search/text", params={"q": "red"})
+            assert empty.status_code == 400 and "is empty" in empty.json()["error"]
+            assert str(tmp_path) not in empty.text  # the folder's name only, not where it lies
+            assert c.get("/trajectory").json()["points"] == []
+            for i in range(3):
+                assert add(c, i, "robot").status_code == 201
+            hits = c.get("/search/text", params={"q": "red", "k": 1}).json()["results"]
+            assert hits[0]["id"] == 1 and hits[0]["offset_s"] == 0.0
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(60)
+    with ravenmem.open(path) as mem:
+        assert mem.count() == 3 and mem.manifest["embedder"] == "test-color" and not mem.ocr_enabled

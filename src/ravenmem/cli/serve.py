@@ -54,6 +54,11 @@ def serve(
     max_upload_mb: Annotated[float, typer.Option(help="largest request body (uploads), MiB")] = 16.0,
     timeout: Annotated[float, typer.Option(help="seconds a search, question or add may take")] = 120.0,
     read_only: Annotated[bool, typer.Option("--read-only", help="no live adds")] = False,
+    create: Annotated[
+        bool, typer.Option("--create", help="start a new, empty memory when DIR holds none")
+    ] = False,
+    embedder: Annotated[str, typer.Option(help="with --create: the new memory's embedder")] = "offline",
+    ocr: Annotated[bool, typer.Option(help="with --create: read text in live frames (slower)")] = True,
     log_level: Annotated[str, typer.Option(help="critical | error | warning | info | debug")] = "info",
 ) -> None:
     """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds."""
@@ -70,7 +75,8 @@ def serve(
         timeout_s=timeout,
         writable=not read_only,
     )
-    run_serve(memory, host=host, port=port, token=token or None, cfg=cfg, log_level=log_level)
+    new = {"embedder": embedder, "ocr": ocr} if create else None
+    run_serve(memory, host=host, port=port, token=token or None, cfg=cfg, log_level=log_level, create=new)
 
 
 def mcp(

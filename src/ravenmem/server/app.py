@@ -15,6 +15,7 @@ import math
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from importlib import resources
+from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 from fastapi import FastAPI, File, Form, Query, Request, UploadFile
@@ -94,7 +95,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         lifespan=lifespan,
     )
     app.add_middleware(Guard, token=token, loopback=loopback, max_body=cfg.max_upload_bytes)
-    _errors(app)
+    _errors(app, service.mem.path)
 
     def image_url_for(request: Request) -> Callable[[MemoryRecord], str | None]:
         base = str(request.base_url).rstrip("/")
@@ -111,7 +112,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
     @app.get("/health", tags=["status"])
     async def health() -> dict[str, Any]:
         """Up and serving; how many memories it holds."""
-        return {"status": "ok", "memories": service.mem.count()}
+        return {"status": "ok", "memories": await blocking(service.mem.count)}
 
     @app.get("/info", tags=["status"])
     async def info() -> dict[str, Any]:
@@ -213,6 +214,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
     async def events() -> StreamingResponse:
         """Server-sent events: `memory` (a new memory), `skipped` (a frame the keyframe rule
         dropped) and `answer` (a question answered), as they happen."""
+        count = await blocking(service.mem.count)
         try:
             sub = service.bus.subscribe()
         except StreamRefused as e:
@@ -220,7 +222,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
 
         async def stream() -> AsyncIterator[str]:
             with sub:
-                yield _sse("hello", {"type": "hello", "memories": service.mem.count()})
+                yield _sse("hello", {"type": "hello", "memories": count})
                 while True:
                     try:
                         ev = await sub.next(KEEPALIVE_S)
@@ -372,8 +374,15 @@ def _one_line(text: str, limit: int = 300) -> str:
     return line if len(line) <= limit else line[: limit - 3] + "..."
 
 
-def _errors(app: FastAPI) -> None:
-    """Every failure as `{"error": "<one line>"}`: 4xx for the caller's mistakes, a bare 500 else."""
+def _errors(app: FastAPI, folder: Path) -> None:
+    """Every failure as `{"error": "<one line>"}`: 4xx for the caller's mistakes, a bare 500 else.
+    Messages name the memory folder by its name, not by where it lies on this machine."""
+    where = sorted({str(folder), str(folder.resolve())}, key=len, reverse=True)
+
+    def private(message: str) -> str:
+        for w in where:
+            message = message.replace(w, folder.name)
+        return message
 
     def reply(status: int, message: str, headers: dict[str, str] | None = None) -> JSONResponse:
         return JSONResponse({"error": _one_line(message)}, status_code=status, headers=headers)
@@ -384,7 +393,7 @@ def _errors(app: FastAPI) -> None:
 
     @app.exception_handler(RavenmemError)
     async def user_error(request: Request, exc: RavenmemError) -> JSONResponse:
-        return reply(400, str(exc))
+        return reply(400, private(str(exc)))
 
     @app.exception_handler(NotFound)
     async def not_found(request: Request, exc: NotFound) -> JSONResponse:

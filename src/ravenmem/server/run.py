@@ -59,8 +59,12 @@ def serve(
     cfg: ServiceConfig | None = None,
     log_level: str = "info",
     out: TextIO | None = None,
+    create: dict[str, Any] | None = None,
 ) -> None:
-    """Serve a memory until interrupted (Ctrl-C or SIGTERM store what is queued, then close)."""
+    """Serve a memory until interrupted (Ctrl-C or SIGTERM store what is queued, then close).
+
+    `create` (keyword arguments of `ravenmem.create`) makes a new, empty memory when the folder
+    holds none yet: a robot can start from nothing and fill it with live adds."""
     check_bind(host, token)
     require("fastapi", "serve")
     uvicorn = require("uvicorn", "serve")
@@ -71,7 +75,8 @@ def serve(
     cfg = cfg or ServiceConfig()
     sock = listen(host, port)
     try:
-        mem = ravenmem.open(memory)
+        new = create is not None and not (Path(memory) / "memory.json").exists()
+        mem = ravenmem.create(memory, **(create or {})) if new else ravenmem.open(memory)
         service = Service(mem, cfg)
         warm_up(service)
         app = create_app(service, token=token, loopback=is_loopback(host))

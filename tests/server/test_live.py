@@ -183,7 +183,7 @@ def test_sigterm_stores_the_queue_and_notes_the_live_counts(tmp_path):
     mem = ravenmem.open(path)
     try:
         assert mem.count() == len(SCENE) + 4
-        live = [r for r in mem.manifest["ingests"] if r.get("source") == "live"]
+        live = [r for r in mem.manifest.ingests if r.get("source") == "live"]
         assert live and live[-1]["frames_seen"] == 5 and live[-1]["kept"] == 4
         assert live[-1]["skipped"] == {"non-monotonic timestamp": 1}
     finally:
@@ -208,4 +208,4 @@ def test_a_robot_can_start_from_an_empty_memory(tmp_path):
         proc.send_signal(signal.SIGINT)
         proc.wait(60)
     with ravenmem.open(path) as mem:
-        assert mem.count() == 3 and mem.manifest["embedder"] == "test-color" and not mem.ocr_enabled
+        assert mem.count() == 3 and mem.manifest.embedder == "test-color" and not mem.ocr_enabled

@@ -29,7 +29,9 @@ def resolve_server(server: str | None, memory: Path | None) -> str | None:
         raise InputError("give --memory (open it here) or --server (ask a running service), not both")
     url = server or (os.environ.get(ENV_SERVER) if memory is None else None)
     if not url and memory is None:
-        raise InputError(f"give --memory DIR, or --server URL (or set {ENV_SERVER})")
+        raise InputError(
+            f"Missing option '--memory': give --memory DIR, or --server URL (or set {ENV_SERVER}); see --help"
+        )
     return url or None
 
 

@@ -51,6 +51,11 @@ def test_with_the_token_the_routes_answer(served_token: Served):
     assert httpx.get(served_token.url + "/").status_code == 200
     assert httpx.get(served_token.url + "/static/app.js").status_code == 200
     assert httpx.get(served_token.url + "/memories/1/image").status_code == 401
+    spec = httpx.get(served_token.url + "/openapi.json").json()  # /docs offers to send the token
+    assert (
+        spec["security"] == [{"bearer": []}]
+        and spec["components"]["securitySchemes"]["bearer"]["scheme"] == "bearer"
+    )
 
 
 def test_loopback_without_token_refuses_other_host_names_and_origins(served: Served):
@@ -125,3 +130,21 @@ def test_serve_refuses_a_public_address_without_a_token(tmp_path):
         "serve", "--memory", str(tmp_path / "none.mem"), "--host", "0.0.0.0", env={"RAVENMEM_TOKEN": "abc"}
     )
     assert r.returncode == 2 and "at least 16" in r.stderr
+    r = run_cli("serve", "--memory", str(tmp_path / "none.mem"), "--port", "0")
+    assert r.returncode == 2 and "does not exist (pass --create" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_serve_says_when_the_port_is_taken(tmp_path):
+    import socket
+
+    from tests.server.conftest import make_memory
+
+    make_memory(tmp_path / "m.mem").close()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        r = run_cli("serve", "--memory", str(tmp_path / "m.mem"), "--port", str(port))
+    assert (
+        r.returncode == 2 and f"cannot listen on 127.0.0.1:{port}" in r.stderr and "Traceback" not in r.stderr
+    )

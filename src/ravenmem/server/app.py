@@ -1,45 +1,41 @@
-"""The HTTP API (FastAPI): thin routes over `Service`.
+"""The HTTP API (FastAPI): thin routes over `Service`, the page, and `/mcp`.
 
-The search routes are generated from `ravenmem.tools.TOOLS`: each tool's argument model (plus
-`k`) is the route's query model, so an argument added to a tool appears here, checked and
-documented in `/openapi.json`, without editing this file. Every error is a JSON body
-`{"error": "<one line>"}` with a 4xx status (a 500 says only that the log has the details).
+The search routes are generated from the tools table (`search_routes`); errors are one line of
+JSON (`http_errors`); who may call is decided by `security.Guard`.
 """
 
-# no `from __future__ import annotations` here: FastAPI reads the generated query models from
-# the route functions' annotations at run time.
+from __future__ import annotations
+
 import asyncio
 import json
 import logging
 import math
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from importlib import resources
-from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
 from fastapi import FastAPI, File, Form, Query, Request, UploadFile
-from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException
 from starlette.routing import Route
 
-from ..errors import InputError, RavenmemError
-from ..tools import MAX_K, TOOLS, Tool, ToolArgs
+from ..errors import InputError
+from ..tools import MAX_K
 from ..types import MemoryRecord, Pose
 from .events import StreamRefused
+from .http_errors import add_error_handlers
 from .images import decode_base64_image, decode_image
-from .live import BusyError
+from .search_routes import add_search_routes
 from .security import Guard
 from .service import NotFound, Service
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
-SHORT_NAMES = {"q": "query", "t": "time"}  # short query names some clients prefer
 KEEPALIVE_S = 15.0
 STATIC = resources.files("ravenmem.server") / "static"
 
@@ -95,7 +91,9 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         lifespan=lifespan,
     )
     app.add_middleware(Guard, token=token, loopback=loopback, max_body=cfg.max_upload_bytes)
-    _errors(app, service.mem.path)
+    add_error_handlers(app, service.mem.path)
+    if token:
+        _document_bearer(app)
 
     def image_url_for(request: Request) -> Callable[[MemoryRecord], str | None]:
         base = str(request.base_url).rstrip("/")
@@ -120,9 +118,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         return await blocking(service.info)
 
     # ---------------------------------------------------------------- searches (from TOOLS)
-    for tool in TOOLS.values():
-        _search_route(app, tool, service, blocking, image_url_for)
-    _image_upload_route(app, service, blocking, image_url_for)
+    add_search_routes(app, service, blocking, image_url_for)
 
     # ---------------------------------------------------------------- questions
     @app.post("/ask", tags=["ask"])
@@ -132,7 +128,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         if body.image is not None and body.image_memory_id is not None:
             raise InputError("give image or image_memory_id, not both")
         if body.image is not None:
-            picture = decode_base64_image(body.image, cfg.max_pixels)
+            picture = await run_in_threadpool(decode_base64_image, body.image, cfg.max_pixels)
 
         def run() -> dict[str, Any]:
             img = picture
@@ -253,91 +249,25 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
     return app
 
 
-# ---------------------------------------------------------------------------- search routes
-class _Short(BaseModel):
-    """Query-string conveniences: `q`/`t` for `query`/`time`; lists as `1,2,3` or repeated."""
-
-    @model_validator(mode="before")
-    @classmethod
-    def _query_string(cls, data: Any) -> Any:
-        if not isinstance(data, dict):
-            return data
-        data = dict(data)
-        fields = cls.model_fields
-        for short, full in SHORT_NAMES.items():
-            if short in data and full in fields and short not in fields:
-                data.setdefault(full, data.pop(short))
-        for name, f in fields.items():
-            v = data.get(name)
-            if "list" in str(f.annotation) and isinstance(v, list) and all(isinstance(s, str) for s in v):
-                data[name] = [p for s in v for p in s.split(",") if p.strip()]
-        return data
-
-
-def query_model(tool: Tool) -> type[BaseModel]:
-    """The tool's argument model plus `k`, read from the query string."""
-    fields: dict[str, Any] = {
-        "k": (int, Field(5, ge=1, le=MAX_K, description=f"how many results (1 to {MAX_K})")),
-    }
-    from pydantic import create_model
-
-    return create_model(  # type: ignore[call-overload, no-any-return]
-        f"{tool.name}_query", __base__=(tool.args, _Short), __doc__=tool.summary, **fields
-    )
-
-
-def _split(model: BaseModel, tool: Tool) -> tuple[ToolArgs, int]:
-    data = model.model_dump()
-    k = int(data.pop("k"))
-    return tool.validate(data), k
-
-
-def _search_route(
-    app: FastAPI,
-    tool: Tool,
-    service: Service,
-    blocking: Callable[[Callable[[], Any]], Awaitable[Any]],
-    image_url_for: Callable[[Request], Callable[[MemoryRecord], str | None]],
-) -> None:
-    model = query_model(tool)
-
-    async def search(request: Request, params: Annotated[model, Query()]) -> dict[str, Any]:  # type: ignore[valid-type]
-        args, k = _split(params, tool)
-        hits = await blocking(lambda: service.search(tool, args, k))
-        return {"mode": tool.key, "tool": tool.name, "results": service.rows(hits, image_url_for(request))}
-
-    search.__doc__ = f"{tool.description()} (`{tool.name}`: the same JSON as `ravenmem search --json`)"
-    app.get(f"/search/{tool.key}", tags=["search"], name=tool.name, summary=tool.summary)(search)
-
-
-def _image_upload_route(
-    app: FastAPI,
-    service: Service,
-    blocking: Callable[[Callable[[], Any]], Awaitable[Any]],
-    image_url_for: Callable[[Request], Callable[[MemoryRecord], str | None]],
-) -> None:
-    tool = TOOLS["search_image"]
-    model = query_model(tool)
-
-    async def search_upload(
-        request: Request,
-        params: Annotated[model, Query()],  # type: ignore[valid-type]
-        image: Annotated[UploadFile, File(description="the query picture, JPEG or PNG")],
-    ) -> dict[str, Any]:
-        """Memories that look like an uploaded picture (filters as in the query string)."""
-        args, k = _split(params, tool)
-        if getattr(args, "memory_id", None) is not None:
-            raise InputError("give memory_id or an uploaded image, not both")
-        rgb = await run_in_threadpool(decode_image, await image.read(), service.cfg.max_pixels, "image")
-        hits = await blocking(lambda: service.search(tool, args, k, image=rgb))
-        return {"mode": tool.key, "tool": tool.name, "results": service.rows(hits, image_url_for(request))}
-
-    app.post("/search/image", tags=["search"], name="search_image_upload", summary=tool.summary)(
-        search_upload
-    )
-
-
 # ---------------------------------------------------------------------------- helpers
+def _document_bearer(app: FastAPI) -> None:
+    """Say in the OpenAPI description that every route needs the bearer token (so that /docs
+    offers an Authorize button); the Guard middleware is what enforces it."""
+    plain = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            schema = plain()
+            schema.setdefault("components", {})["securitySchemes"] = {
+                "bearer": {"type": "http", "scheme": "bearer"}
+            }
+            schema["security"] = [{"bearer": []}]
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
 def _pose(x: float, y: float, z: float, yaw: float | None, quat: tuple[float | None, ...]) -> Pose:
     given = [q is not None for q in quat]
     try:
@@ -367,59 +297,3 @@ def _sse(kind: str, data: dict[str, Any]) -> str:
 
 def _finite(v: Any) -> Any:
     return None if isinstance(v, float) and not math.isfinite(v) else str(v)
-
-
-def _one_line(text: str, limit: int = 300) -> str:
-    line = " ".join(str(text).split())
-    return line if len(line) <= limit else line[: limit - 3] + "..."
-
-
-def _errors(app: FastAPI, folder: Path) -> None:
-    """Every failure as `{"error": "<one line>"}`: 4xx for the caller's mistakes, a bare 500 else.
-    Messages name the memory folder by its name, not by where it lies on this machine."""
-    where = sorted({str(folder), str(folder.resolve())}, key=len, reverse=True)
-
-    def private(message: str) -> str:
-        for w in where:
-            message = message.replace(w, folder.name)
-        return message
-
-    def reply(status: int, message: str, headers: dict[str, str] | None = None) -> JSONResponse:
-        return JSONResponse({"error": _one_line(message)}, status_code=status, headers=headers)
-
-    @app.exception_handler(BusyError)
-    async def busy(request: Request, exc: BusyError) -> JSONResponse:
-        return reply(503, str(exc), {"Retry-After": "1"})
-
-    @app.exception_handler(RavenmemError)
-    async def user_error(request: Request, exc: RavenmemError) -> JSONResponse:
-        return reply(400, private(str(exc)))
-
-    @app.exception_handler(NotFound)
-    async def not_found(request: Request, exc: NotFound) -> JSONResponse:
-        return reply(404, str(exc))
-
-    @app.exception_handler(RequestValidationError)
-    async def invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
-        errs = exc.errors()
-        if not errs:
-            return reply(422, "invalid request")
-        e = errs[0]
-        loc = [str(p) for p in e.get("loc", ())]
-        if len(loc) > 1 and loc[0] in ("query", "body", "path", "form", "header"):
-            loc = loc[1:]
-        where = ".".join(loc) or "request"
-        return reply(422, f"{where}: {e.get('msg', 'invalid')}")
-
-    @app.exception_handler(HTTPException)
-    async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
-        return reply(exc.status_code, str(exc.detail), dict(exc.headers or {}))
-
-    @app.exception_handler(TimeoutError)
-    async def timeout(request: Request, exc: TimeoutError) -> JSONResponse:
-        return reply(504, "timed out")
-
-    @app.exception_handler(Exception)
-    async def crash(request: Request, exc: Exception) -> JSONResponse:
-        log.error("%s %s failed", request.method, request.url.path, exc_info=exc)
-        return reply(500, "internal error; the service log has the details")

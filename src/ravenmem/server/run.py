@@ -75,8 +75,10 @@ def serve(
     cfg = cfg or ServiceConfig()
     sock = listen(host, port)
     try:
-        new = create is not None and not (Path(memory) / "memory.json").exists()
-        mem = ravenmem.create(memory, **(create or {})) if new else ravenmem.open(memory)
+        exists = (Path(memory) / "memory.json").exists()
+        if not exists and create is None:
+            raise InputError(f"memory {memory} does not exist (pass --create to start an empty one)")
+        mem = ravenmem.open(memory) if exists else ravenmem.create(memory, **(create or {}))
         service = Service(mem, cfg)
         warm_up(service)
         app = create_app(service, token=token, loopback=is_loopback(host))

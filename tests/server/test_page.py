@@ -188,3 +188,34 @@ def test_page_with_a_token_in_the_url_fragment(browser, served_token: Served, tm
     by_css(d, "#search-form button")[0].click()
     wait_for(d, lambda d: loaded_images(d, "#hits .card img") >= 3, "thumbnails fetched with the token")
     assert len(by_css(d, "#map-marks .hit-mark")) >= 3
+
+
+def test_page_draws_the_occupancy_map_under_the_path(browser, served: Served, tmp_path):
+    from ravenmem.nav.grid import MapConfig, OccupancyGrid
+
+    grid = OccupancyGrid(MapConfig(resolution=0.25), origin=(-2.0, -3.0), shape=(40, 64))
+    grid.known[:] = True
+    grid.logodds[:] = -1.0
+    r, c = grid.world_to_cell(6.0, -1.5)
+    grid.logodds[r - 2 : r + 3, c - 2 : c + 3] = 2.0  # a block of wall around (6, -1.5)
+    grid.save(served.mem.path)
+    d = browser
+    d.get(served.url + "/")
+    wait_for(
+        d, lambda d: d.execute_script("return !!(state.map && state.map.img.naturalWidth)"), "the map picture"
+    )
+    d.execute_script("draw()")
+
+    def pixel(x: float, y: float) -> list[int]:
+        return d.execute_script(
+            "const [sx, sy] = toScreen(arguments[0], arguments[1]); const c = document.getElementById('map-canvas');"
+            "const k = window.devicePixelRatio || 1;"
+            "return [...c.getContext('2d').getImageData(Math.round(sx * k), Math.round(sy * k), 1, 1).data];",
+            x,
+            y,
+        )
+
+    wall, floor = pixel(6.3, -1.3), pixel(6.3, 2.3)  # off the metre grid lines
+    assert sum(wall[:3]) < 200 and wall[3] > 0, wall  # dark where the wall is
+    assert sum(floor[:3]) > 600, floor  # light on free floor away from the path
+    screenshot(d, tmp_path, "page-map")

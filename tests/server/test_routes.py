@@ -375,3 +375,42 @@ def test_the_page_and_its_files_are_served(served: Served):
         assert c.get("/static/%2e%2e/memory.json").status_code == 404
         docs = c.get("/docs")
         assert docs.status_code == 200
+
+
+def test_occupancy_map_north_up(served: Served):
+    from ravenmem.nav.grid import MapConfig, OccupancyGrid
+
+    with served.client() as c:
+        none = c.get("/map")
+        assert none.status_code == 404 and "no occupancy map" in one_line_error(none)
+        assert c.get("/map.png").status_code == 404
+        grid = OccupancyGrid(MapConfig(resolution=0.5), origin=(-1.0, -2.0), shape=(8, 12))
+        grid.known[:] = True
+        grid.logodds[:] = -1.0  # free floor
+        row, col = grid.world_to_cell(3.2, 1.1)
+        grid.logodds[row, col] = 2.0  # one wall cell, north-east of the middle
+        grid.save(served.mem.path)
+        meta = c.get("/map").json()
+        assert (
+            meta["extent"] == [-1.0, -2.0, 5.0, 2.0]
+            and meta["resolution"] == 0.5
+            and meta["shape"] == [8, 12]
+        )
+        assert meta["image"] == f"{served.url}/map.png"
+        png_bytes = c.get(meta["image"])
+        assert png_bytes.headers["content-type"] == "image/png"
+    img = np.asarray(Image.open(io.BytesIO(png_bytes.content)).convert("RGB"))
+    assert img.shape == (8, 12, 3)
+    dark = np.argwhere(img.sum(axis=2) < 100)
+    assert dark.tolist() == [[8 - 1 - row, col]]  # picture row 0 is the north edge
+
+
+def test_a_map_file_leading_out_of_the_memory_is_not_read(served: Served, tmp_path):
+    from ravenmem.nav.grid import MapConfig, OccupancyGrid
+
+    outside = tmp_path / "elsewhere"
+    OccupancyGrid(MapConfig(), shape=(4, 4)).save(outside)
+    for name in ("map.json", "map.npz"):
+        (served.mem.path / name).symlink_to(outside / name)
+    with served.client() as c:
+        assert c.get("/map").status_code == 404

@@ -206,6 +206,23 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         """Every memory's [id, t, x, y, yaw], chronological (the page's map)."""
         return await blocking(lambda: service.trajectory(max_points))
 
+    @app.get("/map", tags=["memories"])
+    async def occupancy_map(request: Request) -> dict[str, Any]:
+        """Where the memory's occupancy map lies: `extent` [xmin, ymin, xmax, ymax] in metres,
+        `resolution` (m per cell) and the URL of its picture (north up); 404 without a map."""
+        found = await blocking(service.occupancy_map)
+        if found is None:
+            raise NotFound("this memory has no occupancy map (exploration writes one)")
+        return {**found[1], "image": f"{str(request.base_url).rstrip('/')}/map.png"}
+
+    @app.get("/map.png", tags=["memories"], response_class=Response)
+    async def occupancy_map_png() -> Response:
+        """The occupancy map: unknown grey, free white, explored light blue, occupied black."""
+        found = await blocking(service.occupancy_map)
+        if found is None:
+            raise NotFound("this memory has no occupancy map (exploration writes one)")
+        return Response(found[0], media_type="image/png", headers={"Cache-Control": "no-cache"})
+
     @app.get("/events", tags=["memories"], response_class=StreamingResponse)
     async def events() -> StreamingResponse:
         """Server-sent events: `memory` (a new memory), `skipped` (a frame the keyframe rule

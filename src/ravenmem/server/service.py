@@ -9,6 +9,7 @@ paths that never leave the memory folder.
 
 from __future__ import annotations
 
+import io
 import logging
 import threading
 from collections.abc import Callable
@@ -17,12 +18,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
 from ..agent.base import METHODS
 from ..agent.config import VLMConfig
 from ..agent.schema import Answer
 from ..errors import EmptyMemoryError, InputError
 from ..ingest.keyframes import KeyframeConfig
+from ..manifest import confine
 from ..memory import Memory
 from ..tools import Tool, ToolArgs, check_k, hit_json
 from ..types import Hit, MemoryRecord
@@ -82,6 +85,7 @@ class Service:
         )
         self._traj_lock = threading.Lock()
         self._traj: tuple[int, list[list[float]]] | None = None
+        self._map: tuple[int, tuple[bytes, dict[str, Any]]] | None = None
         self._image_url: ImageUrl = lambda rec: None
 
     # ---------------------------------------------------------------- lifecycle
@@ -169,6 +173,38 @@ class Service:
         if pts and picked[-1] is not pts[-1]:
             picked.append(pts[-1])
         return {"count": len(pts), "stride": stride, "fields": ["id", "t", "x", "y", "yaw"], "points": picked}
+
+    def occupancy_map(self) -> tuple[bytes, dict[str, Any]] | None:
+        """The memory's occupancy map (`map.json` + `map.npz`, written by exploration) as a PNG,
+        north up, and the rectangle it covers in metres; None when the memory has no map.
+        Rendered again only when the map file changes."""
+        files = [confine(self.mem.path, name) for name in ("map.json", "map.npz")]
+        if any(f is None or not f.is_file() for f in files):  # absent, or a link leading out
+            return None
+        try:
+            stamp = files[1].stat().st_mtime_ns  # type: ignore[union-attr]
+        except OSError:
+            return None
+        with self._traj_lock:
+            if self._map is not None and self._map[0] == stamp:
+                return self._map[1]
+        from ..nav.grid import OccupancyGrid
+        from ..nav.render import grid_rgb
+
+        try:
+            grid = OccupancyGrid.load(self.mem.path)
+        except (InputError, OSError, ValueError) as e:
+            log.warning("the memory's map cannot be read: %s", e)
+            return None
+        rgb = np.clip(grid_rgb(grid)[::-1] * 255.0 + 0.5, 0, 255).astype(np.uint8)  # row 0 = north
+        buf = io.BytesIO()
+        Image.fromarray(rgb).save(buf, "PNG", optimize=True)
+        xmin, xmax, ymin, ymax = grid.extent()
+        h, w = grid.shape
+        meta = {"resolution": grid.resolution, "shape": [h, w], "extent": [xmin, ymin, xmax, ymax]}
+        with self._traj_lock:
+            self._map = (stamp, (buf.getvalue(), meta))
+        return self._map[1]
 
     def info(self) -> dict[str, Any]:
         """`Memory.info()` as a client may see it: the folder's name, not its path on this machine."""

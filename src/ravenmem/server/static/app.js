@@ -12,6 +12,7 @@ const state = {
   answer: null,        // last answer {x, y, yaw}
   live: [],            // ids added live (newest last)
   view: null,          // {cx, cy, scale} world centre and pixels per metre
+  map: null,           // the occupancy map: {extent: [xmin, ymin, xmax, ymax], img}
   t0: null,
 };
 const $ = (id) => document.getElementById(id);
@@ -61,6 +62,9 @@ function fit() {
   const xs = pts.map((p) => p[2]).concat(state.hits.map((h) => h.x));
   const ys = pts.map((p) => p[3]).concat(state.hits.map((h) => h.y));
   if (state.answer) { xs.push(state.answer.x); ys.push(state.answer.y); }
+  if (!xs.length && state.map) {
+    const e = state.map.extent; xs.push(e[0], e[2]); ys.push(e[1], e[3]);
+  }
   const { width, height } = size();
   if (!xs.length) { state.view = { cx: 0, cy: 0, scale: 50 }; return; }
   const minx = Math.min(...xs), maxx = Math.max(...xs), miny = Math.min(...ys), maxy = Math.max(...ys);
@@ -88,6 +92,14 @@ function draw() {
   const ctx = canvas.getContext("2d");
   ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
   ctx.clearRect(0, 0, width, height);
+  if (state.map && state.map.img.complete && state.map.img.naturalWidth) {
+    const e = state.map.extent;
+    const [x0, y0] = toScreen(e[0], e[3]), [x1, y1] = toScreen(e[2], e[1]);
+    ctx.imageSmoothingEnabled = false;
+    ctx.globalAlpha = 0.85;
+    ctx.drawImage(state.map.img, x0, y0, x1 - x0, y1 - y0);
+    ctx.globalAlpha = 1;
+  }
   drawGrid(ctx, width, height);
   const pts = state.points;
   if (pts.length) {
@@ -327,6 +339,17 @@ async function load() {
   const traj = await api("/trajectory");
   state.points = traj.points;
   fit(); draw();
+  loadMap();
+}
+
+async function loadMap() {
+  try {
+    const m = await api("/map");
+    const img = new Image();
+    img.onload = draw;
+    img.src = await imageSrc(m.image);
+    state.map = { extent: m.extent, img };
+  } catch (e) { state.map = null; }  // 404: this memory has no map
 }
 
 function takeToken() {

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import io
+import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -209,3 +212,40 @@ def test_a_robot_can_start_from_an_empty_memory(tmp_path):
         proc.wait(60)
     with ravenmem.open(path) as mem:
         assert mem.count() == 3 and mem.manifest.embedder == "test-color" and not mem.ocr_enabled
+
+
+def test_the_service_is_the_one_writer_of_its_memory(tmp_path):
+    from tests.server.conftest import REPO
+
+    path = tmp_path / "m.mem"
+    make_memory(path).close()
+    proc, url = serve_subprocess(path)
+    try:
+        env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
+        second = subprocess.run(
+            [sys.executable, str(REPO / "tests" / "server" / "serve_color.py"), "serve", "--memory", str(path),
+             "--port", "0"],
+            capture_output=True, text=True, env=env, timeout=120,
+        )  # fmt: skip
+        assert second.returncode == 2 and "Traceback" not in second.stderr
+        assert f"pid {proc.pid}" in second.stderr and "one writer at a time" in second.stderr
+        with pytest.raises(ravenmem.errors.MemoryBusyError):  # nor can this process write to it
+            ravenmem.open(path, writable=True)
+        reader, reader_url = serve_subprocess(path, "--read-only")  # readers may run beside it
+        try:
+            with httpx.Client(timeout=30) as c:
+                with httpx.Client(base_url=url, timeout=30) as writer:
+                    assert add(writer, 0, "robot").status_code == 201
+                # a reader serves the memory as it was when it opened (the store reads once)
+                assert c.get(reader_url + "/health").json()["memories"] == len(SCENE)
+                refused = c.post(reader_url + "/memories", files={"image": ("f.png", png(1), "image/png")},
+                                 data={"x": "1", "y": "1"})  # fmt: skip
+                assert refused.status_code == 400 and "read-only" in refused.json()["error"]
+        finally:
+            reader.send_signal(signal.SIGINT)
+            reader.wait(60)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(60)
+    with ravenmem.open(path, writable=True) as mem:  # released when the service stopped
+        assert mem.is_writer and mem.count() == len(SCENE) + 1

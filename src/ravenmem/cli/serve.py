@@ -53,7 +53,8 @@ def serve(
     top_k: TopKOpt = 5,
     max_upload_mb: Annotated[float, typer.Option(help="largest request body (uploads), MiB")] = 16.0,
     timeout: Annotated[float, typer.Option(help="seconds a search, question or add may take")] = 120.0,
-    read_only: Annotated[bool, typer.Option("--read-only", help="no live adds")] = False,
+    read_only: Annotated[bool, typer.Option("--read-only", help="no live adds (and no writer lock)")] = False,
+    wait: Annotated[float, typer.Option(help="seconds to wait for another writer of the memory")] = 0.0,
     create: Annotated[
         bool, typer.Option("--create", help="start a new, empty memory when DIR holds none")
     ] = False,
@@ -76,7 +77,9 @@ def serve(
         writable=not read_only,
     )
     new = {"embedder": embedder, "ocr": ocr} if create else None
-    run_serve(memory, host=host, port=port, token=token or None, cfg=cfg, log_level=log_level, create=new)
+    run_serve(
+        memory, host=host, port=port, token=token or None, cfg=cfg, log_level=log_level, create=new, wait=wait
+    )
 
 
 def mcp(

@@ -60,11 +60,14 @@ def serve(
     log_level: str = "info",
     out: TextIO | None = None,
     create: dict[str, Any] | None = None,
+    wait: float = 0.0,
 ) -> None:
     """Serve a memory until interrupted (Ctrl-C or SIGTERM store what is queued, then close).
 
     `create` (keyword arguments of `ravenmem.create`) makes a new, empty memory when the folder
-    holds none yet: a robot can start from nothing and fill it with live adds."""
+    holds none yet: a robot can start from nothing and fill it with live adds. Unless read-only,
+    the service holds the memory's writer lock for its whole life (`wait` seconds for another
+    writer to finish; a busy memory is a one-line error naming the holder)."""
     check_bind(host, token)
     require("fastapi", "serve")
     uvicorn = require("uvicorn", "serve")
@@ -78,7 +81,10 @@ def serve(
         exists = (Path(memory) / "memory.json").exists()
         if not exists and create is None:
             raise InputError(f"memory {memory} does not exist (pass --create to start an empty one)")
-        mem = ravenmem.open(memory) if exists else ravenmem.create(memory, **(create or {}))
+        if exists:
+            mem = ravenmem.open(memory, writable=cfg.writable, wait=wait or False)
+        else:
+            mem = ravenmem.create(memory, **(create or {}), wait=wait or False)
         service = Service(mem, cfg)
         warm_up(service)
         app = create_app(service, token=token, loopback=is_loopback(host))

@@ -90,7 +90,10 @@ class Service:
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> Service:
+        """Take the memory's writer lock (held until `close`) and start the writer thread; a
+        read-only service takes no lock and may run beside a writer."""
         if self.writer is not None:
+            self.mem.acquire_writer(wait=False)
             self.writer.start()
         return self
 

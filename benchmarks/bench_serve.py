@@ -51,10 +51,27 @@ import ravenmem  # noqa: E402
 
 TUM = ROOT.parent / "shared" / "data" / "tum_fr1_rpy"
 QUERIES = [
-    "a red backpack", "a computer keyboard", "a coffee mug", "an exit sign", "a office chair", "a laptop",
-    "a whiteboard", "a potted plant", "a water bottle", "a door", "a printer", "stairs", "a fire extinguisher",
-    "a person", "a monitor on a desk", "a book shelf", "a trash can", "a sofa", "a kitchen sink", "a window",
-]  # fmt: skip
+    "a red backpack",
+    "a computer keyboard",
+    "a coffee mug",
+    "an exit sign",
+    "a office chair",
+    "a laptop",
+    "a whiteboard",
+    "a potted plant",
+    "a water bottle",
+    "a door",
+    "a printer",
+    "stairs",
+    "a fire extinguisher",
+    "a person",
+    "a monitor on a desk",
+    "a book shelf",
+    "a trash can",
+    "a sofa",
+    "a kitchen sink",
+    "a window",
+]
 
 
 def pct(values: list[float], q: float) -> float:
@@ -80,10 +97,22 @@ def start_service(path: Path) -> tuple[subprocess.Popen[str], str]:
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
     env.pop("RAVENMEM_TOKEN", None)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ravenmem.cli.main", "serve", "--memory", str(path), "--port", "0",
-         "--log-level", "warning"],
-        stdout=subprocess.PIPE, text=True, env=env,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "ravenmem.cli.main",
+            "serve",
+            "--memory",
+            str(path),
+            "--port",
+            "0",
+            "--log-level",
+            "warning",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     assert proc.stdout is not None
     line = proc.stdout.readline()
     m = re.search(r"at (http://127\.0\.0\.1:\d+)/ ", line)
@@ -133,12 +162,16 @@ def latency(path: Path, url: str, reps: int, pid: int) -> dict[str, float]:
     pool.shutdown()
     mem.close()
     return {
-        "local_p50_ms": pct(local, 50), "local_p99_ms": pct(local, 99),
-        "local_cpu_mean_ms": float(np.mean(local_cpu)), "http_server_cpu_mean_ms": 1000 * served_cpu / reps,
-        "http_p50_ms": pct(remote, 50), "http_p99_ms": pct(remote, 99),
-        "ratio_p50": pct(remote, 50) / pct(local, 50), "ratio_p99": pct(remote, 99) / pct(local, 99),
+        "local_p50_ms": pct(local, 50),
+        "local_p99_ms": pct(local, 99),
+        "local_cpu_mean_ms": float(np.mean(local_cpu)),
+        "http_server_cpu_mean_ms": 1000 * served_cpu / reps,
+        "http_p50_ms": pct(remote, 50),
+        "http_p99_ms": pct(remote, 99),
+        "ratio_p50": pct(remote, 50) / pct(local, 50),
+        "ratio_p99": pct(remote, 99) / pct(local, 99),
         "ratio_cpu": 1000 * served_cpu / reps / float(np.mean(local_cpu)),
-    }  # fmt: skip
+    }
 
 
 def frames(n: int) -> list[bytes]:
@@ -179,9 +212,14 @@ def load(url: str, seconds: float, clients: int, rate: float, t_last: float, pid
                     r = c.post(
                         "/memories",
                         files={"image": ("f.jpg", pictures[i % len(pictures)], "image/jpeg")},
-                        data={"x": f"{x}", "y": "50", "yaw": "0.1", "t": f"{t_last + 1 + i / rate}",
-                              "source": f"camera{cam}"},
-                    )  # fmt: skip
+                        data={
+                            "x": f"{x}",
+                            "y": "50",
+                            "yaw": "0.1",
+                            "t": f"{t_last + 1 + i / rate}",
+                            "source": f"camera{cam}",
+                        },
+                    )
                     if r.status_code == 201:
                         with lock:
                             acked[r.json()["id"]] = x
@@ -287,12 +325,18 @@ def main() -> None:
     try:
         lat = latency(path, url, args.reps, proc.pid)
         print(f"\nwarm text search at {n0:,} memories (k=10, {args.reps} calls each way)")
-        print(f"  in-process  p50 {lat['local_p50_ms']:.1f} ms  p99 {lat['local_p99_ms']:.1f} ms  "
-              f"CPU {lat['local_cpu_mean_ms']:.1f} ms/call")  # fmt: skip
-        print(f"  HTTP        p50 {lat['http_p50_ms']:.1f} ms  p99 {lat['http_p99_ms']:.1f} ms  "
-              f"service CPU {lat['http_server_cpu_mean_ms']:.1f} ms/call")  # fmt: skip
-        print(f"  ratio       p50 {lat['ratio_p50']:.2f}x  p99 {lat['ratio_p99']:.2f}x  CPU {lat['ratio_cpu']:.2f}x"
-              "   (target p50 <= 3x)")  # fmt: skip
+        print(
+            f"  in-process  p50 {lat['local_p50_ms']:.1f} ms  p99 {lat['local_p99_ms']:.1f} ms  "
+            f"CPU {lat['local_cpu_mean_ms']:.1f} ms/call"
+        )
+        print(
+            f"  HTTP        p50 {lat['http_p50_ms']:.1f} ms  p99 {lat['http_p99_ms']:.1f} ms  "
+            f"service CPU {lat['http_server_cpu_mean_ms']:.1f} ms/call"
+        )
+        print(
+            f"  ratio       p50 {lat['ratio_p50']:.2f}x  p99 {lat['ratio_p99']:.2f}x  CPU {lat['ratio_cpu']:.2f}x"
+            "   (target p50 <= 3x)"
+        )
         res = load(url, args.seconds, args.clients, args.rate, t_last, proc.pid)
     finally:
         proc.send_signal(signal.SIGINT)
@@ -303,20 +347,28 @@ def main() -> None:
     print(
         f"\nload: {args.clients} searching clients + cameras adding {args.rate:g} frames/s for {res['seconds']} s"
     )
-    print(f"  queries/s   {res['queries_per_s']:.1f}  (text {res['text_per_s']:.1f}, time {res['time_per_s']:.1f}, "
-          f"position {res['position_per_s']:.1f})   target >= 50")  # fmt: skip
+    print(
+        f"  queries/s   {res['queries_per_s']:.1f}  (text {res['text_per_s']:.1f}, time {res['time_per_s']:.1f}, "
+        f"position {res['position_per_s']:.1f})   target >= 50"
+    )
     for kind in ("text", "time", "position"):
         print(f"  {kind:<9}   p50 {res[f'{kind}_p50_ms']:.1f} ms  p99 {res[f'{kind}_p99_ms']:.1f} ms")
     print(f"  all         p50 {res['p50_ms']:.1f} ms  p99 {res['p99_ms']:.1f} ms")
     cores = float(res["service_cores"])  # type: ignore[arg-type]
     per_q = float(res["service_cpu_ms_per_query"])  # type: ignore[arg-type]
-    print(f"  service     used {cores:.2f} cores, {per_q:.1f} ms CPU per query (adds included): "
-          f"2 free cores would carry ~{2000 / per_q:.0f} queries/s")  # fmt: skip
+    print(
+        f"  service     used {cores:.2f} cores, {per_q:.1f} ms CPU per query (adds included): "
+        f"2 free cores would carry ~{2000 / per_q:.0f} queries/s"
+    )
     print(f"  errors      {res['errors']}  {res['error_samples'] if res['errors'] else ''}")
-    print(f"  frames      {res['frames_acked']} acknowledged ({res['frames_per_s']:.2f}/s), add p50 "
-          f"{res['add_p50_ms']:.0f} ms p99 {res['add_p99_ms']:.0f} ms")  # fmt: skip
-    print(f"  reopened    {check['count']:,} memories, expected {check['expected']:,}: "
-          f"{'every acknowledged frame stored' if check['all_acked_stored'] else 'MISSING FRAMES'}")  # fmt: skip
+    print(
+        f"  frames      {res['frames_acked']} acknowledged ({res['frames_per_s']:.2f}/s), add p50 "
+        f"{res['add_p50_ms']:.0f} ms p99 {res['add_p99_ms']:.0f} ms"
+    )
+    print(
+        f"  reopened    {check['count']:,} memories, expected {check['expected']:,}: "
+        f"{'every acknowledged frame stored' if check['all_acked_stored'] else 'MISSING FRAMES'}"
+    )
     print(f"load average after: {os.getloadavg()[0]:.1f}")
     print(json.dumps({"latency": lat, "load": res, "verify": check}, default=float))
     if args.keep is None:

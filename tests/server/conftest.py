@@ -38,18 +38,29 @@ T0 = 1_700_000_000.0
 TOKEN = "s3cret-token-for-tests-0123456789"
 # (colour, x, y): a walk along x with a few colours repeated
 SCENE = [
-    ("green", 0.0, 0.0), ("red", 1.0, 0.0), ("yellow", 2.0, 0.0), ("blue", 3.0, 1.0), ("white", 4.0, 1.0),
-    ("cyan", 5.0, 2.0), ("blue", 6.0, 2.0), ("magenta", 7.0, 3.0), ("red", 8.0, 3.0), ("green", 9.0, 3.0),
-    ("blue", 10.0, 4.0), ("black", 11.0, 4.0),
-]  # fmt: skip
+    ("green", 0.0, 0.0),
+    ("red", 1.0, 0.0),
+    ("yellow", 2.0, 0.0),
+    ("blue", 3.0, 1.0),
+    ("white", 4.0, 1.0),
+    ("cyan", 5.0, 2.0),
+    ("blue", 6.0, 2.0),
+    ("magenta", 7.0, 3.0),
+    ("red", 8.0, 3.0),
+    ("green", 9.0, 3.0),
+    ("blue", 10.0, 4.0),
+    ("black", 11.0, 4.0),
+]
 
 
 def make_memory(path: Path) -> ravenmem.Memory:
     mem = ravenmem.create(path, embedder=ColorEmbedder(), ocr=False, thumb_size=32)
-    mem.add_frames([
-        Frame(image=solid(c), t=T0 + 10 * i, pose=Pose(x, y, 0.5, 0.1 * i), source="test", index=i)
-        for i, (c, x, y) in enumerate(SCENE)
-    ])  # fmt: skip
+    mem.add_frames(
+        [
+            Frame(image=solid(c), t=T0 + 10 * i, pose=Pose(x, y, 0.5, 0.1 * i), source="test", index=i)
+            for i, (c, x, y) in enumerate(SCENE)
+        ]
+    )
     return mem
 
 
@@ -121,9 +132,23 @@ def serve_subprocess(
     entry = [str(REPO / "tests" / "server" / "serve_color.py")] if colour else ["-m", "ravenmem.cli.main"]
     log = tempfile.TemporaryFile("w+")  # noqa: SIM115 - lives as long as the process
     proc = subprocess.Popen(
-        [sys.executable, *entry, "serve", "--memory", str(mem_path), "--port", "0", "--log-level", "warning", *extra],
-        stdout=subprocess.PIPE, stderr=log, text=True, env=env,
-    )  # fmt: skip
+        [
+            sys.executable,
+            *entry,
+            "serve",
+            "--memory",
+            str(mem_path),
+            "--port",
+            "0",
+            "--log-level",
+            "warning",
+            *extra,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=log,
+        text=True,
+        env=env,
+    )
     assert proc.stdout is not None
     line = proc.stdout.readline()
     m = re.search(r"at (http://127\.0\.0\.1:\d+)/", line)

@@ -223,10 +223,20 @@ def test_the_service_is_the_one_writer_of_its_memory(tmp_path):
     try:
         env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
         second = subprocess.run(
-            [sys.executable, str(REPO / "tests" / "server" / "serve_color.py"), "serve", "--memory", str(path),
-             "--port", "0"],
-            capture_output=True, text=True, env=env, timeout=120,
-        )  # fmt: skip
+            [
+                sys.executable,
+                str(REPO / "tests" / "server" / "serve_color.py"),
+                "serve",
+                "--memory",
+                str(path),
+                "--port",
+                "0",
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=120,
+        )
         assert second.returncode == 2 and "Traceback" not in second.stderr
         assert f"pid {proc.pid}" in second.stderr and "one writer at a time" in second.stderr
         with pytest.raises(ravenmem.errors.MemoryBusyError):  # nor can this process write to it
@@ -238,8 +248,11 @@ def test_the_service_is_the_one_writer_of_its_memory(tmp_path):
                     assert add(writer, 0, "robot").status_code == 201
                 # a reader serves the memory as it was when it opened (the store reads once)
                 assert c.get(reader_url + "/health").json()["memories"] == len(SCENE)
-                refused = c.post(reader_url + "/memories", files={"image": ("f.png", png(1), "image/png")},
-                                 data={"x": "1", "y": "1"})  # fmt: skip
+                refused = c.post(
+                    reader_url + "/memories",
+                    files={"image": ("f.png", png(1), "image/png")},
+                    data={"x": "1", "y": "1"},
+                )
                 assert refused.status_code == 400 and "read-only" in refused.json()["error"]
         finally:
             reader.send_signal(signal.SIGINT)

@@ -87,9 +87,10 @@ def test_mcp_over_stdio(tmp_path):
     make_memory(path).close()
     env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
     params = StdioServerParameters(
-        command=sys.executable, args=[str(REPO / "tests" / "server" / "serve_color.py"), "mcp", "--memory", str(path)],
+        command=sys.executable,
+        args=[str(REPO / "tests" / "server" / "serve_color.py"), "mcp", "--memory", str(path)],
         env=env,
-    )  # fmt: skip
+    )
 
     async def main() -> dict[str, Any]:
         async with Client(params, read_timeout_seconds=60) as client:

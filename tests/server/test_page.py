@@ -43,10 +43,17 @@ def browser(tmp_path) -> Iterator[object]:
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM
     for arg in (
-        "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--no-first-run", f"--user-data-dir={tmp_path / 'chromium-profile'}", "--window-size=1400,900",
-    ):  # fmt: skip
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-dev-shm-usage",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        f"--user-data-dir={tmp_path / 'chromium-profile'}",
+        "--window-size=1400,900",
+    ):
         opts.add_argument(arg)
     driver = webdriver.Chrome(service=DriverService(DRIVER), options=opts)
     driver.set_page_load_timeout(WAIT)

@@ -17,9 +17,24 @@ from tests.agent.scripted_server import ScriptedModel, answer, tool
 from tests.server.conftest import SCENE, T0, Served, serve_memory
 
 HIT_KEYS = {
-    "rank", "id", "score", "distance", "t", "time", "offset_s", "x", "y", "z", "yaw", "yaw_deg", "image",
-    "source", "frame_index", "ocr_text", "ocr_match",
-}  # fmt: skip
+    "rank",
+    "id",
+    "score",
+    "distance",
+    "t",
+    "time",
+    "offset_s",
+    "x",
+    "y",
+    "z",
+    "yaw",
+    "yaw_deg",
+    "image",
+    "source",
+    "frame_index",
+    "ocr_text",
+    "ocr_match",
+}
 
 
 def png(color: tuple[int, int, int], size: tuple[int, int] = (40, 30), fmt: str = "PNG") -> bytes:
@@ -216,12 +231,36 @@ def test_ask_raven_uses_the_services_own_vlm(tmp_path):
         for s in serve_memory(make_memory(tmp_path / "m.mem"), vlm=cfg):
             with s.client() as c:
                 assert c.get("/info").json()["ask"]["default_method"] == "raven"
-                r = c.post("/ask", json={"question": "where is the magenta box?"})
+                r = c.post(
+                    "/ask",
+                    json={
+                        "question": "where is the magenta box?",
+                        "preset": "findingdory",
+                        "top_k": {"text": 2},
+                    },
+                )
             assert r.status_code == 200, r.text
             a = r.json()
             assert a["method"] == "raven" and a["text"] == "by the door" and a["position"][:2] == [7.0, 3.0]
-            assert a["evidence"][0]["image"].endswith("/memories/8/image")
-        assert len(vlm.requests) == 2 and vlm.tool_names(0)[:1] == ["search_text"]
+            assert a["preset"] == "findingdory" and a["evidence"][0]["image"].endswith("/memories/8/image")
+        assert len(vlm.requests) == 2 and "search_text" in vlm.tool_names(0)
+        shown = [m for m in vlm.requests[1]["messages"] if m["role"] == "tool"][0]["content"]
+        assert "-> 2 memories" in shown and "[m8]" in shown  # top_k {text: 2} overrides the preset's 30
+
+
+@pytest.mark.parametrize(
+    ("body", "words"),
+    [
+        ({"question": "where?", "preset": "bogus"}, "unknown preset"),
+        ({"question": "where?", "top_k": {"text": 0}}, "k must be"),
+        ({"question": "where?", "top_k": {t: 1 for t in "abcde"}}, "up to 4 tools"),
+        ({"question": "where?", "max_tool_calls": 99}, "max_tool_calls"),
+    ],
+)
+def test_ask_settings_are_checked(served: Served, body, words):
+    with served.client() as c:
+        r = c.post("/ask", json={**body, "method": "offline"})
+    assert r.status_code in (400, 422) and words in one_line_error(r)
 
 
 def test_add_memory_live(served: Served):
@@ -246,14 +285,23 @@ def test_add_memory_live(served: Served):
         )
         assert q.status_code == 201 and q.json()["memory"]["yaw"] == pytest.approx(np.pi / 2, abs=1e-6)
         # older than the last frame of this source: the ingest pipeline's rule
-        old = c.post("/memories", files={"image": ("f.png", png((0, 255, 0)), "image/png")},
-                     data={"x": "1", "y": "1", "t": str(T0 + 400), "source": "front"})  # fmt: skip
+        old = c.post(
+            "/memories",
+            files={"image": ("f.png", png((0, 255, 0)), "image/png")},
+            data={"x": "1", "y": "1", "t": str(T0 + 400), "source": "front"},
+        )
         assert old.status_code == 200 and old.json() == {
-            "stored": False, "id": None, "skipped": "non-monotonic timestamp", "t": T0 + 400, "source": "front"
-        }  # fmt: skip
+            "stored": False,
+            "id": None,
+            "skipped": "non-monotonic timestamp",
+            "t": T0 + 400,
+            "source": "front",
+        }
         assert c.get("/info").json()["live"] == {
-            "frames_seen": 3, "kept": 2, "skipped": {"non-monotonic timestamp": 1}
-        }  # fmt: skip
+            "frames_seen": 3,
+            "kept": 2,
+            "skipped": {"non-monotonic timestamp": 1},
+        }
     assert served.mem.count() == len(SCENE) + 2
 
 
@@ -268,8 +316,11 @@ def test_live_adds_follow_the_keyframe_rule(tmp_path):
             for i, (x, colour) in enumerate(
                 [(0, (255, 0, 0)), (0.2, (0, 0, 255)), (2, (255, 0, 0)), (4, (0, 0, 255))]
             ):
-                r = c.post("/memories", files={"image": ("f.png", png(colour), "image/png")},
-                           data={"x": str(x), "y": "0", "t": str(T0 + 1000 + i)})  # fmt: skip
+                r = c.post(
+                    "/memories",
+                    files={"image": ("f.png", png(colour), "image/png")},
+                    data={"x": str(x), "y": "0", "t": str(T0 + 1000 + i)},
+                )
                 outcomes.append(r.json()["skipped"] or "stored")
         # moved 0.2 m: too little; moved 2 m but looks like the last kept (red): similar
         assert outcomes == ["stored", "too little motion", "similar to last keyframe", "stored"]
@@ -314,8 +365,11 @@ def test_request_sizes_are_bounded(tmp_path):
 
             chunked = c.post("/ask", content=chunks(), headers={"content-type": "application/json"})
             assert chunked.status_code == 413 and "limit" in one_line_error(chunked)
-            many = c.post("/memories", files={"image": ("f.png", png((0, 0, 0), (200, 200)), "image/png")},
-                          data={"x": "1", "y": "1"})  # fmt: skip
+            many = c.post(
+                "/memories",
+                files={"image": ("f.png", png((0, 0, 0), (200, 200)), "image/png")},
+                data={"x": "1", "y": "1"},
+            )
             assert many.status_code == 400 and "pixels" in one_line_error(many)
         assert s.mem.count() == len(SCENE)
 
@@ -344,10 +398,16 @@ def test_events_stream_new_memories_skips_and_answers(served: Served):
     th.start()
     assert ready.wait(20)
     with served.client() as c:
-        added = c.post("/memories", files={"image": ("f.png", png((255, 0, 255)), "image/png")},
-                       data={"x": "20", "y": "1", "t": str(T0 + 900)}).json()  # fmt: skip
-        c.post("/memories", files={"image": ("f.png", png((255, 0, 255)), "image/png")},
-               data={"x": "20", "y": "1", "t": str(T0 + 800)})  # fmt: skip
+        added = c.post(
+            "/memories",
+            files={"image": ("f.png", png((255, 0, 255)), "image/png")},
+            data={"x": "20", "y": "1", "t": str(T0 + 900)},
+        ).json()
+        c.post(
+            "/memories",
+            files={"image": ("f.png", png((255, 0, 255)), "image/png")},
+            data={"x": "20", "y": "1", "t": str(T0 + 800)},
+        )
         c.post("/ask", json={"question": "where is the cyan thing?", "method": "embedder-only"})
     th.join(20)
     kinds = [k for k, _ in got]

@@ -18,7 +18,13 @@ BaseUrlOpt = Annotated[
     str | None, typer.Option("--base-url", help="OpenAI-compatible VLM endpoint (or RAVENMEM_VLM_BASE_URL)")
 ]
 ConfigOpt = Annotated[Path | None, typer.Option("--config", help="config file with a [vlm] section")]
-TopKOpt = Annotated[int, typer.Option(help="memories per tool call when answering questions")]
+TopKOpt = Annotated[
+    str | None,
+    typer.Option("--top-k", help="default memories per tool call: N, or per tool 'text=30,time=200'"),
+]
+PresetOpt = Annotated[
+    str | None, typer.Option(help="default preset for questions: raven-qa | navqa | findingdory")
+]
 
 
 def _vlm(
@@ -50,7 +56,9 @@ def serve(
     base_url: BaseUrlOpt = None,
     tool_mode: Annotated[str | None, typer.Option(help="auto | native | json")] = None,
     config: ConfigOpt = None,
-    top_k: TopKOpt = 5,
+    preset: PresetOpt = None,
+    top_k: TopKOpt = None,
+    max_tool_calls: Annotated[int | None, typer.Option(help="default tool-call budget per question")] = None,
     max_upload_mb: Annotated[float, typer.Option(help="largest request body (uploads), MiB")] = 16.0,
     timeout: Annotated[float, typer.Option(help="seconds a search, question or add may take")] = 120.0,
     read_only: Annotated[bool, typer.Option("--read-only", help="no live adds (and no writer lock)")] = False,
@@ -63,6 +71,7 @@ def serve(
     log_level: Annotated[str, typer.Option(help="critical | error | warning | info | debug")] = "info",
 ) -> None:
     """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds."""
+    from ravenmem.agent.presets import parse_top_k
     from ravenmem.ingest.keyframes import parse_keyframes
     from ravenmem.server.run import serve as run_serve
     from ravenmem.server.service import ServiceConfig
@@ -71,7 +80,9 @@ def serve(
         keyframes=parse_keyframes(keyframes),
         method=method,
         vlm=_vlm(config, base_url, model, tool_mode),  # type: ignore[arg-type]
-        top_k=top_k,
+        preset=preset,
+        top_k=parse_top_k(top_k),
+        max_tool_calls=max_tool_calls,
         max_upload_bytes=int(max_upload_mb * 2**20),
         timeout_s=timeout,
         writable=not read_only,
@@ -88,7 +99,8 @@ def mcp(
     model: ModelOpt = None,
     base_url: BaseUrlOpt = None,
     config: ConfigOpt = None,
-    top_k: TopKOpt = 5,
+    preset: PresetOpt = None,
+    top_k: TopKOpt = None,
 ) -> None:
     """Serve a memory's tools (search_text, search_image, search_time, search_position, ask) to an
     MCP client over stdio, e.g. `{"command": "ravenmem", "args": ["mcp", "--memory", "DIR"]}`."""
@@ -99,12 +111,14 @@ def mcp(
     from ravenmem.server.service import Service, ServiceConfig
 
     require("mcp", "serve")
+    from ravenmem.agent.presets import parse_top_k
     from ravenmem.server.mcp_tools import run_stdio
 
     cfg = ServiceConfig(
         method=method,
         vlm=_vlm(config, base_url, model),  # type: ignore[arg-type]
-        top_k=top_k,
+        preset=preset,
+        top_k=parse_top_k(top_k),
         writable=False,
     )
     service = Service(ravenmem.open(memory), cfg)

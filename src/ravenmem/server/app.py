@@ -48,7 +48,10 @@ class AskBody(BaseModel):
     method: str | None = Field(
         None, description="raven | offline | embedder-only | vlm-only | caption | random"
     )
-    top_k: int | None = Field(None, ge=1, le=MAX_K, description="memories per tool call")
+    preset: str | None = Field(None, description="raven-qa | navqa | findingdory: the paper's settings")
+    top_k: int | dict[str, int] | None = Field(
+        None, description=f"memories per tool call: N, or per tool {{'text': 30, 'time': 200}} (1 to {MAX_K})"
+    )
     max_tool_calls: int | None = Field(
         None, ge=1, le=20, description="tool calls before the model must answer"
     )
@@ -136,8 +139,8 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
                 img = service.mem.load_image(service.record(body.image_memory_id))
                 if img is None:
                     raise InputError(f"memory {body.image_memory_id} has no stored picture")
-            ans, note = service.ask(body.question, body.method, body.top_k, body.max_tool_calls, img)
-            data = service.answer_json(ans, note, image_url_for(request))
+            ans = service.ask(body.question, body.method, body.top_k, body.max_tool_calls, img, body.preset)
+            data = service.answer_json(ans, image_url_for(request))
             service.publish_answer(data)
             return data
 

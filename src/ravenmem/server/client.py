@@ -92,13 +92,15 @@ class ServerClient:
         self,
         question: str,
         method: str | None = None,
-        top_k: int | None = None,
+        top_k: int | dict[str, int] | None = None,
         max_tool_calls: int | None = None,
         image: Path | None = None,
+        preset: str | None = None,
     ) -> dict[str, Any]:
         """A question, answered as `ravenmem ask --json` prints it (evidence images as URLs)."""
         body: dict[str, Any] = {"question": question}
-        for key, val in (("method", method), ("top_k", top_k), ("max_tool_calls", max_tool_calls)):
+        given = (("method", method), ("preset", preset), ("top_k", top_k), ("max_tool_calls", max_tool_calls))
+        for key, val in given:
             if val is not None:
                 body[key] = val
         if image is not None:

@@ -19,6 +19,7 @@ import mcp_types as types
 from mcp.server.lowlevel import Server
 
 from ..agent.base import METHODS
+from ..agent.presets import PRESETS
 from ..errors import RavenmemError
 from ..tools import MAX_K, TOOLS, Tool, check_k
 from ..types import MemoryRecord
@@ -62,6 +63,11 @@ def ask_schema(service: Service) -> dict[str, Any]:
                 "type": "string",
                 "enum": METHODS.names(),
                 "description": f"how to answer (default {service.cfg.default_method})",
+            },
+            "preset": {
+                "type": "string",
+                "enum": sorted(PRESETS),
+                "description": "the paper's settings for a benchmark (budget, k per tool, temperature)",
             },
             "top_k": {
                 "type": "integer",
@@ -138,11 +144,11 @@ def _ask(service: Service, args: dict[str, Any], base: str | None) -> types.Call
     question = args.get("question")
     if not isinstance(question, str) or not question.strip() or len(question) > 2000:
         raise RavenmemError("ask: question must be a non-empty string of at most 2000 characters")
-    extra = set(args) - {"question", "method", "top_k"}
+    extra = set(args) - {"question", "method", "preset", "top_k"}
     if extra:
         raise RavenmemError(f"ask: unknown argument(s) {', '.join(sorted(extra))}")
-    ans, note = service.ask(question, method=args.get("method"), top_k=args.get("top_k"))
-    data = service.answer_json(ans, note, _url(base))
+    ans = service.ask(question, method=args.get("method"), top_k=args.get("top_k"), preset=args.get("preset"))
+    data = service.answer_json(ans, _url(base))
     service.publish_answer(data)
     recs = service.mem.get([e["id"] for e in data["evidence"]]) if data["evidence"] else []
     return _result(service, data, recs)

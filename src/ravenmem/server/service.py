@@ -22,41 +22,48 @@ from PIL import Image
 
 from ..agent.base import METHODS
 from ..agent.config import VLMConfig
+from ..agent.presets import PRESETS
 from ..agent.schema import Answer
 from ..errors import EmptyMemoryError, InputError
 from ..ingest.keyframes import KeyframeConfig
 from ..manifest import confine
 from ..memory import Memory
-from ..tools import Tool, ToolArgs, check_k, hit_json
+from ..tools import TOOLS, Tool, ToolArgs, check_k, hit_json
 from ..types import Hit, MemoryRecord
 from .events import EventBus
 from .live import AddResult, LiveWriter
 
 log = logging.getLogger(__name__)
 
-VLM_METHODS = ("raven", "vlm-only", "caption")
 MAX_TRAJECTORY = 100_000  # points the map may ask for at once
+MAX_CALLS = 20  # tool calls a question may ask for
 ImageUrl = Callable[[MemoryRecord], str | None]
 
 
 @dataclass
 class ServiceConfig:
     """How the service answers. `method` is the default for questions (None: `raven` when a VLM
-    model is configured, else `offline`); `vlm` is the service's own model endpoint (clients never
-    choose one); sizes and times bound every request."""
+    model is configured, else `offline`); `preset`, `top_k` (N or {tool: N}) and `max_tool_calls`
+    are defaults a question may override (None: the method's or the preset's own); `vlm` is the
+    service's own model endpoint (clients never choose one); sizes and times bound every request."""
 
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     method: str | None = None
     vlm: VLMConfig | None = None
-    top_k: int = 5
-    max_tool_calls: int = 3
+    preset: str | None = None
+    top_k: int | dict[str, int] | None = None
+    max_tool_calls: int | None = None
     max_upload_bytes: int = 16 * 2**20
     max_pixels: int = 40_000_000
     timeout_s: float = 120.0
     writable: bool = True
 
     def __post_init__(self) -> None:
-        check_k(self.top_k)
+        from ..agent.presets import get_preset
+
+        check_top_k(self.top_k)
+        check_calls(self.max_tool_calls)
+        get_preset(self.preset)
         if self.max_upload_bytes <= 0 or self.max_pixels <= 0 or self.timeout_s <= 0:
             raise InputError("upload size, pixel count and timeout must be > 0")
         if self.method is not None:
@@ -67,6 +74,26 @@ class ServiceConfig:
         if self.method:
             return self.method
         return "raven" if self.vlm is not None and self.vlm.configured else "offline"
+
+
+def check_top_k(top_k: object) -> int | dict[str, int] | None:
+    """Memories per tool call: None, N, or {tool: N} for at most the four tools (N from 1 to
+    MAX_K); tool names are checked by the agent."""
+    if top_k is None:
+        return None
+    if isinstance(top_k, dict):
+        if not 1 <= len(top_k) <= len(TOOLS):
+            raise InputError(f"top_k: give N or {{tool: N}} for up to {len(TOOLS)} tools")
+        return {str(name): check_k(k) for name, k in top_k.items()}
+    return check_k(top_k)
+
+
+def check_calls(calls: object) -> int | None:
+    if calls is None:
+        return None
+    if isinstance(calls, bool) or not isinstance(calls, int) or not 1 <= calls <= MAX_CALLS:
+        raise InputError(f"max_tool_calls must be a whole number from 1 to {MAX_CALLS}, got {calls!r}")
+    return calls
 
 
 class NotFound(InputError):
@@ -216,6 +243,8 @@ class Service:
         data["live"] = self.writer.stats.as_dict() if self.writer is not None else None
         data["ask"] = {
             "default_method": self.cfg.default_method,
+            "default_preset": self.cfg.preset,
+            "presets": sorted(PRESETS),
             "vlm": bool(self.cfg.vlm is not None and self.cfg.vlm.configured),
             "methods": METHODS.names(),
         }
@@ -226,32 +255,39 @@ class Service:
         self,
         question: str,
         method: str | None = None,
-        top_k: int | None = None,
+        top_k: int | dict[str, int] | None = None,
         max_tool_calls: int | None = None,
         image: np.ndarray | None = None,
-    ) -> tuple[Answer, str]:
-        """Answer a question as `ravenmem ask` does; returns the answer and the method's note."""
+        preset: str | None = None,
+    ) -> Answer:
+        """Answer a question as `ravenmem ask` does, with the service's VLM; what the question
+        leaves out comes from the service's defaults, then from the preset or the method."""
+        from ..agent.base import needs_vlm
         from ..agent.methods import create_method
+        from ..agent.presets import get_preset
 
         name = method or self.cfg.default_method
         METHODS.get(name)
+        get_preset(preset)
         vlm = None
-        if name in VLM_METHODS:
+        if needs_vlm(name):
             vlm = self.cfg.vlm
             if vlm is None or not vlm.configured:
                 raise InputError(
                     f"method {name} needs a VLM and this service has none (start it with --model and "
                     "--base-url, or RAVENMEM_VLM_*); ask with method offline"
                 )
-        k = check_k(top_k if top_k is not None else self.cfg.top_k)
-        calls = self.cfg.max_tool_calls if max_tool_calls is None else int(max_tool_calls)
-        if not 1 <= calls <= 20:
-            raise InputError(f"max_tool_calls must be from 1 to 20, got {calls}")
-        m = create_method(name, self.mem, vlm=vlm, top_k=k, max_tool_calls=calls)
-        ans = m.ask(question, image=image)
-        return ans, str(getattr(m, "note", "") or "")
+        opts = {
+            "vlm": vlm,
+            "top_k": check_top_k(top_k if top_k is not None else self.cfg.top_k),
+            "max_tool_calls": check_calls(
+                max_tool_calls if max_tool_calls is not None else self.cfg.max_tool_calls
+            ),
+        }
+        m = create_method(name, self.mem, preset=preset or self.cfg.preset, **opts)
+        return m.ask(question, image=image)
 
-    def answer_json(self, ans: Answer, note: str, image_url: ImageUrl) -> dict[str, Any]:
+    def answer_json(self, ans: Answer, image_url: ImageUrl) -> dict[str, Any]:
         """The answer as `ravenmem ask --json` gives it, evidence images as URLs (no paths)."""
         data = ans.model_dump(mode="json")
         ids = [ev["id"] for ev in data["evidence"]]
@@ -265,8 +301,6 @@ class Service:
             ev.pop("image_path", None)
             rec = recs.get(ev["id"])
             ev["image"] = image_url(rec) if rec is not None else None
-        if note:
-            data["note"] = note
         return data
 
     def publish_answer(self, data: dict[str, Any]) -> None:

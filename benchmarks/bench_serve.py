@@ -188,7 +188,11 @@ def frames(n: int) -> list[bytes]:
     return out
 
 
-def load(url: str, seconds: float, clients: int, rate: float, t_last: float, pid: int) -> dict[str, object]:
+def load(
+    url: str, seconds: float, clients: int, rate: float, t_last: float, pid: int, qps: float = 0.0
+) -> dict[str, object]:
+    """The load phase; `qps` > 0 paces the searching clients to that many queries per second in
+    all (0: each client searches back to back, as fast as the service answers)."""
     stop = threading.Event()
     lock = threading.Lock()
     lat: dict[str, list[float]] = {"text": [], "time": [], "position": []}
@@ -233,8 +237,10 @@ def load(url: str, seconds: float, clients: int, rate: float, t_last: float, pid
         rng = random.Random(seed)
         kinds = ["text", "time", "position"]
         with httpx.Client(base_url=url, timeout=60) as c:
-            n = seed
+            n, start, every = seed, time.perf_counter(), clients / qps if qps > 0 else 0.0
             while not stop.is_set():
+                if every:
+                    time.sleep(max(0.0, start + (n - seed) * every - time.perf_counter()))
                 kind = kinds[n % 3]
                 n += 1
                 if kind == "text":
@@ -278,6 +284,7 @@ def load(url: str, seconds: float, clients: int, rate: float, t_last: float, pid
         "service_cpu_ms_per_query": 1000 * served_cpu / max(1, len(every)),
         "errors": len(errors),
         "error_samples": errors[:5],
+        "frames_offered": round(rate * wall),
         "frames_acked": len(acked),
         "frames_per_s": len(acked) / wall,
         "add_p50_ms": pct(add_ms, 50),
@@ -310,6 +317,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=60.0, help="length of the load phase")
     ap.add_argument("--clients", type=int, default=4, help="searching clients during the load phase")
     ap.add_argument("--rate", type=float, default=5.0, help="frames added per second during the load phase")
+    ap.add_argument("--qps", type=float, default=0.0, help="pace the searches to this rate (0: back to back)")
     ap.add_argument("--keep", type=Path, help="build the memory here and keep it (reused when present)")
     args = ap.parse_args()
 
@@ -337,7 +345,7 @@ def main() -> None:
             f"  ratio       p50 {lat['ratio_p50']:.2f}x  p99 {lat['ratio_p99']:.2f}x  CPU {lat['ratio_cpu']:.2f}x"
             "   (target p50 <= 3x)"
         )
-        res = load(url, args.seconds, args.clients, args.rate, t_last, proc.pid)
+        res = load(url, args.seconds, args.clients, args.rate, t_last, proc.pid, args.qps)
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(120)
@@ -345,7 +353,9 @@ def main() -> None:
     assert isinstance(acked, dict)
     check = verify(path, n0, acked)
     print(
-        f"\nload: {args.clients} searching clients + cameras adding {args.rate:g} frames/s for {res['seconds']} s"
+        f"\nload: {args.clients} searching clients"
+        f"{f' paced to {args.qps:g} queries/s' if args.qps else ' back to back'}"
+        f" + cameras adding {args.rate:g} frames/s for {res['seconds']} s"
     )
     print(
         f"  queries/s   {res['queries_per_s']:.1f}  (text {res['text_per_s']:.1f}, time {res['time_per_s']:.1f}, "
@@ -362,7 +372,8 @@ def main() -> None:
     )
     print(f"  errors      {res['errors']}  {res['error_samples'] if res['errors'] else ''}")
     print(
-        f"  frames      {res['frames_acked']} acknowledged ({res['frames_per_s']:.2f}/s), add p50 "
+        f"  frames      {res['frames_acked']} acknowledged of {res['frames_offered']} due "
+        f"({res['frames_per_s']:.2f}/s; each camera waits for its answer), add p50 "
         f"{res['add_p50_ms']:.0f} ms p99 {res['add_p99_ms']:.0f} ms"
     )
     print(

@@ -148,3 +148,20 @@ def test_serve_says_when_the_port_is_taken(tmp_path):
     assert (
         r.returncode == 2 and f"cannot listen on 127.0.0.1:{port}" in r.stderr and "Traceback" not in r.stderr
     )
+
+
+def test_the_listening_socket_is_tcp_so_responses_are_not_delayed():
+    """asyncio turns Nagle's algorithm off only on sockets whose protocol says TCP; a socket made
+    with protocol 0 left every response waiting ~40 ms for the client's delayed ACK."""
+    import socket
+
+    from ravenmem.server.run import listen
+
+    server = listen("127.0.0.1", 0)
+    try:
+        client = socket.create_connection(server.getsockname()[:2])
+        conn, _ = server.accept()
+        with client, conn:
+            assert server.proto == socket.IPPROTO_TCP and conn.proto == socket.IPPROTO_TCP
+    finally:
+        server.close()

@@ -84,13 +84,15 @@ def recover(folder: Path, store: Store) -> dict[str, int]:
 
     Only the memory folder itself is listed on every call; `thumbs/` (a million files in a big
     memory) only after a crash, i.e. when a journal was left: a thumbnail's temporary file can
-    only exist while its batch's journal does.
+    only exist while its batch's journal does. The caller holds the writer lock, so no other
+    process is writing a thumbnail: `thumbs/` temporary files are removed whatever their age
+    (a writer killed less than a second ago leaves one too).
     """
     journals = [e for e in sorted(os.listdir(folder)) if _JOURNAL.fullmatch(e)]
     removed = sum(settle(folder, store, folder / j) for j in journals)
     temps = remove_stale_temp_files(folder)
     if journals:
-        temps += remove_stale_temp_files(folder / THUMBS)
+        temps += remove_stale_temp_files(folder / THUMBS, min_age=0.0)
     if removed or temps:
         log.info(
             "%s: removed %d unreferenced thumbnail(s), %d temporary file(s)", folder, removed, len(temps)

@@ -202,6 +202,9 @@ def test_clean_up_removes_only_ravenmem_leftovers(tmp_path: Path, tum_path: Path
     for p in stale + foreign:
         p.write_bytes(b"x")
         os.utime(p, (old, old))
+    # the thumbnail's temporary file is fresh: the writer was killed a moment ago (the next
+    # writer holds the writer lock, so no other process can be writing a thumbnail)
+    os.utime(stale[1], None)
     # a temporary file another process is writing right now (it holds the lock atomic_open takes)
     busy = mem / ".index.faiss.00aa11bb22cc.tmp"
     holder = subprocess.Popen(

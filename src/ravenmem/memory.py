@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import recovery
+from . import diversity, recovery
 from .embed.base import Embedder, create_embedder
 from .embed.ocr import OCR_WEIGHT, ocr_terms
 from .errors import EmbedderMismatchError, EmptyMemoryError, InputError, MemoryBusyError
@@ -330,9 +330,11 @@ class Memory:
         after: TimeLike = None,
         before: TimeLike = None,
         near: Near | None = None,
+        diverse: bool = True,
     ) -> list[Hit]:
-        """Cosine between the text and stored images, fused with OCR matches; best first."""
-        return self.search_texts([query], k, after, before, near)[0]
+        """Cosine between the text and stored images, fused with OCR matches; best first.
+        `diverse`: no two hits from the same moment and place (ravenmem.diversity)."""
+        return self.search_texts([query], k, after, before, near, diverse=diverse)[0]
 
     def search_texts(
         self,
@@ -342,6 +344,7 @@ class Memory:
         before: TimeLike = None,
         near: Near | None = None,
         ocr: bool = True,
+        diverse: bool = True,
     ) -> list[list[Hit]]:
         """`search_text` for many queries with one batched text encoding (reasoners that try
         several phrasings of a question use this). `ocr=False` leaves out the OCR channel."""
@@ -354,9 +357,14 @@ class Memory:
         filt = self.make_filter(after, before, near)
         use_ocr = ocr and self.ocr_enabled
         vecs = self.embedder.embed_texts(list(queries))
-        return [self._text_hits(query, q, k, filt, use_ocr) for query, q in zip(queries, vecs)]
+        return [self._text_hits(query, q, k, filt, use_ocr, diverse) for query, q in zip(queries, vecs)]
 
-    def _text_hits(self, query: str, q: np.ndarray, k: int, filt: Filter, use_ocr: bool) -> list[Hit]:
+    def _text_hits(
+        self, query: str, q: np.ndarray, k: int, filt: Filter, use_ocr: bool, diverse: bool = True
+    ) -> list[Hit]:
+        return diversity.top_hits(lambda n: self._fused(query, q, n, filt, use_ocr), k, diverse, self.count())
+
+    def _fused(self, query: str, q: np.ndarray, k: int, filt: Filter, use_ocr: bool) -> list[Hit]:
         scored = dict(self.store.search_vector(q, max(k, 1) * (3 if use_ocr else 1), filt))
         ocr = dict(self.store.search_text(ocr_terms(query), max(k, 1) * 3, filt)) if use_ocr else {}
         missing = [i for i in ocr if i not in scored]
@@ -364,7 +372,10 @@ class Memory:
             for r in self.store.get(missing, with_embeddings=True):
                 assert r.embedding is not None
                 scored[r.id] = float(np.dot(r.embedding, q))
-        fused = sorted(((s + OCR_WEIGHT * ocr.get(i, 0.0), i) for i, s in scored.items()), reverse=True)[:k]
+        # best first; equal scores: the earlier memory first, however many candidates were fetched
+        fused = sorted(
+            ((s + OCR_WEIGHT * ocr.get(i, 0.0), i) for i, s in scored.items()), key=lambda p: (-p[0], p[1])
+        )[:k]
         hits = self._hits([(i, s) for s, i in fused])
         for h in hits:
             h.ocr_match = h.memory.id in ocr
@@ -378,12 +389,14 @@ class Memory:
         before: TimeLike = None,
         near: Near | None = None,
         memory_id: int | None = None,
+        diverse: bool = True,
     ) -> list[Hit]:
         """Memories that look like a query image (cosine), best first.
 
         The query is a picture (an array or an image file) or, with `memory_id`, a stored memory:
         "more views like memory 12", which is how an agent follows up on a promising frame. The
-        memory itself is left out of its own results.
+        memory itself is left out of its own results. `diverse`: no two hits from the same
+        moment and place (ravenmem.diversity; views of the memory's own moment still count).
         """
         k = check_k(k)
         self._require_nonempty()
@@ -395,14 +408,18 @@ class Memory:
                 (rec,) = self.store.get([int(memory_id)], with_embeddings=True)
             except KeyError:
                 raise InputError(f"memory_id {memory_id}: no such memory") from None
-            emb = rec.embedding
-            assert emb is not None
-            scored = self.store.search_vector(emb, k + 1, filt)
-            return self._hits([(i, s) for i, s in scored if i != rec.id][:k])
-        assert image is not None
-        img = read_image(Path(image)) if isinstance(image, (str, os.PathLike)) else image
-        q = self.embedder.embed_images([img])[0]
-        return self._hits(self.store.search_vector(q, k, filt))
+            q = rec.embedding
+            assert q is not None
+        else:
+            assert image is not None
+            img = read_image(Path(image)) if isinstance(image, (str, os.PathLike)) else image
+            q = self.embedder.embed_images([img])[0]
+        skip = -1 if memory_id is None else int(memory_id)
+
+        def ranked(n: int) -> list[Hit]:
+            return self._hits([(i, s) for i, s in self.store.search_vector(q, n + 1, filt) if i != skip][:n])
+
+        return diversity.top_hits(ranked, k, diverse, self.count())
 
     def search_time(
         self,

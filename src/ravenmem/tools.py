@@ -158,15 +158,20 @@ class Tool:
         image: np.ndarray | None = None,
         time_mode: TimeMode = "forward",
         text_search: Runner | None = None,
+        diverse: bool = True,
     ) -> list[Hit]:
         """Run the tool on a memory; results in the tool's `order`.
 
         `image` is the picture attached to a question (the image tool uses it when no
         `memory_id` is given); `time_mode` picks the time tool's window; `text_search`
-        replaces the memory's text search (the caption baseline searches captions).
+        replaces the memory's text search (the caption baseline searches captions);
+        `diverse=False` lets the text and image tools return several hits of one moment and
+        place (ravenmem.diversity).
         """
         a = self.validate(args)
-        return self._run(mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search)
+        return self._run(
+            mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search, diverse=diverse
+        )
 
     def label(self, args: ToolArgs) -> str:
         """How a call is shown to a person or a model, e.g. `search_text("red mug")`."""
@@ -225,21 +230,25 @@ def check_k(k: object) -> int:
     return int(k)
 
 
-def _text(mem: MemoryLike, a: ToolArgs, k: int, text_search: Runner | None = None, **_: Any) -> list[Hit]:
+def _text(
+    mem: MemoryLike, a: ToolArgs, k: int, text_search: Runner | None = None, diverse: bool = True, **_: Any
+) -> list[Hit]:
     assert isinstance(a, TextArgs)
-    search = text_search or mem.search_text
-    return search(a.query, k=k, after=a.after, before=a.before, near=a.disc())
+    if text_search is not None:
+        return text_search(a.query, k=k, after=a.after, before=a.before, near=a.disc())
+    return mem.search_text(a.query, k=k, after=a.after, before=a.before, near=a.disc(), diverse=diverse)
 
 
-def _image(mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, **_: Any) -> list[Hit]:
+def _image(
+    mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, diverse: bool = True, **_: Any
+) -> list[Hit]:
     assert isinstance(a, ImageArgs)
     if a.memory_id is None and image is None:
         raise InputError("search_image: give memory_id (no image is attached to this question)")
-    if a.memory_id is not None:
-        return mem.search_image(
-            None, k=k, after=a.after, before=a.before, near=a.disc(), memory_id=a.memory_id
-        )
-    return mem.search_image(image, k=k, after=a.after, before=a.before, near=a.disc())
+    query = None if a.memory_id is not None else image
+    return mem.search_image(
+        query, k=k, after=a.after, before=a.before, near=a.disc(), memory_id=a.memory_id, diverse=diverse
+    )
 
 
 def _time(mem: MemoryLike, a: ToolArgs, k: int, time_mode: TimeMode = "forward", **_: Any) -> list[Hit]:

@@ -55,6 +55,13 @@ class Pose:
         dz = 0.0 if planar else self.z - other.z
         return math.sqrt((self.x - other.x) ** 2 + (self.y - other.y) ** 2 + dz * dz)
 
+    def rotation_to(self, other: Pose) -> float:
+        """Angle (rad) between the two orientations: full 3-D when both have quaternions, else yaw."""
+        if self.quat is not None and other.quat is not None:
+            dot = abs(sum(p * q for p, q in zip(self.quat, other.quat)))
+            return 2.0 * math.acos(min(1.0, dot))
+        return abs((other.yaw - self.yaw + math.pi) % (2.0 * math.pi) - math.pi)
+
 
 @dataclass(frozen=True)
 class Intrinsics:

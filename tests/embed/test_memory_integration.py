@@ -14,7 +14,8 @@ NO_KEYBOARD = ["1305031234.861873.jpg", "1305031237.529735.jpg", "1305031240.461
 def test_memory_search_and_reopen_with_stored_embedder_name(tmp_path: Path, offline, tum_frame) -> None:
     names = KEYBOARD + NO_KEYBOARD
     frames = [
-        Frame(image=tum_frame(n), t=1305031229.0 + i, pose=Pose(0.1 * i, 0.0), source="tum", index=i)
+        # 10 s apart: six separate moments, so diverse results may return all three keyboard frames
+        Frame(image=tum_frame(n), t=1305031229.0 + 10 * i, pose=Pose(0.1 * i, 0.0), source="tum", index=i)
         for i, n in enumerate(names)
     ]
     mem = ravenmem.create(tmp_path / "desk.mem", embedder=offline, ocr=False, thumb_size=0)

@@ -44,6 +44,7 @@ class MemoryLike(Protocol):
         after: TimeLike = None,
         before: TimeLike = None,
         near: Near | None = None,
+        diverse: bool = True,
     ) -> list[Hit]: ...
 
     def search_texts(
@@ -64,6 +65,7 @@ class MemoryLike(Protocol):
         before: TimeLike = None,
         near: Near | None = None,
         memory_id: int | None = None,
+        diverse: bool = True,
     ) -> list[Hit]: ...
 
     def search_time(

@@ -205,8 +205,9 @@ class OfflineReasoner:
     # ------------------------------------------------------------------ scoring
     def _search_many(self, texts: list[str], k: int) -> list[list[tuple[MemoryRecord, float]]]:
         """(record, cosine) lists per text, all texts embedded in one batch. OCR is fused
-        separately (`_add_ocr`), so the image channel alone is asked for here."""
-        groups = self.memory.search_texts(texts, k=k, ocr=False)
+        separately (`_add_ocr`), so the image channel alone is asked for here. Not diverse: the
+        votes below need every hit, near-duplicates of one moment included."""
+        groups = self.memory.search_texts(texts, k=k, ocr=False, diverse=False)
         return [[(h.memory, float(h.score or 0.0)) for h in hits] for hits in groups]
 
     def _fuse(self, groups: list[list[str]], k: int, image: np.ndarray | None = None) -> dict[int, Cand]:
@@ -215,7 +216,7 @@ class OfflineReasoner:
         results = iter(self._search_many(flat, k)) if flat else iter([])
         tables = [[{r.id: (r, sc) for r, sc in next(results)} for _ in g] for g in groups]
         if image is not None:
-            hits = self.memory.search_image(image, k=k)
+            hits = self.memory.search_image(image, k=k, diverse=False)
             tables.append([{h.memory.id: (h.memory, float(h.score or 0.0)) for h in hits}])
         cands: dict[int, Cand] = {}
         for paraphrases in tables:
@@ -232,7 +233,7 @@ class OfflineReasoner:
         if not words:
             return
         if self.memory.ocr_enabled:  # OCR-only matches the vectors missed
-            for h in self.memory.search_text(" ".join(words), k=min(k, 20)):
+            for h in self.memory.search_text(" ".join(words), k=min(k, 20), diverse=False):
                 if h.ocr_match and h.memory.id not in cands:
                     cands[h.memory.id] = Cand(h.memory, float(h.score or 0.0) - OCR_WEIGHT)
         for c in cands.values():

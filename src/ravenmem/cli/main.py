@@ -125,10 +125,19 @@ def ingest(
     ] = "offline",
     store: Annotated[str | None, typer.Option(help="store URI for a new memory (default: embedded)")] = None,
     keyframes: Annotated[
-        str | None, typer.Option(help="e.g. 'stride=5,fps=2,min_translation=0.1,max_similarity=0.95'")
+        str | None,
+        typer.Option(
+            help="keyframe rules: 'default' (when left out: moved 0.5 m or turned 20 deg or 5 s passed, "
+            "then cosine <= 0.95 to the last keyframe), 'all' (every frame), only the rules named "
+            "('fps=2,min_rotation=10deg'), or 'default,max_similarity=0.9'"
+        ),
     ] = None,
-    stride: Annotated[int | None, typer.Option(help="keep every Nth frame")] = None,
-    fps: Annotated[float | None, typer.Option(help="target keyframe rate")] = None,
+    stride: Annotated[
+        int | None, typer.Option(help="keep every Nth frame (alone: instead of the default rules)")
+    ] = None,
+    fps: Annotated[
+        float | None, typer.Option(help="at most this many keyframes/s (alone: instead of the default rules)")
+    ] = None,
     ocr: Annotated[bool, typer.Option(help="read text in keyframes (slower)")] = True,
     thumb_size: Annotated[int, typer.Option(help="thumbnail longer side in px (0 = off)")] = 320,
     batch_size: Annotated[int, typer.Option(help="frames embedded per batch")] = 16,
@@ -147,12 +156,15 @@ def ingest(
     already in it are skipped, so running the same command again after an interruption resumes
     where it stopped."""
     import ravenmem
-    from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
+    from ravenmem.ingest.keyframes import KeyframeConfig, describe, parse_keyframes
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
 
-    cfg = parse_keyframes(keyframes) if keyframes else KeyframeConfig()
+    if keyframes is not None:
+        cfg = parse_keyframes(keyframes)
+    else:  # `--stride 5` alone means every 5th frame, not the default rules thinned further
+        cfg = KeyframeConfig.only() if stride is not None or fps is not None else KeyframeConfig()
     if stride is not None:
         cfg.stride = stride
     if fps is not None:
@@ -172,9 +184,16 @@ def ingest(
     with mem, mem.undo_create_on_error():  # a failed first ingest leaves no folder behind
         rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size, wait=wait, mapper=mapper)
         total = mem.count()
+        size = mem.info()
     for w in rep.warnings:
         print_warning(w)
-    out = rep.as_dict() | {"memory": str(memory), "memories_total": total}
+    out = rep.as_dict() | {
+        "memory": str(memory),
+        "memories_total": total,
+        "keyframes": describe(cfg),
+        "compression_vs_raw": size["compression_vs_raw"],
+        "compression_vs_raw_with_thumbs": size["compression_vs_raw_with_thumbs"],
+    }
     if mapper is not None and (mapper.stats.mapped or mapper.stats.skipped or mapper.note):
         out["map"] = mapper.summary()
     if json_out:
@@ -197,6 +216,12 @@ def ingest(
         why = "; ".join([f"{n} {r}" for r, n in m["skipped"].items()] + ([m["note"]] if "note" in m else []))
         console.print(
             f"  map: {m['frames_mapped']} depth frames mapped{cells}" + (f" ({esc(why)})" if why else "")
+        )
+    console.print(f"  keyframe rules: {describe(cfg)}")
+    if size["compression_vs_raw"]:
+        console.print(
+            f"  memory: {size['compression_vs_raw']:,.0f}x smaller than the raw decoded video "
+            f"({size['compression_vs_raw_with_thumbs']:,.0f}x with thumbnails), all ingests together"
         )
     if rep.kept == 0 and not rep.skipped.get(ALREADY):
         raise InputError(f"no frame of {source} was kept: nothing was added to {memory}")
@@ -225,6 +250,13 @@ def search(
     near: Annotated[str | None, typer.Option(help="only memories within x,y,r (metres)")] = None,
     radius: Annotated[float | None, typer.Option(help="with --position: max distance (m)")] = None,
     server: ServerOpt = None,
+    all_hits: Annotated[
+        bool,
+        typer.Option(
+            "--all-hits",
+            help="text/image: allow several hits of one moment and place (within 2 s, 0.5 m, 30 deg)",
+        ),
+    ] = False,
     json_out: JsonOpt = False,
 ) -> None:
     """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
@@ -262,12 +294,14 @@ def search(
     call = tool.validate(args)
     url = resolve_server(server, memory)
     if url:
+        if all_hits:
+            raise InputError("--all-hits applies to a local memory (--memory); the service returns diverse hits")
         with ServerClient(url) as remote:
             rows = remote.search(tool, call, k, image)["results"]
     else:
         assert memory is not None
         with ravenmem.open(memory) as mem:
-            hits = tool.run(mem, call, k, image=query_image)
+            hits = tool.run(mem, call, k, image=query_image, diverse=not all_hits)
             t0 = mem.time_span()[0]
 
             def image_file(rec: Any) -> str | None:

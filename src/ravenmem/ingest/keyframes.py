@@ -1,16 +1,22 @@
 """Keyframe selection: keep few, informative frames before paying for embeddings.
 
-Two stages. `select_frames` is cheap and runs before the embedder: a stride, a target rate from
-timestamps, and pose-motion novelty (keep when the camera moved or turned enough since the last
-kept frame). `NoveltyFilter` runs after the embedder: drop a frame whose embedding is too similar
-(cosine) to the last kept one, so a robot parked in front of a wall stores one memory, not 1000.
-Each stage counts what it dropped and why.
+Two stages. The cheap one runs before the embedder: a stride, a target rate from timestamps, and
+pose motion (keep when the camera moved or turned enough since the last candidate, or when
+`max_interval` seconds passed without that, so that a still camera still looks now and then).
+The novelty stage runs after the embedder: drop a frame whose embedding is too similar (cosine)
+to the last keyframe, unless that keyframe is older than `novelty_window` seconds, so a robot
+parked in front of a wall stores one memory per window, not 1000. Each stage counts what it
+dropped and why.
+
+`KeyframeConfig()` is the default rule set (measured on TUM fr1_rpy: docs/ingest.md, Keyframes);
+`KeyframeConfig.only()` keeps every frame.
 """
 
 from __future__ import annotations
 
 import math
 import re
+from collections import deque
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, fields, replace
 
@@ -25,32 +31,57 @@ DROP_MOTION = "too little motion"
 DROP_SIMILAR = "similar to last keyframe"
 
 
+# The defaults, chosen on TUM fr1_rpy (benchmarks/bench_keyframes.py; docs/ingest.md, Keyframes).
+DEFAULT_MIN_TRANSLATION = 0.5  # m
+DEFAULT_MIN_ROTATION = math.radians(20.0)
+DEFAULT_MAX_INTERVAL = 5.0  # s
+DEFAULT_MAX_SIMILARITY = 0.95
+DEFAULT_NOVELTY_WINDOW = 30.0  # s
+NUMERIC_KEYS = ("fps", "min_translation", "min_rotation", "max_interval", "max_similarity", "novelty_window")
+
+
 @dataclass
 class KeyframeConfig:
-    """Selection rules; None disables a rule. With nothing set every frame is kept.
+    """Selection rules; None disables a rule. `KeyframeConfig()` is the default rule set,
+    `KeyframeConfig.only()` keeps every frame.
 
     stride: keep every n-th incoming frame. fps: at most this many frames per second of source
     time. min_translation (m) / min_rotation (rad): keep a frame when it moved at least this far
-    OR turned at least this much since the last kept frame (the first frame is always kept).
-    max_similarity: after embedding, drop a frame whose cosine similarity to the last kept
-    frame's embedding is above this.
+    OR turned at least this much since the last frame that passed (the first frame always
+    passes); max_interval (s): also pass a frame when this long has gone by without one (a still
+    camera keeps looking; needs a motion rule to mean anything). max_similarity: after
+    embedding, drop a frame whose cosine similarity to the last keyframe is above this, unless
+    that keyframe is more than `novelty_window` seconds old (None: however old).
     """
 
     stride: int = 1
     fps: float | None = None
-    min_translation: float | None = None
-    min_rotation: float | None = None
-    max_similarity: float | None = None
+    min_translation: float | None = DEFAULT_MIN_TRANSLATION
+    min_rotation: float | None = DEFAULT_MIN_ROTATION
+    max_interval: float | None = DEFAULT_MAX_INTERVAL
+    max_similarity: float | None = DEFAULT_MAX_SIMILARITY
+    novelty_window: float | None = DEFAULT_NOVELTY_WINDOW
+
+    @classmethod
+    def only(cls, **rules: float | int | None) -> KeyframeConfig:
+        """Exactly the rules given, every other rule off: `only()` keeps every frame (`--keyframes
+        all`), `only(stride=5)` every 5th. (`KeyframeConfig(stride=5)` is the defaults plus a stride.)"""
+        off: dict[str, float | int | None] = dict.fromkeys(NUMERIC_KEYS)
+        return cls(**(off | rules))  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         if isinstance(self.stride, bool) or not isinstance(self.stride, int) or self.stride < 1:
             raise InputError(f"keyframes: stride must be an integer >= 1, got {self.stride!r}")
-        for name in ("fps", "min_translation", "min_rotation", "max_similarity"):
+        for name in NUMERIC_KEYS:
             v = getattr(self, name)
-            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v)):
+            if v is not None and (
+                isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+            ):
                 raise InputError(f"keyframes: {name} must be a finite number, got {v!r}")
-        if self.fps is not None and self.fps <= 0:
-            raise InputError(f"keyframes: fps must be > 0, got {self.fps}")
+        for name in ("fps", "max_interval", "novelty_window"):
+            v = getattr(self, name)
+            if v is not None and v <= 0:
+                raise InputError(f"keyframes: {name} must be > 0, got {v}")
         for name in ("min_translation", "min_rotation"):
             v = getattr(self, name)
             if v is not None and v < 0:
@@ -72,10 +103,7 @@ class KeyframeStats:
 
 def rotation_between(a: Pose, b: Pose) -> float:
     """Angle (rad) between two orientations: full 3-D when both have quaternions, else yaw only."""
-    if a.quat is not None and b.quat is not None:
-        dot = abs(sum(p * q for p, q in zip(a.quat, b.quat, strict=True)))
-        return 2.0 * math.acos(min(1.0, dot))
-    return abs((b.yaw - a.yaw + math.pi) % (2.0 * math.pi) - math.pi)
+    return a.rotation_to(b)
 
 
 class Keyframer:
@@ -84,21 +112,29 @@ class Keyframer:
     Recorded ingest and live adds (a robot streaming frames to a running memory) go through the
     same object, so both keep the same frames: `pre(frame)` applies the cheap rules before the
     embedder (stride, rate, motion: motion is measured from the last frame that passed them) and
-    `post(embedding)` the novelty rule after it (similarity to the last frame kept). Each returns
-    None when the frame passes, or the reason it was dropped (one of the DROP_* strings).
+    `post(embedding)` the novelty rule after it (similarity to the last keyframe, if it is not
+    older than `novelty_window` seconds). Each returns None when the frame passes, or the reason it was
+    dropped (one of the DROP_* strings). Every frame that passes `pre` gets exactly one `post`
+    call, in the same order (a batch of `pre` calls then their `post` calls is fine).
     """
 
     def __init__(self, cfg: KeyframeConfig | None = None) -> None:
         self.cfg = cfg or KeyframeConfig()
         self.stats = KeyframeStats()
-        self.novelty = NoveltyFilter(self.cfg.max_similarity) if self.cfg.max_similarity is not None else None
+        self.novelty = (
+            NoveltyFilter(self.cfg.max_similarity, self.cfg.novelty_window)
+            if self.cfg.max_similarity is not None
+            else None
+        )
         self._seen = 0
         self._t0: float | None = None
         self._last_slot = -1
         self._last_pose: Pose | None = None
+        self._last_t: float | None = None
+        self._pending: deque[float] = deque()  # times of frames that passed `pre`, awaiting `post`
 
     def pre(self, f: Frame) -> str | None:
-        """The cheap rules, in order: stride, rate, motion."""
+        """The cheap rules, in order: stride, rate, motion (or max_interval elapsed)."""
         cfg = self.cfg
         i = self._seen
         self._seen += 1
@@ -115,21 +151,30 @@ class Keyframer:
         if motion and f.pose is not None and last is not None:
             moved = cfg.min_translation is not None and f.pose.distance_to(last) >= cfg.min_translation
             turned = cfg.min_rotation is not None and rotation_between(last, f.pose) >= cfg.min_rotation
-            if not (moved or turned):
+            waited = (
+                cfg.max_interval is not None
+                and self._last_t is not None
+                and f.t - self._last_t >= cfg.max_interval
+            )
+            if not (moved or turned or waited):
                 return self._drop(DROP_MOTION)
         if cfg.fps is not None:
             self._last_slot = slot
         if f.pose is not None:
             self._last_pose = f.pose
+            self._last_t = f.t
         if self.novelty is None:
             self.stats.kept += 1
+        else:
+            self._pending.append(f.t)
         return None
 
     def post(self, embedding: np.ndarray) -> str | None:
-        """The novelty rule, on the embedding of a frame that passed `pre`."""
+        """The novelty rule, on the embedding of the oldest frame that passed `pre` without one."""
         if self.novelty is None:
             return None
-        if not self.novelty.keep(embedding):
+        t = self._pending.popleft() if self._pending else None
+        if not self.novelty.keep(embedding, t):
             return self._drop(DROP_SIMILAR)
         self.stats.kept += 1
         return None
@@ -148,7 +193,7 @@ def select_frames(
     frame of each new slot, so timestamp jitter does not lower the kept rate. Frames without a
     pose pass the motion rule (nothing to compare) and do not reset it.
     """
-    kf = Keyframer(replace(cfg, max_similarity=None))
+    kf = Keyframer(replace(cfg, max_similarity=None, novelty_window=None))
     if stats is not None:
         kf.stats = stats
     for f in frames:
@@ -157,24 +202,39 @@ def select_frames(
 
 
 class NoveltyFilter:
-    """Post-embedding stage: keep an embedding unless it is within `max_similarity` of the last kept."""
+    """Post-embedding stage: keep an embedding unless it is within `max_similarity` (cosine) of
+    the last kept one. With a `window` (s) and frame times, a last keyframe older than the window
+    no longer counts, so a scene that stays the same is stored again once per window.
 
-    def __init__(self, max_similarity: float) -> None:
+    Only the last keyframe is compared, on purpose: comparing against every keyframe of the last
+    3-10 s also dropped views the camera came back to, and with them the answers to "when did I
+    last see X" (measured on TUM fr1_rpy: docs/ingest.md, Keyframes).
+    """
+
+    def __init__(self, max_similarity: float, window: float | None = None) -> None:
         if not -1.0 <= max_similarity <= 1.0:
             raise InputError(f"keyframes: max_similarity is a cosine in [-1, 1], got {max_similarity}")
         self.max_similarity = float(max_similarity)
+        self.window = window
         self.stats = KeyframeStats()
         self._last: np.ndarray | None = None
+        self._last_t: float | None = None
 
-    def keep(self, embedding: np.ndarray) -> bool:
+    def keep(self, embedding: np.ndarray, t: float | None = None) -> bool:
         """True (and remember it) when the embedding is novel enough; the first is always kept."""
         v = np.asarray(embedding, dtype=np.float64).reshape(-1)
         n = float(np.linalg.norm(v))
         v = v / n if n > 0 else v
-        if self._last is not None and float(v @ self._last) > self.max_similarity:
+        expired = (
+            self.window is not None
+            and t is not None
+            and self._last_t is not None
+            and t - self._last_t > self.window
+        )
+        if self._last is not None and not expired and float(v @ self._last) > self.max_similarity:
             self.stats.drop(DROP_SIMILAR)
             return False
-        self._last = v
+        self._last, self._last_t = v, t
         self.stats.kept += 1
         return True
 
@@ -185,26 +245,34 @@ _UNITS: dict[str, dict[str, float]] = {
     "fps": {"": 1.0, "hz": 1.0},
     "min_translation": {"": 1.0, "m": 1.0, "cm": 0.01, "mm": 0.001},
     "min_rotation": {"": 1.0, "rad": 1.0, "deg": math.pi / 180.0},
+    "max_interval": {"": 1.0, "s": 1.0, "ms": 0.001, "min": 60.0},
     "max_similarity": {"": 1.0},
+    "novelty_window": {"": 1.0, "s": 1.0, "ms": 0.001, "min": 60.0},
 }
 
 
 def parse_keyframes(spec: str | None) -> KeyframeConfig:
-    """Parse `stride=5,fps=2,min_translation=0.1,min_rotation=10deg,max_similarity=0.95`.
+    """Parse a keyframe spec: `default`, `all`, or rules such as `fps=2,min_rotation=10deg`.
 
-    Empty/None/'all' keeps every frame. Units: fps `hz`; translation `m`/`cm`/`mm` (default m);
-    rotation `deg`/`rad` (default rad).
+    Empty/None/`all` keeps every frame. `default` is `KeyframeConfig()`; `default,key=value,...`
+    changes some of its rules. Without `default`, only the rules named are used. Units: fps `hz`;
+    translation `m`/`cm`/`mm` (default m); rotation `deg`/`rad` (default rad); max_interval and
+    novelty_window `s`/`ms`/`min` (default s).
     """
     if spec is None or spec.strip().lower() in ("", "all", "none"):
-        return KeyframeConfig()
+        return KeyframeConfig.only()
     known = [f.name for f in fields(KeyframeConfig)]
+    parts = [p.strip() for p in spec.split(",") if p.strip()]
+    base = KeyframeConfig.only()
+    if parts and parts[0].lower() == "default":
+        base, parts = KeyframeConfig(), parts[1:]
     values: dict[str, float | int] = {}
-    for part in spec.split(","):
+    for part in parts:
         key, eq, raw = (s.strip() for s in part.partition("="))
-        if not part.strip():
-            continue
         if not eq:
-            raise InputError(f"keyframes: {part.strip()!r} is not key=value (keys: {', '.join(known)})")
+            raise InputError(
+                f"keyframes: {part!r} is not key=value (keys: {', '.join(known)}; or 'default', 'all')"
+            )
         if key not in known:
             raise InputError(f"keyframes: unknown key {key!r}; choose from {', '.join(known)}")
         if key in values:
@@ -220,4 +288,28 @@ def parse_keyframes(spec: str | None) -> KeyframeConfig:
             values[key] = int(m.group(1))
         else:
             values[key] = float(m.group(1)) * _UNITS[key][unit]
-    return KeyframeConfig(**values)  # type: ignore[arg-type]
+    return replace(base, **values)  # type: ignore[arg-type]
+
+
+def describe(cfg: KeyframeConfig) -> str:
+    """The rules in words with units, e.g. for `ravenmem ingest` output."""
+    if cfg == KeyframeConfig.only():
+        return "every frame"
+    parts = []
+    if cfg.stride > 1:
+        parts.append(f"every {cfg.stride}th frame")
+    if cfg.fps is not None:
+        parts.append(f"at most {cfg.fps:g} per s")
+    motion = []
+    if cfg.min_translation is not None:
+        motion.append(f"moved {cfg.min_translation:g} m")
+    if cfg.min_rotation is not None:
+        motion.append(f"turned {math.degrees(cfg.min_rotation):g} deg")
+    if motion and cfg.max_interval is not None:
+        motion.append(f"{cfg.max_interval:g} s passed")
+    if motion:
+        parts.append(" or ".join(motion))
+    if cfg.max_similarity is not None:
+        within = f" (if under {cfg.novelty_window:g} s old)" if cfg.novelty_window is not None else ""
+        parts.append(f"cosine <= {cfg.max_similarity:g} to the last keyframe{within}")
+    return "; ".join(parts)

@@ -1,6 +1,7 @@
 """Offline reasoner vs the plain embedder-only baseline (and random) on real TUM frames.
 
-The memory: TUM fr1_rpy ingested with the offline embedder (every 3rd frame, no OCR). The
+The memory: TUM fr1_rpy ingested with the offline embedder and the default keyframe rules (no
+OCR; `--keyframes stride=3` gives the every-3rd-frame memory measured before the defaults). The
 questions below are hand-written; their ground truth comes from benchmarks/data/tum_labels.json
 (every 8th frame labelled by eye with the objects visible; the first/last sightings used here
 were checked again by looking at the frames around them). Absent objects were checked absent on
@@ -12,7 +13,7 @@ seconds. Yes/no questions must match. Duration questions are right within a fact
 labelled visible time. (Positions are not scored: the camera only rotates in place here, so any
 memory's position is within centimetres of the truth.)
 
-    PYTHONPATH=src python benchmarks/bench_reasoner.py [--memory /tmp/tum_s3.mem] [--threads 2]
+    PYTHONPATH=src python benchmarks/bench_reasoner.py [--keyframes default|stride=3] [--threads 2]
 """
 
 from __future__ import annotations
@@ -132,23 +133,23 @@ def sweep(mem: object, times: list[float], seen: dict[str, list[int]], tol: floa
                   + "  ".join(f"{g} {sum(v)}/{len(v)}" for g, v in per.items()), flush=True)  # fmt: skip
 
 
-def build(path: Path, stride: int) -> None:
-    from ravenmem.ingest.keyframes import KeyframeConfig
+def build(path: Path, keyframes: str) -> None:
+    from ravenmem.ingest.keyframes import parse_keyframes
     from ravenmem.ingest.pipeline import ingest
     from ravenmem.ingest.tum import TumSource
 
     t = time.perf_counter()
     with ravenmem.create(path, embedder="offline", ocr=False) as mem:
-        rep = ingest(
-            TumSource(DATA, depth=False), mem, keyframes=KeyframeConfig(stride=stride), progress=False
-        )
+        rep = ingest(TumSource(DATA, depth=False), mem, keyframes=parse_keyframes(keyframes), progress=False)
     print(f"built {path}: {rep.kept} memories in {time.perf_counter() - t:.0f} s", file=sys.stderr)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--memory", type=Path, default=Path("/tmp/ravenmem_bench_tum_s3.mem"))
-    ap.add_argument("--stride", type=int, default=3)
+    ap.add_argument(
+        "--keyframes", default="default", help="keyframe rules of the memory built (e.g. stride=3)"
+    )
+    ap.add_argument("--memory", type=Path, help="memory folder (default: one per --keyframes under /tmp)")
     ap.add_argument("--tol", type=float, default=1.0, help="seconds of slack on time answers")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--methods", default="offline,embedder-only,random")
@@ -160,8 +161,11 @@ def main() -> None:
     import torch
 
     torch.set_num_threads(args.threads)
+    if args.memory is None:
+        slug = "".join(c if c.isalnum() else "_" for c in args.keyframes)
+        args.memory = Path(f"/tmp/ravenmem_bench_tum_{slug}.mem")
     if not (args.memory / "memory.json").exists():
-        build(args.memory, args.stride)
+        build(args.memory, args.keyframes)
     times, seen = load_truth()
     with ravenmem.open(args.memory) as mem:
         print(f"memory: {mem.count()} memories, embedder {mem.manifest.embedder}")

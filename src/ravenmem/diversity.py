@@ -62,7 +62,7 @@ def top_hits(
     Asks for FETCH_FACTOR * k candidates, then FETCH_FACTOR times more while fewer than k diverse
     hits were found and the memory (`total` memories) may hold more.
     """
-    if not diverse:
+    if not diverse or k <= 1:
         return ranked(k)[:k]
     n = max(k, 1) * FETCH_FACTOR
     while True:

@@ -416,8 +416,9 @@ class Memory:
             q = self.embedder.embed_images([img])[0]
         skip = -1 if memory_id is None else int(memory_id)
 
-        def ranked(n: int) -> list[Hit]:
-            return self._hits([(i, s) for i, s in self.store.search_vector(q, n + 1, filt) if i != skip][:n])
+        def ranked(n: int) -> list[Hit]:  # equal scores: the earlier memory first, as in text search
+            scored = sorted(self.store.search_vector(q, n + 1, filt), key=lambda p: (-p[1], p[0]))
+            return self._hits([(i, s) for i, s in scored if i != skip][:n])
 
         return diversity.top_hits(ranked, k, diverse, self.count())
 

@@ -1,0 +1,102 @@
+"""Defaults a new user meets, run as the `ravenmem` command: keyframes that sparsify, the ratio
+printed, diverse search results, and commands that load only the models they need."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+TUM = REPO.parent / "shared" / "data" / "tum_fr1_rpy"
+
+
+def rm(*args: str, importtime: bool = False) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    flags = ["-X", "importtime"] if importtime else []
+    return subprocess.run(
+        [sys.executable, *flags, "-m", "ravenmem.cli.main", *args],
+        capture_output=True, text=True, env=env, timeout=600,
+    )  # fmt: skip
+
+
+def imported(stderr: str) -> set[str]:
+    """Module names from `python -X importtime` output."""
+    return {line.rsplit("|", 1)[1].strip() for line in stderr.splitlines() if line.startswith("import time:")}
+
+
+@pytest.fixture(scope="module")
+def parked(tmp_path_factory) -> Path:
+    """The first six TUM frames (0.17 s), all given one pose: one view, as a parked robot sees it."""
+    if not (TUM / "rgb.txt").is_file():
+        pytest.skip(f"real TUM data not found at {TUM}")
+    d = tmp_path_factory.mktemp("parked")
+    listed = [ln.split() for ln in (TUM / "rgb.txt").read_text().splitlines() if ln and not ln.startswith("#")]
+    rows = ["file,t,x,y,z,yaw"]
+    for i, (stamp, rel) in enumerate(listed[:6]):
+        shutil.copy(TUM / rel, d / f"f{i}.jpg")
+        rows.append(f"f{i}.jpg,{stamp},1.0,2.0,0.0,0.5")
+    (d / "poses.csv").write_text("\n".join(rows) + "\n")
+    return d
+
+
+@pytest.fixture(scope="module")
+def every_frame(parked: Path, tmp_path_factory) -> Path:
+    mem = tmp_path_factory.mktemp("all") / "all.mem"
+    r = rm("ingest", str(parked), "-m", str(mem), "--keyframes", "all", "--no-ocr", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["kept"] == 6 and out["frames_per_keyframe"] == 1.0 and out["keyframes"] == "every frame"
+    return mem
+
+
+def test_default_keyframes_keep_one_view_of_a_parked_camera(parked: Path, tmp_path: Path) -> None:
+    r = rm("ingest", str(parked), "-m", str(tmp_path / "m.mem"), "--no-ocr")
+    assert r.returncode == 0, r.stderr
+    assert "6 frames seen, 1 kept" in r.stdout and "skipped 5: keyframe selection" in r.stdout
+    assert "keyframes: 1 per 6.0 frames seen (moved 0.5 m or turned 20 deg or 5 s passed" in r.stdout
+    assert "x smaller than the raw decoded video" in r.stdout
+
+
+def test_search_is_diverse_unless_all_hits(every_frame: Path) -> None:
+    r = rm("search", "-m", str(every_frame), "a computer keyboard", "--json")
+    assert r.returncode == 0, r.stderr
+    assert len(json.loads(r.stdout)["results"]) == 1  # six frames of one moment and place: one hit
+    r = rm("search", "-m", str(every_frame), "a computer keyboard", "--all-hits", "--json")
+    hits = json.loads(r.stdout)["results"]
+    assert len(hits) == 5 and max(h["t"] for h in hits) - min(h["t"] for h in hits) < 0.2
+    r = rm("search", "-m", str(every_frame), "--like", "1", "-k", "3", "--json")
+    assert len(json.loads(r.stdout)["results"]) == 1
+    r = rm("search", "-m", str(every_frame), "--like", "1", "-k", "3", "--all-hits", "--json")
+    assert len(json.loads(r.stdout)["results"]) == 3
+
+
+def test_commands_load_only_what_they_need(every_frame: Path) -> None:
+    for args in (["info"], ["search", "--time", "+0.1s"]):
+        r = rm(*args, "-m", str(every_frame), importtime=True)
+        assert r.returncode == 0, r.stderr
+        assert "torch" not in imported(r.stderr), args  # no model at all for these
+    r = rm("search", "-m", str(every_frame), "a computer keyboard", importtime=True)
+    assert r.returncode == 0, r.stderr
+    mods = imported(r.stderr)
+    assert "ravenmem.embed._bert" in mods  # the text encoder ran ...
+    assert "sentence_transformers" not in mods and "transformers" not in mods  # ... without these
+    assert "ravenmem.embed._effnet" not in mods  # and the image network was never built
+
+
+def test_ingest_default_on_real_tum_sparsifies(tmp_path: Path) -> None:
+    """723 frames of a hand-held camera turning over a desk (24 s): ~50 distinct views kept, not 720."""
+    if not (TUM / "rgb.txt").exists():
+        pytest.skip(f"real TUM data not found at {TUM}")
+    r = rm("ingest", str(TUM), "-m", str(tmp_path / "tum.mem"), "--no-ocr", "--thumb-size", "0", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["frames_seen"] == 723 and 40 <= out["kept"] <= 60, out  # 52 measured
+    assert out["frames_per_keyframe"] == pytest.approx(723 / out["kept"])
+    assert out["skipped"]["similar to last keyframe"] >= 1  # the novelty rule did its part
+    assert out["compression_vs_raw"] > 500

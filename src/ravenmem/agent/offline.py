@@ -131,8 +131,7 @@ class OfflineSettings:
     """Defaults were chosen on the TUM fr1_rpy question set of benchmarks/bench_reasoner.py."""
 
     pool: int = 200  # memories scored per rewritten query
-    support_n: int = 3  # a hit's support = mean of the best n scores in its time window (dense memories)
-    sparse_spacing: float = 0.25  # s: keyframes further apart on average are distinct views: support_n 1
+    support_n: int = 3  # a hit's support = mean of the best n scores in its time window
     window_s: float | None = None  # half-width of that window; None = max(10 x keyframe spacing, 1 s)
     decoy_quantile: float = 0.9  # "found" threshold = this quantile of the decoys' support ...
     min_score: float | None = None  # ... or this fixed score when given (skips the decoys)
@@ -254,9 +253,6 @@ class OfflineReasoner:
         if not cands:
             return
         w, n = self._window(), self.s.support_n
-        t0, t1 = self.memory.time_span()
-        if (t1 - t0) / max(1, self.memory.count() - 1) > self.s.sparse_spacing:
-            n = 1  # sparse keyframes hold one frame per view: a sighting has no neighbours to agree
         cs = sorted(cands.values(), key=lambda c: c.rec.t)
         ts = np.array([c.rec.t for c in cs])
         sc = np.array([c.score for c in cs])

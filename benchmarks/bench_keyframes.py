@@ -190,9 +190,9 @@ def main() -> None:
         ("stride 15 (about the default's count, no rule)", list(range(0, len(frames), 15))),
     ]
     grid = [("default: " + describe(default), default)]
-    for rot in (15, 20, 25, 30):
-        for sim in (None, 0.93, 0.95, 0.97):
-            if (rot, sim) != (20, 0.95):
+    for rot in (10, 15, 20, 25, 30):
+        for sim in (None, 0.93, 0.95, 0.97, 0.98):
+            if (rot, sim) != (15, 0.97):
                 grid.append(
                     (
                         f"turned {rot} deg, cosine <= {sim}",
@@ -211,8 +211,10 @@ def main() -> None:
     )
     for name, kept in rules:
         m = evaluate(kept, truth, t, emb, txt)
-        print(f"{name:<100} {m['kept']:5d} {len(frames) / m['kept']:6.1f} {m['sightings']:6.2f} {m['fl']:6.2f} "
-              f"{m['fl_bad']:5.2f} {m['mAP']:6.3f} {m['top1']:5.2f} {m['P@5']:5.2f}")  # fmt: skip
+        print(
+            f"{name:<100} {m['kept']:5d} {len(frames) / m['kept']:6.1f} {m['sightings']:6.2f} {m['fl']:6.2f} "
+            f"{m['fl_bad']:5.2f} {m['mAP']:6.3f} {m['top1']:5.2f} {m['P@5']:5.2f}"
+        )
     kept_default = select(default, frames, emb)
     s = diversity.SAME_VIEW
     print(

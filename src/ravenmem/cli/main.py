@@ -127,8 +127,8 @@ def ingest(
     keyframes: Annotated[
         str | None,
         typer.Option(
-            help="keyframe rules: 'default' (when left out: moved 0.5 m or turned 20 deg or 5 s passed, "
-            "then cosine <= 0.95 to the last keyframe), 'all' (every frame), only the rules named "
+            help="keyframe rules: 'default' (when left out: moved 0.5 m or turned 15 deg or 5 s passed, "
+            "then cosine <= 0.97 to the last keyframe), 'all' (every frame), only the rules named "
             "('fps=2,min_rotation=10deg'), or 'default,max_similarity=0.9'"
         ),
     ] = None,

@@ -33,9 +33,9 @@ DROP_SIMILAR = "similar to last keyframe"
 
 # The defaults, chosen on TUM fr1_rpy (benchmarks/bench_keyframes.py; docs/ingest.md, Keyframes).
 DEFAULT_MIN_TRANSLATION = 0.5  # m
-DEFAULT_MIN_ROTATION = math.radians(20.0)
+DEFAULT_MIN_ROTATION = math.radians(15.0)
 DEFAULT_MAX_INTERVAL = 5.0  # s
-DEFAULT_MAX_SIMILARITY = 0.95
+DEFAULT_MAX_SIMILARITY = 0.97
 DEFAULT_NOVELTY_WINDOW = 30.0  # s
 NUMERIC_KEYS = ("fps", "min_translation", "min_rotation", "max_interval", "max_similarity", "novelty_window")
 

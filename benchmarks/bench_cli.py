@@ -1,14 +1,14 @@
 """Cold `ravenmem` commands against `python -c "import torch"`, side by side in one run.
 
 Each repeat starts fresh Python processes, in turn: `import torch` (the floor for anything that
-runs a torch model), `ravenmem search "text"` (text encoder only), `ravenmem search --time` and
-`ravenmem info` (no model at all). Reported: the median wall time of each over --repeats, and the
+runs a torch model), `ravenmem search "text"` (text encoder only), `ravenmem search --image`
+(the image network), `ravenmem search --time` and `ravenmem info` (no model at all). Reported: the median wall time of each over --repeats, and the
 ratio of the text search to `import torch` (target: <= 2.5x). The memory searched is built first
 from 6 TUM frames (`--keyframes all`, no OCR); one untimed round warms the disk cache and the
 label-bank cache, so "cold" means a new process, not a new machine.
 
-`--compare SRC` also times the text search with another source tree on PYTHONPATH (e.g. a
-checkout from before a change), in the same rounds.
+`--compare SRC` also times the text and image searches with another source tree on PYTHONPATH
+(e.g. a checkout from before a change), in the same rounds.
 
     PYTHONPATH=src python benchmarks/bench_cli.py [--repeats 7] [--compare /path/to/old/src]
 """
@@ -69,11 +69,16 @@ def main() -> None:
         cases: dict[str, tuple[list[str], Path]] = {
             "python -c 'import torch'": ([py, "-c", "import torch"], src),
             'ravenmem search "text"': ([*cli, "search", "-m", str(mem), "a computer keyboard"], src),
+            "ravenmem search --image": (
+                [*cli, "search", "-m", str(mem), "--image", str(mem.parent / "frames" / "f0.jpg")],
+                src,
+            ),
             "ravenmem search --time": ([*cli, "search", "-m", str(mem), "--time", "+1s"], src),
             "ravenmem info": ([*cli, "info", "-m", str(mem)], src),
         }
         if a.compare:
-            cases[f'ravenmem search "text" ({a.compare})'] = (cases['ravenmem search "text"'][0], a.compare)
+            for name in ('ravenmem search "text"', "ravenmem search --image"):
+                cases[f"{name} ({a.compare})"] = (cases[name][0], a.compare)
         for cmd, where in cases.values():  # warm-up: disk cache, label bank
             run(cmd, where)
         times: dict[str, list[float]] = {name: [] for name in cases}

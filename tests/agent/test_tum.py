@@ -23,7 +23,7 @@ def tum_mem(tmp_path_factory):
     from ravenmem.ingest.tum import TumSource
 
     m = ravenmem.create(tmp_path_factory.mktemp("tum") / "tum.mem", embedder="offline", ocr=False)
-    ingest(TumSource(TUM, depth=False), m, keyframes=KeyframeConfig(stride=12), progress=False)
+    ingest(TumSource(TUM, depth=False), m, keyframes=KeyframeConfig.only(stride=12), progress=False)
     yield m
     m.close()
 

@@ -56,15 +56,15 @@ def every_frame(parked: Path, tmp_path_factory) -> Path:
     r = rm("ingest", str(parked), "-m", str(mem), "--keyframes", "all", "--no-ocr", "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    assert out["kept"] == 6 and out["frames_per_keyframe"] == 1.0 and out["keyframes"] == "every frame"
+    assert out["kept"] == 6 and out["keyframe_ratio"] == 1.0 and out["keyframes"] == "every frame"
     return mem
 
 
 def test_default_keyframes_keep_one_view_of_a_parked_camera(parked: Path, tmp_path: Path) -> None:
     r = rm("ingest", str(parked), "-m", str(tmp_path / "m.mem"), "--no-ocr")
     assert r.returncode == 0, r.stderr
-    assert "6 frames seen, 1 kept" in r.stdout and "skipped 5: keyframe selection" in r.stdout
-    assert "keyframes: 1 per 6.0 frames seen (moved 0.5 m or turned 15 deg or 5 s passed" in r.stdout
+    assert "6 frames seen, 1 kept, 1 in 6.0" in r.stdout and "skipped 5: keyframe selection" in r.stdout
+    assert "keyframe rules: moved 0.5 m or turned 15 deg or 5 s passed" in r.stdout
     assert "x smaller than the raw decoded video" in r.stdout
 
 
@@ -102,6 +102,6 @@ def test_ingest_default_on_real_tum_sparsifies(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["frames_seen"] == 723 and 60 <= out["kept"] <= 85, out  # 72 measured
-    assert out["frames_per_keyframe"] == pytest.approx(723 / out["kept"])
+    assert out["keyframe_ratio"] == pytest.approx(723 / out["kept"], abs=1e-3)
     assert out["skipped"]["similar to last keyframe"] >= 1  # the novelty rule did its part
     assert out["compression_vs_raw"] > 500

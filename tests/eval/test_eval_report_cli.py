@@ -242,12 +242,9 @@ def test_navqa_per_horizon_and_findingdory_relaxed_reports(tmp_path: Path) -> No
 
 
 def test_keyframes_default_to_every_frame() -> None:
-    off = {"fps": None, "min_translation": None, "min_rotation": None, "max_similarity": None}
-    assert eval_keyframes(None) == KeyframeConfig(stride=1, **off) == eval_keyframes("all")
-    assert eval_keyframes("stride=5") == KeyframeConfig(stride=5, **off)
-    assert eval_keyframes("fps=2,max_similarity=0.9") == KeyframeConfig(
-        **(off | {"fps": 2.0, "max_similarity": 0.9})
-    )
+    assert eval_keyframes(None) == KeyframeConfig.only() == eval_keyframes("all")  # every rule off
+    assert eval_keyframes("stride=5") == KeyframeConfig.only(stride=5)
+    assert eval_keyframes("fps=2,max_similarity=0.9") == KeyframeConfig.only(fps=2.0, max_similarity=0.9)
     cfg = parse_keyframes("stride=5,fps=2,max_similarity=0.9")
     assert parse_keyframes(keyframe_spec(cfg)) == cfg
     assert keyframe_spec(eval_keyframes(None)) == "all"

@@ -55,6 +55,7 @@ class MemoryLike(Protocol):
         before: TimeLike = None,
         near: Near | None = None,
         ocr: bool = True,
+        diverse: bool = True,
     ) -> list[list[Hit]]: ...
 
     def search_image(

@@ -117,7 +117,7 @@ def test_pipeline_maps_every_depth_frame_not_only_keyframes(tmp_path: Path, colo
     src = FolderSource(root, depth=root / "depth", camera_frame="optical")
     mem = ravenmem.create(tmp_path / "m.mem", embedder=color_embedder, ocr=False, thumb_size=0)
     mapper = MapBuilder(mem.path, intr, src.camera_extrinsic, fit_frames=4)
-    rep = ingest(src, mem, keyframes=KeyframeConfig(stride=4), mapper=mapper)
+    rep = ingest(src, mem, keyframes=KeyframeConfig.only(stride=4), mapper=mapper)
     assert rep.kept == 3 and mapper.stats.mapped == 12
     grid = ravenmem.nav.load_map(mem.path)
     assert grid.occupied.sum() > 20 and grid.free.sum() > 200

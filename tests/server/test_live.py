@@ -100,7 +100,7 @@ def test_writer_bounds_its_queue_and_stops_cleanly(tmp_path):
             return super().embed_images(images)
 
     mem._embedder = Slow()
-    w = LiveWriter(mem, KeyframeConfig(), max_pending=2, batch=1).start()
+    w = LiveWriter(mem, KeyframeConfig.only(), max_pending=2, batch=1).start()
     futures = []
     with pytest.raises(BusyError, match="waiting"):
         for i in range(10):

@@ -295,7 +295,9 @@ def search(
     url = resolve_server(server, memory)
     if url:
         if all_hits:
-            raise InputError("--all-hits applies to a local memory (--memory); the service returns diverse hits")
+            raise InputError(
+                "--all-hits applies to a local memory (--memory); the service returns diverse hits"
+            )
         with ServerClient(url) as remote:
             rows = remote.search(tool, call, k, image)["results"]
     else:

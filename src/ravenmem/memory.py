@@ -39,6 +39,7 @@ from .tools import check_k
 from .types import Filter, Frame, Hit, MemoryRecord, Pose, Region
 
 if TYPE_CHECKING:
+    from .changes import ChangeSettings, Whereabouts
     from .query import Query
 
 __all__ = ["FORMAT_VERSION", "MANIFEST", "Memory", "create", "open"]
@@ -489,6 +490,36 @@ class Memory:
         filt = self.make_filter(after, before)
         r = None if radius is None else float(radius)
         return self._hits(self.store.nearest(x, y, z, k, r, filt), kind="distance")
+
+    def last_seen(
+        self,
+        query: str | None = None,
+        *,
+        image: np.ndarray | str | os.PathLike[str] | None = None,
+        memory_id: int | None = None,
+        after: TimeLike = None,
+        before: TimeLike = None,
+        near: Near | None = None,
+        settings: ChangeSettings | None = None,
+    ) -> Whereabouts:
+        """Where a thing was seen, place by place (newest first), and whether each place still
+        shows it: `still there`, `not revisited`, `moved` or `gone` (see `ravenmem.changes`).
+        `before` is the "as of" time; `.now` is the place it is at now, if any."""
+        from .changes import last_seen
+
+        if query is not None:
+            _check_text(query)
+        img = read_image(Path(image)) if isinstance(image, (str, os.PathLike)) else image
+        return last_seen(
+            self,
+            query,
+            image=img,
+            memory_id=memory_id,
+            after=after,
+            before=before,
+            near=near,
+            settings=settings,
+        )
 
     def query(self) -> Query:
         from .query import Query

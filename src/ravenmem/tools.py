@@ -34,6 +34,7 @@ if TYPE_CHECKING:
 MAX_K = 1000  # results per call: beyond this a caller wants an export, not a search
 TimeArg = float | str
 Order = Literal["best first", "chronological", "nearest first"]
+LATEST_ORDER = "newest place first (its latest sighting, then later views without the thing)"
 TimeMode = Literal["forward", "centred"]
 
 _TIME_DOC = (
@@ -73,7 +74,18 @@ class _Near(ToolArgs):
         return (self.near[0], self.near[1], self.near[2]) if self.near else None
 
 
-class TextArgs(_Near):
+class _Latest(_Near):
+    latest: bool = Field(
+        False,
+        description="true for questions about the present ('where is it now?', 'is it still "
+        "there?'): instead of the best matches, the latest sighting at each place the thing was "
+        "seen, newest place first, each with a verdict from the robot's later visits: 'still "
+        "there', 'not revisited', 'moved' or 'gone' (the place was looked at again without it), "
+        "followed by the later views that no longer show it; k counts places",
+    )
+
+
+class TextArgs(_Latest):
     query: str = Field(
         ...,
         min_length=1,
@@ -89,7 +101,7 @@ class TextArgs(_Near):
         return v
 
 
-class ImageArgs(_Near):
+class ImageArgs(_Latest):
     memory_id: int | None = Field(
         None,
         ge=0,
@@ -173,9 +185,13 @@ class Tool:
             mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search, diverse=diverse
         )
 
+    def order_for(self, args: ToolArgs) -> str:
+        """The order of this call's results: the latest mode lists places newest first."""
+        return LATEST_ORDER if getattr(args, "latest", False) else self.order
+
     def label(self, args: ToolArgs) -> str:
         """How a call is shown to a person or a model, e.g. `search_text("red mug")`."""
-        shown = {k: v for k, v in args.model_dump().items() if v is not None}
+        shown = {k: v for k, v in args.model_dump(exclude_defaults=True).items() if v is not None}
         inner = ", ".join(f"{k}={v!r}" for k, v in shown.items())
         return f"{self.name}({inner})"
 
@@ -251,6 +267,38 @@ def _image(
     )
 
 
+def _or_latest(search: Runner) -> Runner:
+    """The text or image tool, or with `latest=true` its latest mode (`ravenmem.changes`):
+    per place the last sighting and the later views without the thing, as `ChangeHit`s."""
+
+    def run(mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, **kw: Any) -> list[Hit]:
+        if not getattr(a, "latest", False):
+            return search(mem, a, k, image=image, **kw)
+        return _latest(mem, a, k, image, kw.get("text_search"))
+
+    return run
+
+
+def _latest(
+    mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None, text_search: Runner | None
+) -> list[Hit]:
+    from .changes import last_seen
+
+    name = "search_text" if isinstance(a, TextArgs) else "search_image"
+    if text_search is not None or not hasattr(mem, "store"):
+        raise InputError(f"{name}: latest=true needs the memory's own embeddings (not available here)")
+    near = a.disc() if isinstance(a, _Near) else None
+    if isinstance(a, TextArgs):
+        found = last_seen(mem, a.query, after=a.after, before=a.before, near=near)  # type: ignore[arg-type]
+    else:
+        assert isinstance(a, ImageArgs)
+        if a.memory_id is None and image is None:
+            raise InputError("search_image: give memory_id (no image is attached to this question)")
+        pick = {"memory_id": a.memory_id} if a.memory_id is not None else {"image": image}
+        found = last_seen(mem, after=a.after, before=a.before, near=near, **pick)  # type: ignore[arg-type]
+    return list(found.hits(k))
+
+
 def _time(mem: MemoryLike, a: ToolArgs, k: int, time_mode: TimeMode = "forward", **_: Any) -> list[Hit]:
     assert isinstance(a, TimeArgs)
     hits = mem.search_time(a.time, k=k, after=a.after, before=a.before, centred=time_mode == "centred")
@@ -272,7 +320,7 @@ TOOLS: dict[str, Tool] = {
             TextArgs,
             "best first",
             "score",
-            _text,
+            _or_latest(_text),
         ),
         Tool(
             "search_image",
@@ -282,7 +330,7 @@ TOOLS: dict[str, Tool] = {
             ImageArgs,
             "best first",
             "score",
-            _image,
+            _or_latest(_image),
         ),
         Tool(
             "search_time",
@@ -323,6 +371,8 @@ def hit_json(
     Times are Unix seconds (`t`), ISO UTC (`time`) and seconds from the first memory
     (`offset_s`); yaw is radians (`yaw`) and degrees (`yaw_deg`); `image` is whatever the
     front end uses to reach the picture (a file path for the CLI, a URL for the service).
+    Hits of the latest mode add `change`: the place, its verdict and the evidence
+    (`ravenmem.changes.Place.as_dict`, with `role` "sighting" or "revisit").
     """
     r = hit.memory
     return {
@@ -343,4 +393,5 @@ def hit_json(
         "frame_index": r.frame_index,
         "ocr_text": r.ocr_text,
         "ocr_match": hit.ocr_match,
+        **({"change": change} if (change := getattr(hit, "change", None)) else {}),
     }

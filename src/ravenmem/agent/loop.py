@@ -36,7 +36,15 @@ from .presets import Preset, get_preset, merge_top_k
 from .prompts import budget_spent, reask, system_prompt
 from .questions import classify_question
 from .schema import Answer, Cost
-from .tools import DEFAULT_K, ToolRunner, WorkingMemory, check_time_mode, image_parts, per_tool_k
+from .tools import (
+    DEFAULT_K,
+    ToolRunner,
+    WorkingMemory,
+    attach_changes,
+    check_time_mode,
+    image_parts,
+    per_tool_k,
+)
 
 DEFAULT_TOOL_CALLS = 3
 
@@ -223,6 +231,7 @@ class Agent:
             images=self.attach_images,
             scores=self.show_scores,
             query_image=attached and "search_image" in run.runner.names,
+            latest=run.runner.latest,
         )
         parts: list[dict[str, Any]] = [{"type": "text", "text": f"Question: {run.question}"}]
         if attached and run.image is not None:
@@ -382,6 +391,7 @@ class Agent:
                 run.reason += ": search the memory with the tools first"
             return Step.REASK
         run.answer = build_answer(ma, run.question, run.wm, self.memory, self.name, self.max_position_offset)
+        attach_changes(run.answer, run.wm)
         return Step.DONE
 
     def _failure(self, run: _Run) -> Answer:

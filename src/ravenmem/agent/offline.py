@@ -28,16 +28,20 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..embed.ocr import OCR_WEIGHT, STOPWORDS
 from ..errors import InputError
 from ..timeparse import fmt_time
-from ..types import MemoryRecord
+from ..types import Hit, MemoryRecord
 from .base import MemoryLike
 from .questions import Order, classify_question, fmt_duration, subject_phrase, temporal_order
-from .schema import Answer, Cost, Evidence
+from .schema import Answer, Cost, Evidence, PlaceChange
+
+if TYPE_CHECKING:
+    from ..changes import Place, Whereabouts
 
 AFFORDANCES: dict[str, list[str]] = {
     r"\bsit\b|\bseat\b|\bsitting\b": ["chair", "sofa", "bench", "stool"],
@@ -124,6 +128,12 @@ _DEICTIC = re.compile(
     r"^(this|that|it|these|those|this thing|this object|this place|here|there)$", re.IGNORECASE
 )
 CALIBRATION_FILE = "offline_calibration.json"
+# questions about the present: answered from the latest sightings and the revisits (ravenmem.changes)
+_NOW = re.compile(
+    r"\b(now|currently|current|still|any ?more|at the moment|at present|these days|nowadays)\b", re.IGNORECASE
+)
+_PRESENT = re.compile(r"^\s*where(?:\s+(?:is|are)\b|'s\b)", re.IGNORECASE)
+_START = re.compile(r"\b(?:at|in) the (?:start|beginning)\b|\bat first\b|\bto begin with\b", re.IGNORECASE)
 
 
 @dataclass
@@ -147,6 +157,7 @@ class Cand:
     score: float
     support: float = 0.0
     ocr: float = 0.0
+    group: int = 0  # which rewritten query (or the image, last) gave it its score
 
 
 def rewrite(question: str, subject: str) -> list[list[str]]:
@@ -219,13 +230,13 @@ class OfflineReasoner:
             hits = self.memory.search_image(image, k=k, diverse=False)
             tables.append([{h.memory.id: (h.memory, float(h.score or 0.0)) for h in hits}])
         cands: dict[int, Cand] = {}
-        for paraphrases in tables:
+        for gi, paraphrases in enumerate(tables):
             for mid, (rec, score) in _group_scores(paraphrases).items():
                 c = cands.get(mid)
                 if c is None:
-                    cands[mid] = Cand(rec, score)
+                    cands[mid] = Cand(rec, score, group=gi)
                 elif score > c.score:
-                    c.score = score
+                    c.score, c.group = score, gi
         return cands
 
     def _add_ocr(self, cands: dict[int, Cand], subject: str, k: int) -> None:
@@ -322,6 +333,11 @@ class OfflineReasoner:
         mem, s = self.memory, self.s
         qtype, order = classify_question(question), temporal_order(question)
         subject = subject_phrase(question)
+        now = bool(_NOW.search(question)) and not _START.search(question)
+        if _START.search(question):
+            order, subject = "first", _cut(subject, _START)
+        elif now:  # "is the mug still in the first room?" is about now, not about a first sighting
+            order, subject = "best", _cut(subject, _NOW)
         groups = rewrite(question, subject)
         if not groups and image is None:
             raise InputError(f"cannot tell what to look for in {question!r}")
@@ -347,6 +363,17 @@ class OfflineReasoner:
             cut = max(thr, best.support - margin * (best.support - thr))
             good = [c for c in ranked if c.support >= cut and c.score >= thr][: s.max_good] or [best]
             self._answer(ans, qtype, order, subject or "it", good, thr, notes)
+            present = qtype == "position" and order == "best" and bool(_PRESENT.search(question))
+            if now or present:
+                w = self._whereabouts(self._vector(groups, best.group, image), thr, notes)
+                stale = _stale_place(w, ans.evidence[0].id if ans.evidence else None)
+                if w is not None and present and not now and stale is not None:
+                    notes.append(
+                        f"the best match m{stale.last.id} is at a place the robot later saw without it "
+                        f"({stale.verdict}): answered from the latest sightings"
+                    )
+                if w is not None and (now or stale is not None):
+                    self._answer_now(ans, qtype, subject or "it", w, notes)
         else:
             self._not_found(ans, subject or "it", qtype, best)
         ans.reasoning = "; ".join(notes)
@@ -442,6 +469,79 @@ class OfflineReasoner:
         if qtype == "text":
             notes.append("the offline reasoner cannot describe images; it reports where and when")
 
+    def _vector(self, groups: list[list[str]], group: int, image: np.ndarray | None) -> np.ndarray:
+        """The query that scored the best hit, as one vector: the mean of its paraphrases'
+        embeddings (so its cosine is the mean the scores above used), or the image's."""
+        emb = self.memory.embedder
+        if group < len(groups):
+            return np.asarray(emb.embed_texts(groups[group]), np.float32).mean(axis=0)
+        assert image is not None
+        return np.asarray(emb.embed_images([image])[0], np.float32)
+
+    def _whereabouts(self, vector: np.ndarray, thr: float, notes: list[str]) -> Whereabouts | None:
+        """The thing's places and verdicts (`ravenmem.changes`), or None (with a note) when the
+        memory cannot give them or no sighting stands out."""
+        if not hasattr(self.memory, "store"):
+            notes.append("the latest sightings need a ravenmem Memory: answered from the best matches")
+            return None
+        from ..changes import last_seen
+
+        w = last_seen(self.memory, vector=vector, min_score=thr)  # type: ignore[arg-type]
+        if not w.places:
+            notes.append("latest mode: no sighting stands out; answered from the best matches")
+            return None
+        return w
+
+    def _answer_now(self, ans: Answer, qtype: str, subject: str, w: Whereabouts, notes: list[str]) -> None:
+        """A question about the present ("now", "still", "currently"): the answer comes from the
+        latest sightings and what later visits of their places showed (`ravenmem.changes`)."""
+        notes.append(f"latest mode: status {w.status} over {len(w.places)} place(s)")
+        ans.changes = [
+            PlaceChange.model_validate({**p.as_dict(), "query": subject, "status": w.status})
+            for p in w.places
+        ]
+        name = subject[:1].upper() + subject[1:]
+        moved = w.moved_from[:1]
+        before = "".join(
+            f" It was at x={p.last.pose.x:.2f}, y={p.last.pose.y:.2f} until {fmt_time(p.last.t)}; that place "
+            f"was looked at again at {fmt_time(p.revisited or p.last.t)} without it."
+            for p in moved
+        )
+        here = w.now
+        if here is None:
+            top = w.latest
+            assert top is not None
+            p = top.last.pose
+            why = w.status_note or top.sentence()
+            ans.found, ans.position, ans.yaw, ans.time = False, None, None, top.last.t
+            ans.position_source = ans.yaw_source = "none"
+            ans.evidence = [_ev_hit(h) for h in [top.sightings[-1], *top.revisits]][: self.top_k]
+            ans.text = (
+                f"I don't know where {subject} is now: last seen from x={p.x:.2f}, y={p.y:.2f} at "
+                f"{fmt_time(top.last.t)}, and not seen since ({why})."
+            )
+            if qtype == "binary":
+                ans.yes = False
+                ans.text = "No: " + ans.text
+            return
+        rec, p = here.last, here.last.pose
+        ans.position, ans.yaw, ans.time = [p.x, p.y, p.z], p.yaw, rec.t
+        ans.position_source = ans.yaw_source = "evidence"
+        newest_first = sorted(here.sightings, key=lambda h: (-h.memory.t, -h.memory.id))
+        ans.evidence = [_ev_hit(h) for h in newest_first][: self.top_k]
+        where, when = f"x={p.x:.2f}, y={p.y:.2f}, z={p.z:.2f}", fmt_time(rec.t)
+        if qtype == "binary":
+            ans.yes = not moved
+            ans.text = (
+                f"No: {subject} moved. Seen since at {where} (last at {when})." + before
+                if moved
+                else f"Yes: {subject} was last seen at {where} at {when} ({here.verdict})."
+            )
+        elif qtype == "time":
+            ans.text = f"Last sighting of {subject}: {when}, {where} ({here.verdict})." + before
+        else:
+            ans.text = f"{name} is now at {where}: last seen there at {when} ({here.verdict})." + before
+
     def _not_found(self, ans: Answer, subject: str, qtype: str, best: Cand | None) -> None:
         ans.text = f"I don't remember seeing {subject}."
         if qtype == "binary":
@@ -449,6 +549,40 @@ class OfflineReasoner:
             ans.text = f"No: I don't remember seeing {subject}."
         if best is not None:
             ans.evidence = [_ev(best)]  # the closest miss, for the curious; no pose is claimed
+
+
+def _stale_place(w: Whereabouts | None, memory_id: int | None) -> Place | None:
+    """The place holding `memory_id` when the robot later saw it without the thing."""
+    if w is None or memory_id is None:
+        return None
+    for p in w.places:
+        if p.verdict in ("moved", "gone") and any(h.memory.id == memory_id for h in p.sightings):
+            return p
+    return None
+
+
+def _cut(subject: str, words: re.Pattern[str]) -> str:
+    """The subject before a time word ("red box now" -> "red box", "Is the green box still
+    there" -> "green box"), when something is left."""
+    m = words.search(subject)
+    head = subject[: m.start()] if m else subject
+    head = re.sub(r"^(?:is|are|was|were)\s+(?:there\s+)?", "", head.strip(), flags=re.IGNORECASE)
+    head = re.sub(r"^(?:the|a|an|my|our|your|any|some)\s+", "", head, flags=re.IGNORECASE).strip(" ?.!,")
+    return head or subject
+
+
+def _ev_hit(h: Hit) -> Evidence:
+    p = h.memory.pose
+    return Evidence(
+        id=h.memory.id,
+        t=h.memory.t,
+        x=p.x,
+        y=p.y,
+        z=p.z,
+        yaw=p.yaw,
+        score=h.score,
+        image_path=h.memory.image_path,
+    )
 
 
 def _ev(c: Cand) -> Evidence:

@@ -17,7 +17,21 @@ ANSWER_FORMAT = """When you answer, reply with ONLY this JSON object (no other t
  "found": true or false (false when the memories do not show what was asked),
  "reasoning": "a short explanation"}
 For "where" questions put the memory whose camera saw the thing best first in evidence; for
-"when did I last" questions, the latest memory that shows it; for "first", the earliest."""
+"when did I last" questions, the latest memory that shows it; for "first", the earliest; for
+"now" questions, the latest sighting at the place where it is now."""
+
+CHANGES = """The world changes: things get moved or taken away, and old memories still show them where
+they were. For questions about the present ("where is it now?", "is it still there?", "where
+is it currently?"), call search_text (or search_image) with latest=true: it lists the latest
+sighting at each place the thing was seen, newest place first, each with a verdict from the
+robot's later visits: "still there" (seen there again later), "not revisited" (nothing has
+looked at that place since), "moved" (the place was looked at again without it, and it was
+seen elsewhere since) or "gone" (looked at again without it, not seen anywhere since), with
+the later views that no longer show it, and the thing's status now. Answer "now" questions
+from the newest place that is neither moved nor gone; when the status is gone, say where and
+when it was last seen and that the place was looked at again without it (found: false). For
+questions about the past ("where was it at the start?", "at 10:00?"), use before/after (with
+latest=true and before=T for "where was it at T?"), not the newest sighting."""
 
 JSON_TOOL_PROTOCOL = """You cannot call functions directly. To use a tool, reply with ONLY:
 {"tool": "<tool name>", "arguments": {...}}
@@ -33,8 +47,10 @@ def system_prompt(
     images: bool = True,
     scores: bool = True,
     query_image: bool = False,
+    latest: bool = False,
 ) -> str:
-    """The system message; `tools_listing` is set in the JSON-in-prompt protocol only."""
+    """The system message; `tools_listing` is set in the JSON-in-prompt protocol only;
+    `latest`: the text/image tools offer the latest mode (a world that changes)."""
     t0, t1 = span
     seen = "camera images" if images else "text captions of camera images"
     lines = [
@@ -53,6 +69,8 @@ def system_prompt(
         if query_image:
             tools += " search_image without memory_id searches with the image attached to the question."
         lines.append(tools)
+        if latest:
+            lines.append(CHANGES)
     if tools_listing:
         lines.append(JSON_TOOL_PROTOCOL + tools_listing)
     lines.append(ANSWER_FORMAT)

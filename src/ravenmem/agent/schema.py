@@ -41,6 +41,31 @@ class Cost(BaseModel):
     wall_s: float = 0.0
 
 
+class PlaceChange(BaseModel):
+    """What the memory knows about a place where the thing was seen (`ravenmem.changes`): when
+    it was last seen there, whether the robot looked at the place again later without it, and
+    the verdict. `status` is the thing's own ("gone" when even its newest place, or a view of
+    it on the same pass, was looked at again without it)."""
+
+    query: str = ""
+    place: int
+    verdict: Literal["still there", "moved", "gone", "not revisited"]
+    status: Literal["still there", "moved", "gone", "not revisited"] | None = None
+    x: float
+    y: float
+    z: float = 0.0
+    sightings: int = 0
+    first_seen: float
+    last_seen: float = Field(description="Unix seconds of the last sighting at this place")
+    last_seen_id: int
+    revisited: float | None = Field(default=None, description="first later view of the place without it")
+    revisit_ids: list[int] = Field(default_factory=list)
+    moved_to: int | None = Field(default=None, description="the place it was seen at since (moved)")
+    seen_since: float | None = None
+    seen_since_id: int | None = None
+    text: str = ""
+
+
 class Answer(BaseModel):
     question: str = ""
     method: str = Field(default="", description="the method that actually ran: raven, offline, vlm-only, ...")
@@ -71,3 +96,8 @@ class Answer(BaseModel):
         description="every fallback, correction or warning applied to the model's answer, and why",
     )
     cost: Cost = Field(default_factory=Cost)
+    changes: list[PlaceChange] = Field(
+        default_factory=list,
+        description="for questions about the present: the places the thing was seen at, newest "
+        "first, with what later visits showed (still there, not revisited, moved, gone)",
+    )

@@ -24,6 +24,7 @@ from ..tools import TOOLS, TimeMode, check_k, get_tool
 from ..types import Hit, MemoryRecord
 from .base import MemoryLike
 from .images import data_url, record_jpeg
+from .schema import Answer, PlaceChange
 
 DEFAULT_K = 5
 TIME_MODES = ("forward", "centred")
@@ -43,6 +44,7 @@ class WorkingMemory:
     """Every memory shown to the model during one question, in the order first shown."""
 
     items: dict[int, Shown] = field(default_factory=dict)
+    changes: dict[int, dict[str, Any]] = field(default_factory=dict)  # latest mode: id -> place
 
     def __contains__(self, mid: object) -> bool:
         return mid in self.items
@@ -162,13 +164,22 @@ class ToolRunner:
         self.t0 = mem.time_span()[0]
         self.embedded = False  # a text or image search ran: the embedder took part in the answer
 
+    @property
+    def latest(self) -> bool:
+        """Whether the text or image tool offers its latest mode here (it needs the memory's
+        own embeddings: not with a replaced text search, as the caption baseline has)."""
+        return self.text_search is None and bool({"search_text", "search_image"} & set(self.names))
+
     def specs(self) -> list[dict[str, Any]]:
         """The tools in OpenAI function-calling form, generated from `ravenmem.tools.TOOLS`."""
         out = []
         for name in self.names:
             tool = TOOLS[name]
             doc = tool.description(self.ks[name], scores=self.show_scores, time_mode=self.time_mode)
-            fn = {"name": name, "description": doc, "parameters": tool.plain_schema()}
+            params = tool.plain_schema()
+            if not self.latest:
+                params["properties"].pop("latest", None)
+            fn = {"name": name, "description": doc, "parameters": params}
             out.append({"type": "function", "function": fn})
         return out
 
@@ -205,10 +216,20 @@ class ToolRunner:
             msg = str(e).replace("\n", " ")[:400]
             return ToolOutput(f"error: {name} could not run: {msg}", [], [], ok=False)
         self.embedded = self.embedded or name in ("search_text", "search_image")
-        return self._format(tool.label(args), tool.order, hits, name, wm)
+        mid = getattr(args, "memory_id", None)
+        query = getattr(args, "query", None) or (f"m{mid}" if mid is not None else "the attached image")
+        return self._format(tool.label(args), tool.order_for(args), hits, name, wm, query)
 
-    def _format(self, label: str, order: str, hits: list[Hit], name: str, wm: WorkingMemory) -> ToolOutput:
+    def _format(
+        self, label: str, order: str, hits: list[Hit], name: str, wm: WorkingMemory, query: str = ""
+    ) -> ToolOutput:
         lines = [f"{label} -> {len(hits)} memories, {order}:" if hits else f"{label} -> no memories matched."]
+        status = next(
+            (getattr(h, "change", {}).get("status") for h in hits if getattr(h, "change", None)), None
+        )
+        if status:
+            note = getattr(hits[0], "change", {}).get("status_note")
+            lines.append(f"status now: {status}" + (f" ({note})" if note else ""))
         images: list[SentImage] = []
         for h in hits:
             rec = h.memory
@@ -217,6 +238,15 @@ class ToolRunner:
             line = describe(rec, self.t0, h.score, h.distance, self.show_scores)
             if cap:
                 line += f"; caption: {json.dumps(cap)}"
+            change = getattr(h, "change", None)
+            if change:
+                wm.changes.setdefault(rec.id, {**change, "query": query})
+                if change.get("role") == "sighting":
+                    line += (
+                        f"; latest sighting at place {change['place']}: {change['verdict']}. {change['text']}"
+                    )
+                else:
+                    line += f"; a later view of place {change['place']} (last seen there in m{change['last_seen_id']}) without it"
             if not new:
                 line += " (already shown above)"
             elif self.attach_images:
@@ -244,3 +274,25 @@ def image_parts(images: Sequence[SentImage], detail: str | None = None) -> list[
             img["detail"] = detail
         parts.append({"type": "image_url", "image_url": img})
     return parts
+
+
+def attach_changes(answer: Answer, wm: WorkingMemory) -> None:
+    """Give the answer the places (latest mode) its evidence rests on, and warn when it rests on
+    a sighting at a place the robot later saw without the thing. With no such evidence, an
+    answer that says "not found" gets every place the latest mode reported (the reason why)."""
+    ids = [e.id for e in answer.evidence]
+    places: dict[tuple[str, int], dict[str, Any]] = {}
+    for mid in ids:
+        ch = wm.changes.get(mid)
+        if ch is not None:
+            places.setdefault((ch["query"], ch["place"]), ch)
+    if not places and not answer.found:
+        for ch in wm.changes.values():
+            places.setdefault((ch["query"], ch["place"]), ch)
+    answer.changes = [PlaceChange.model_validate(ch) for ch in places.values()]
+    first = wm.changes.get(ids[0]) if ids and answer.found else None
+    if first is not None and first.get("role") == "sighting" and first["verdict"] in ("moved", "gone"):
+        answer.notes.append(
+            f"warning: evidence m{ids[0]} is the last sighting at place {first['place']}, which the robot "
+            f"looked at again later without it ({first['verdict']}): {first['text']}"
+        )

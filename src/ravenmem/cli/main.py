@@ -257,6 +257,14 @@ def search(
             help="text/image: allow several hits of one moment and place (within 2 s, 0.5 m, 30 deg)",
         ),
     ] = False,
+    latest: Annotated[
+        bool,
+        typer.Option(
+            "--latest",
+            help="text/image: where is it now? The latest sighting per place, newest first, with "
+            "a verdict: still there, not revisited, moved or gone (-k counts places)",
+        ),
+    ] = False,
     json_out: JsonOpt = False,
 ) -> None:
     """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
@@ -277,6 +285,10 @@ def search(
         raise InputError(f"--near applies to text and image searches only, not to --{mode}")
     if radius is not None and mode != "position":
         raise InputError("--radius applies to --position only; use --near x,y,r with the other tools")
+    if latest and mode not in ("text", "image"):
+        raise InputError(f"--latest applies to text and image searches only, not to --{mode}")
+    if latest:
+        args["latest"] = True
     query_image = None
     if mode == "text":
         args["query"] = text
@@ -314,13 +326,14 @@ def search(
     if json_out:
         print_json({"mode": mode, "tool": tool.name, "results": rows})
         return
-    table = Table(title=f"{mode} search: {len(rows)} result(s), {tool.order}")
+    table = Table(title=f"{mode} search: {len(rows)} result(s), {tool.order_for(call)}")
     metric = "dist m" if tool.metric == "distance" else "score"
-    for col in ("rank", metric, "time (UTC)", "+s", "x m", "y m", "z m", "yaw deg", "image"):
-        table.add_column(col, justify="right" if col not in ("time (UTC)", "image") else "left")
+    cols = ["rank", metric, "time (UTC)", "+s", "x m", "y m", "z m", "yaw deg", "image"]
+    for col in cols + (["change"] if latest else []):
+        table.add_column(col, justify="right" if col not in ("time (UTC)", "image", "change") else "left")
     for r in rows:
         val = r["distance"] if tool.metric == "distance" else r["score"]
-        table.add_row(
+        cells = [
             str(r["rank"]),
             "" if val is None else f"{val:.3f}",
             r["time"],
@@ -330,7 +343,21 @@ def search(
             f"{r['z']:.2f}",
             f"{r['yaw_deg']:.0f}",
             esc(short_path(r["image"])),
-        )
+        ]
+        if latest:
+            ch = r.get("change", {})
+            what = ch.get("verdict", "") if ch.get("role") == "sighting" else "view without it"
+            cells.append(f"place {ch.get('place')}: {esc(what)}")
+        table.add_row(*cells)
+    if latest:
+        first = rows[0].get("change", {}) if rows else {}
+        status = first.get("status") or "not seen"
+        note = first.get("status_note")
+        console.print(f"status: {esc(status)}" + (f" ({esc(note)})" if note else ""), highlight=False)
+        for r in rows:
+            ch = r.get("change", {})
+            if ch.get("role") == "sighting":
+                console.print(f"  {esc(ch.get('text', ''))}", highlight=False)
     console.print(table)
 
 

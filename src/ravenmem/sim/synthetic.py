@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -55,7 +55,9 @@ WORLDS = {"rooms": rooms_world}
 
 
 class SyntheticEnv:
-    """A unicycle robot in a `World`; `step` advances `dt` seconds."""
+    """A unicycle robot in a `World`; `step` advances `dt` seconds. Boxes can be moved,
+    removed and added between (or during) episodes, to test a memory of a world that changes;
+    `start_time` (epoch seconds, None = the wall clock) is when the next `reset` starts."""
 
     def __init__(
         self,
@@ -77,7 +79,14 @@ class SyntheticEnv:
         )
         self.dt = float(dt)
         self.max_depth = float(max_depth)
-        self._start_time = start_time
+        self.start_time = start_time
+        self._boxes: dict[int, Box] = dict(enumerate(self.world.boxes))  # ids stay when boxes go
+        self._build()
+        self._x, self._y, self._yaw = self.world.start
+        self._steps = 0
+        self._t0 = 0.0
+
+    def _build(self) -> None:
         segs, tops, cols, owner = [], [], [], []
         for i, w in enumerate(self.world.walls):
             segs.append(w)
@@ -85,7 +94,7 @@ class SyntheticEnv:
             shade = 150 + (i * 37) % 90
             cols.append((shade, shade - 20, shade - 50))
             owner.append(-1)
-        for j, b in enumerate(self.world.boxes):
+        for j, b in self._boxes.items():
             for s in _rect(b.x - b.half, b.y - b.half, b.x + b.half, b.y + b.half):
                 segs.append(s)
                 tops.append(b.height)
@@ -95,15 +104,35 @@ class SyntheticEnv:
         self._tops = np.asarray(tops, np.float64)
         self._cols = np.asarray(cols, np.float64)
         self._owner = np.asarray(owner, np.int64)
-        self._x, self._y, self._yaw = self.world.start
-        self._steps = 0
-        self._t0 = 0.0
+
+    # --- a world that changes -------------------------------------------------------------
+    def move_object(self, obj_id: int, x: float, y: float) -> None:
+        """Put box `obj_id` somewhere else (it keeps its id, kind and looks)."""
+        self._boxes[self._box_id(obj_id)] = replace(self._boxes[obj_id], x=float(x), y=float(y))
+        self._build()
+
+    def remove_object(self, obj_id: int) -> None:
+        """Take box `obj_id` out of the world (its id is not reused)."""
+        del self._boxes[self._box_id(obj_id)]
+        self._build()
+
+    def add_object(self, box: Box) -> int:
+        """Put a new box into the world; returns its id."""
+        new = max(self._boxes, default=len(self.world.boxes) - 1) + 1
+        self._boxes[new] = box
+        self._build()
+        return new
+
+    def _box_id(self, obj_id: int) -> int:
+        if obj_id not in self._boxes:
+            raise InputError(f"{self.name}: no object {obj_id}; objects: {sorted(self._boxes)}")
+        return obj_id
 
     # --- protocol -------------------------------------------------------------------------
     def reset(self) -> Observation:
         self._x, self._y, self._yaw = self.world.start
         self._steps = 0
-        self._t0 = time.time() if self._start_time is None else float(self._start_time)
+        self._t0 = time.time() if self.start_time is None else float(self.start_time)
         return self.observe()
 
     def observe(self) -> Observation:
@@ -130,7 +159,7 @@ class SyntheticEnv:
         return self.observe()
 
     def objects(self) -> list[SceneObject]:
-        return [SceneObject(i, b.kind, b.x, b.y, 0.0) for i, b in enumerate(self.world.boxes)]
+        return [SceneObject(i, b.kind, b.x, b.y, 0.0) for i, b in sorted(self._boxes.items())]
 
     def close(self) -> None:
         return None

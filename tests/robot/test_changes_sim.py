@@ -11,69 +11,16 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Iterator
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-import pytest
-
-import ravenmem
 from ravenmem.agent import Agent, VLMConfig
 from ravenmem.agent.offline import OfflineReasoner
 from ravenmem.changes import ChangeHit
-from ravenmem.embed.base import EMBEDDERS
-from ravenmem.robot.explore import ExploreConfig, ExploreReport
-from ravenmem.robot.mission import explore_into
-from ravenmem.sim.synthetic import SyntheticEnv
 from ravenmem.timeparse import fmt_time
 from ravenmem.tools import TOOLS
 from tests.agent.scripted_server import ScriptedModel, answer, tool
 from tests.cli.helpers import assert_one_line_error, run_cli
-from tests.robot.box_embedder import BoxEmbedder
-
-T0 = 1_700_000_000.0
-DAY = 86_400.0
-RED, BLUE, GREEN = 0, 1, 2  # object ids of rooms_world()
-A = (3.0, 4.5)  # where the red box starts (room 1)
-B = (14.5, 1.0)  # where it is moved (room 2, out of sight from room 1 through the doorway)
-CFG = ExploreConfig(steps=700, resolution=0.2, keyframe_dist=1.0)
-
-
-@EMBEDDERS.register("test-boxes")
-def _boxes(spec: str = "", **_: object) -> BoxEmbedder:
-    return BoxEmbedder()
-
-
-@dataclass
-class World:
-    mem: ravenmem.Memory
-    path: Path
-    runs: tuple[ExploreReport, ExploreReport]
-    day1: SyntheticEnv  # the world as it was on day 1 (for "what would this view have shown")
-    day2_start: float
-
-    def showed(self, mid: int, obj: int) -> bool:
-        """Ground truth: whether keyframe `mid` showed object `obj`."""
-        for rep in self.runs:
-            if mid in rep.keyframes:
-                return obj in rep.keyframes[mid]
-        raise KeyError(mid)
-
-
-@pytest.fixture(scope="module")
-def world(tmp_path_factory) -> Iterator[World]:
-    path = tmp_path_factory.mktemp("changes") / "rooms.mem"
-    env = SyntheticEnv(start_time=T0)
-    mem = ravenmem.create(path, embedder=BoxEmbedder(), ocr=False, thumb_size=64)
-    _, run1 = explore_into(env, mem, CFG)
-    env.move_object(RED, *B)
-    env.remove_object(GREEN)
-    env.start_time = T0 + DAY
-    _, run2 = explore_into(env, mem, CFG)
-    assert min(run2.keyframes) > max(run1.keyframes)  # appended, ids after the first run's
-    yield World(mem, path, (run1, run2), SyntheticEnv(start_time=T0), T0 + DAY)
-    mem.close()
+from tests.robot.changes_world import GREEN, RED, A, B, World
 
 
 def _dist(rec: Any, xy: tuple[float, float]) -> float:

@@ -31,6 +31,8 @@ from .embed.base import Embedder, create_embedder
 from .embed.ocr import OCR_WEIGHT, ocr_terms
 from .errors import EmbedderMismatchError, EmptyMemoryError, InputError, MemoryBusyError
 from .imageio import read_image, write_jpeg
+from .lifelong import sidecars
+from .lifelong.groups import GroupView, annotate
 from .lock import LOCK_FILE, WriterLock
 from .manifest import FORMAT_VERSION, MANIFEST, Manifest, confine, store_for_create
 from .store.base import Store, open_store
@@ -40,6 +42,7 @@ from .types import Filter, Frame, Hit, MemoryRecord, Pose, Region
 
 if TYPE_CHECKING:
     from .changes import ChangeSettings, Whereabouts
+    from .lifelong import ConsolidateReport, ForgetReport
     from .query import Query
 
 __all__ = ["FORMAT_VERSION", "MANIFEST", "Memory", "create", "open"]
@@ -77,6 +80,7 @@ class Memory:
         self._created: _Created | None = None
         self._closed = False
         self._writer = WriterLock(path)
+        self._groups = GroupView(path)  # consolidated memories: count and span (ravenmem.lifelong)
 
     # ---------------------------------------------------------------- properties
     @property
@@ -211,6 +215,49 @@ class Memory:
             self.manifest.ingests.append(report)
             self._save_manifest()
 
+    # ---------------------------------------------------------------- forgetting
+    def forget(
+        self,
+        before: TimeLike = None,
+        after: TimeLike = None,
+        region: Near | None = None,
+        ids: Iterable[int] | None = None,
+        dry_run: bool = False,
+    ) -> ForgetReport:
+        """Remove memories for good: store rows, index entries, thumbnails, sidecar rows.
+
+        Selectors combine (a memory must match every one given): `before`/`after` are time
+        expressions (inclusive, as in the search filters), `region` an (x, y, radius m) disc,
+        `ids` memory ids. At least one is required; selecting nothing is not an error (the
+        report says 0). Crash-safe: a killed process leaves all of them or none, and the next
+        writer removes any thumbnail left over (`ravenmem.lifelong.forget`). Takes the writer
+        lock; `dry_run=True` only reports what would go.
+        """
+        from .lifelong.forget import forget
+
+        return forget(self, before=before, after=after, region=region, ids=ids, dry_run=dry_run)
+
+    def consolidate(
+        self,
+        budget: int | None = None,
+        max_similarity: float | None = None,
+        max_distance: float = 1.0,
+        max_gap: float | None = None,
+        dry_run: bool = False,
+    ) -> ConsolidateReport:
+        """Merge runs of near-duplicate memories (neighbours in time, within `max_distance`
+        metres, most similar first) into one representative that keeps their count and time
+        span, until no neighbours are more similar than `max_similarity` and/or at most
+        `budget` memories remain. Crash-safe like `forget`; see `ravenmem.lifelong.consolidate`.
+        """
+        from .lifelong.consolidate import consolidate
+
+        return consolidate(self, budget, max_similarity, max_distance, max_gap, dry_run)
+
+    def group(self, memory_id: int) -> tuple[int, float, float] | None:
+        """(count, first_t, last_t) when the memory stands for several (consolidated), else None."""
+        return self._groups.get(self.store).get(int(memory_id))
+
     # ---------------------------------------------------------------- the writer lock
     def acquire_writer(self, wait: bool | float = False) -> None:
         """Become the one writer of this memory folder (see `ravenmem.lock`), and clean up after
@@ -247,6 +294,7 @@ class Memory:
         self._writer = writer
         try:
             recovery.recover(self.path, self.store)
+            sidecars.recover(self.path, self.store)
         except BaseException:
             writer.release()
             raise
@@ -282,7 +330,10 @@ class Memory:
                 st = self.store.stats()
                 if not st.get("count"):
                     raise EmptyMemoryError(f"memory {self.path} is empty: ingest something first")
-                self._span = (float(st["t_min"]), float(st["t_max"]))  # type: ignore[arg-type]
+                lo, hi = float(st["t_min"]), float(st["t_max"])  # type: ignore[arg-type]
+                for _, first, last in self._groups.get(self.store).values():  # what merged memories saw
+                    lo, hi = min(lo, first), max(hi, last)
+                self._span = (lo, hi)
             return self._span
 
     def parse_time(self, expr: TimeLike) -> float:
@@ -321,8 +372,15 @@ class Memory:
     def _hits(self, scored: Sequence[tuple[int, float]], kind: str = "score") -> list[Hit]:
         recs = self.store.get([i for i, _ in scored])
         if kind == "distance":
-            return [Hit(memory=r, distance=float(d)) for r, (_, d) in zip(recs, scored)]
-        return [Hit(memory=r, score=float(s)) for r, (_, s) in zip(recs, scored)]
+            hits = [Hit(memory=r, distance=float(d)) for r, (_, d) in zip(recs, scored)]
+        else:
+            hits = [Hit(memory=r, score=float(s)) for r, (_, s) in zip(recs, scored)]
+        return self._grouped(hits)
+
+    def _grouped(self, hits: list[Hit]) -> list[Hit]:
+        """Hits with `count`/`span` set where a memory stands for several (consolidated)."""
+        annotate(hits, self._groups.get(self.store))
+        return hits
 
     def search_text(
         self,
@@ -442,12 +500,12 @@ class Memory:
         t0 = self.parse_time(t)
         filt = self.make_filter(after, before, near)
         if not centred:
-            return [Hit(memory=r) for r in self.store.by_time(t0, k, filt)]
+            return self._grouped([Hit(memory=r) for r in self.store.by_time(t0, k, filt)])
         later = self.store.by_time(t0, k, filt)
         earlier = self._before(t0, k, filt)
         n_before = min(len(earlier), max(k // 2, k - len(later)))
         picked = earlier[len(earlier) - n_before :] + later[: k - n_before]
-        return [Hit(memory=r) for r in picked]
+        return self._grouped([Hit(memory=r) for r in picked])
 
     def _before(self, t: float, k: int, filt: Filter) -> list[MemoryRecord]:
         """Up to k memories strictly before t, chronological. The store only looks forward, so
@@ -603,6 +661,10 @@ class Memory:
             out["extent"] = {c: [xyz[2 * i], xyz[2 * i + 1]] for i, c in enumerate("xyz")}
         if n:
             out["duration_s"] = float(st["t_max"]) - float(st["t_min"])  # type: ignore[arg-type]
+        groups = self._groups.get(self.store)
+        if groups:  # consolidated memories (additive keys: absent on a memory never consolidated)
+            out["consolidated"] = len(groups)
+            out["memories_represented"] = n + sum(g[0] - 1 for g in groups.values())
         out["ingests"] = ingests
         return out
 
@@ -611,6 +673,7 @@ class Memory:
         try:
             if not self._closed:
                 self._closed = True
+                self._groups.close()
                 self.store.close()
         finally:
             self._writer.release()

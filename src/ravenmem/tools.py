@@ -373,9 +373,11 @@ def hit_json(
     front end uses to reach the picture (a file path for the CLI, a URL for the service).
     Hits of the latest mode add `change`: the place, its verdict and the evidence
     (`ravenmem.changes.Place.as_dict`, with `role` "sighting" or "revisit").
+    A hit that stands for several memories merged by `ravenmem consolidate` also has `count`
+    (how many) and `first_t`/`last_t`/`first_time`/`last_time` (when they were seen).
     """
     r = hit.memory
-    return {
+    out = {
         "rank": rank,
         "id": r.id,
         "score": hit.score,
@@ -395,3 +397,13 @@ def hit_json(
         "ocr_match": hit.ocr_match,
         **({"change": change} if (change := getattr(hit, "change", None)) else {}),
     }
+    if hit.count > 1 and hit.span is not None:
+        first, last = hit.span
+        out |= {
+            "count": hit.count,
+            "first_t": first,
+            "last_t": last,
+            "first_time": fmt_time(first),
+            "last_time": fmt_time(last),
+        }
+    return out

@@ -161,12 +161,16 @@ class Hit:
 
     `score` is the similarity (cosine for text/image tools, fused with OCR when that channel
     matched); `distance` is metres for the position tool. Tools fill the one that applies.
+    `count` and `span` say what a consolidated memory stands for (`ravenmem consolidate`): how
+    many memories it represents and the (first, last) time they were seen; 1 and None otherwise.
     """
 
     memory: MemoryRecord
     score: float | None = None
     distance: float | None = None
     ocr_match: bool = False
+    count: int = 1
+    span: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -110,13 +110,20 @@ class CaptionIndex:
         return int(self._db.execute("SELECT COUNT(*) FROM segments").fetchone()[0])
 
     def todo(self) -> list[list[MemoryRecord]]:
-        """Segments with no caption yet, or whose memories changed since they were captioned."""
+        """Segments with no caption yet, or whose memories changed since they were captioned.
+
+        Captions of segments that no longer exist (their memories were forgotten or merged by
+        `ravenmem forget` / `consolidate`, so the segments were cut anew) are deleted here."""
         stored = {int(i): json.loads(m) for i, m in self._db.execute("SELECT id, members FROM segments")}
-        return [
-            seg
-            for seg in segments(self.mem, self.segment_frames)
-            if stored.get(seg[0].id) != [r.id for r in seg]
-        ]
+        current = segments(self.mem, self.segment_frames)
+        firsts = {seg[0].id for seg in current}
+        stale = [(i,) for i in stored if i not in firsts]
+        if stale:
+            with self._db:
+                self._db.executemany("DELETE FROM segments WHERE id = ?", stale)
+            self._matrix = None
+            self._by_member = None
+        return [seg for seg in current if stored.get(seg[0].id) != [r.id for r in seg]]
 
     def caption(self, mid: int) -> str | None:
         """The caption of the segment that holds memory `mid`."""
@@ -182,9 +189,17 @@ class CaptionIndex:
             keep &= meta[:, 0] <= self.mem.parse_time(before)
         if near is not None:
             keep &= (meta[:, 1] - near[0]) ** 2 + (meta[:, 2] - near[1]) ** 2 <= near[2] ** 2
-        order = [i for i in np.argsort(-scores, kind="stable") if keep[i]][:k]
-        recs = self.mem.get([int(reps[i]) for i in order])
-        return [Hit(memory=r, score=float(scores[i])) for r, i in zip(recs, order)]
+        order = [i for i in np.argsort(-scores, kind="stable") if keep[i]]
+        hits: list[Hit] = []
+        for i in order:
+            if len(hits) >= k:
+                break
+            try:
+                (rec,) = self.mem.get([int(reps[i])])
+            except KeyError:  # its memory was forgotten since it was captioned: skip it
+                continue
+            hits.append(Hit(memory=rec, score=float(scores[i])))
+        return hits
 
     def close(self) -> None:
         self._db.close()

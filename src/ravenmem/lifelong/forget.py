@@ -1,0 +1,179 @@
+"""Forgetting: remove memories (store rows, index entries, thumbnails, sidecar rows) for good.
+
+The order makes a killed `forget` leave the old state or the new one:
+
+1. the thumbnails of the memories to forget are listed in a thumbnail journal
+   (`ravenmem.recovery`, the same `pending-thumbs-*.json` ingest writes);
+2. the store deletes the memories in one transaction (`Store.delete`);
+3. the journal is settled: the listed thumbnails no stored memory references are deleted;
+4. rows of the forgotten memories go from the sidecars (`lifelong.sqlite`).
+
+Killed before 2 commits, every memory and thumbnail is still there (the next writer finds the
+journal, sees the thumbnails referenced and keeps them); killed after, the memories are gone
+and the next writer deletes the thumbnails left over. Sidecar rows of forgotten ids are never
+shown (ids never repeat) and are pruned by the next writer.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .. import recovery
+from ..errors import InputError
+from ..timeparse import fmt_time
+from ..types import MemoryRecord
+
+if TYPE_CHECKING:
+    from ..memory import Memory, Near, TimeLike
+
+
+@dataclass
+class ForgetReport:
+    """What `forget` removed (or, with `dry_run`, would remove)."""
+
+    removed: int
+    t_first: float | None = None
+    t_last: float | None = None
+    thumbnails: int = 0
+    thumbnail_bytes: int = 0
+    store_bytes_est: int = 0
+    unknown_ids: int = 0
+    memories_left: int = 0
+    dry_run: bool = False
+
+    @property
+    def bytes_freed(self) -> int:
+        return self.thumbnail_bytes + self.store_bytes_est
+
+    def as_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["bytes_freed"] = self.bytes_freed
+        out["first_time"] = fmt_time(self.t_first) if self.t_first is not None else None
+        out["last_time"] = fmt_time(self.t_last) if self.t_last is not None else None
+        return out
+
+
+def parse_ids(text: str) -> list[int]:
+    """`"3,7,10-12"` -> [3, 7, 10, 11, 12]; a one-line InputError for anything else."""
+    out: list[int] = []
+    for part in text.replace(" ", "").split(","):
+        if not part:
+            continue
+        lo, sep, hi = part.partition("-")
+        try:
+            a = int(lo)
+            b = int(hi) if sep else a
+        except ValueError:
+            raise InputError(f"--ids: expected ids such as 3,7,10-12, got {part!r}") from None
+        if a < 0 or b < a:
+            raise InputError(f"--ids: {part!r} is not an id or an increasing range of ids >= 0")
+        if b - a >= 10_000_000:
+            raise InputError(f"--ids: the range {part!r} is too long (at most 10,000,000 ids)")
+        out.extend(range(a, b + 1))
+    if not out:
+        raise InputError("--ids: no id given")
+    return out
+
+
+def select(
+    mem: Memory,
+    before: TimeLike = None,
+    after: TimeLike = None,
+    region: Near | None = None,
+    ids: Iterable[int] | None = None,
+) -> tuple[np.ndarray, int]:
+    """The ids every given selector accepts (sorted) and how many of `ids` are not stored."""
+    if before is None and after is None and region is None and ids is None:
+        raise InputError("forget: say what to forget: --before T, --after T, --region x,y,r or --ids ...")
+    want: np.ndarray | None = None
+    if ids is not None:
+        vals = list(ids)
+        for v in vals:
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+                raise InputError(f"ids: expected memory ids (whole numbers >= 0), got {v!r}")
+        want = np.unique(np.asarray(vals, np.int64))
+    if mem.count() == 0:  # nothing to forget (and no recording for relative times to refer to)
+        return np.empty(0, np.int64), 0 if want is None else len(want)
+    filt = mem.make_filter(after=after, before=before, near=region)
+    chosen = mem.store.select(None if filt.empty else filt)
+    if want is None:
+        return np.asarray(chosen, np.int64), 0
+    stored = want[np.isin(want, mem.store.select())] if not filt.empty else want[np.isin(want, chosen)]
+    return np.asarray(chosen[np.isin(chosen, want)], np.int64), len(want) - len(stored)
+
+
+def _thumb(folder: Path, rec: MemoryRecord) -> Path | None:
+    """The thumbnail file ravenmem wrote for a record, or None (no thumbnail, an external file)."""
+    rel = rec.image_path
+    if not rel or Path(rel).is_absolute():
+        return None
+    p = folder / rel
+    if p.parent != folder / recovery.THUMBS or not recovery.THUMB_NAME.fullmatch(p.name):
+        return None
+    return p
+
+
+def _size(p: Path) -> int:
+    try:
+        return p.stat().st_size
+    except OSError:
+        return 0
+
+
+def forget(
+    mem: Memory,
+    before: TimeLike = None,
+    after: TimeLike = None,
+    region: Near | None = None,
+    ids: Iterable[int] | None = None,
+    dry_run: bool = False,
+) -> ForgetReport:
+    """Remove the memories the selectors pick (see `Memory.forget`)."""
+    if not dry_run:
+        mem._require_writer()
+    chosen, unknown = select(mem, before, after, region, ids)
+    stats = mem.store.stats()
+    n_before = int(stats.get("count") or 0)  # type: ignore[call-overload]
+    per_mem = float(stats.get("bytes") or 0) / n_before if n_before else 0.0  # type: ignore[arg-type]
+    report = ForgetReport(removed=0, unknown_ids=unknown, memories_left=n_before, dry_run=dry_run)
+    if len(chosen) == 0:
+        return report
+    thumbs: list[tuple[Path, MemoryRecord]] = []
+    t_lo, t_hi = math.inf, -math.inf
+    for s in range(0, len(chosen), 50_000):
+        for r in mem.store.get(chosen[s : s + 50_000].tolist()):
+            t_lo, t_hi = min(t_lo, r.t), max(t_hi, r.t)
+            p = _thumb(mem.path, r)
+            if p is not None:
+                thumbs.append((p, r))
+    report.t_first, report.t_last = t_lo, t_hi
+    report.thumbnail_bytes = sum(_size(p) for p, _ in thumbs)
+    report.thumbnails = sum(1 for p, _ in thumbs if p.is_file())
+    if dry_run:
+        report.removed = len(chosen)
+        report.store_bytes_est = round(per_mem * len(chosen))
+        report.memories_left = n_before - len(chosen)
+        return report
+    from .sidecars import after_delete
+
+    journal = None
+    if thumbs:
+        entries = [
+            (p.relative_to(mem.path).as_posix(), r.source, int(r.frame_index), float(r.t)) for p, r in thumbs
+        ]
+        journal = recovery.begin(mem.path, entries)
+    with mem._lock:
+        report.removed = mem.store.delete(chosen)
+        mem._span = None
+    if journal is not None:
+        report.thumbnails = recovery.settle(mem.path, mem.store, journal)
+    after_delete(mem, chosen)
+    report.store_bytes_est = round(per_mem * report.removed)
+    report.memories_left = mem.count()
+    return report

@@ -435,7 +435,9 @@ StudyOut = Annotated[
 def _print_study(doc: dict[str, Any], out: Path) -> None:
     from ..eval.report import _num, _pct
 
-    first = {"compression": "stride", "coverage": "coverage"}.get(doc["study"], doc.get("option", "value"))
+    first = {"compression": "stride", "coverage": "coverage", "consolidation": "strategy / budget"}.get(
+        doc["study"], doc.get("option", "value")
+    )
     table = Table(title=f"{doc['study']} study")
     for col in (
         first,
@@ -452,6 +454,8 @@ def _print_study(doc: dict[str, Any], out: Path) -> None:
         table.add_column(col)
     for p in doc["points"]:
         value = f"{100 * p['coverage']:.0f}%" if "coverage" in p else str(p.get("stride", p.get("value")))
+        if doc["study"] == "consolidation":
+            value = p["strategy"] + ("" if p.get("budget") is None else f" {p['budget']}")
         table.add_row(
             esc(value),
             str(p.get("memories", "")),
@@ -498,6 +502,34 @@ def coverage_cmd(
     from ..eval.studies import coverage_study
 
     doc = coverage_study(cfg, _floats(fractions, "--fractions"), out, cell=cell, log=_log)
+    _print_study(doc, out)
+
+
+@study_app.command("consolidation")
+@run_options
+def consolidation_cmd(
+    out: StudyOut,
+    cfg: Any = None,
+    budgets: Annotated[str, typer.Option("--budgets", help="memories kept per episode")] = "200,100,50,25,12",
+    strategies: Annotated[
+        str, typer.Option("--strategies", help="consolidate (merge near-duplicates), uniform (thin in time)")
+    ] = "consolidate,uniform",
+    max_distance: Annotated[
+        float, typer.Option("--max-distance", help="consolidate: a merged run fits in this many metres")
+    ] = 1.0,
+) -> None:
+    """Accuracy vs memories kept: each memory consolidated to a budget, beside it thinned
+    uniformly in time to the same budget, and the full memory."""
+    from ..eval.studies import consolidation_study
+
+    doc = consolidation_study(
+        cfg,
+        _ints(budgets, "--budgets"),
+        out,
+        strategies=tuple(_split_list(strategies, "--strategies")),
+        max_distance=max_distance,
+        log=_log,
+    )
     _print_study(doc, out)
 
 

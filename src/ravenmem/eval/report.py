@@ -259,6 +259,8 @@ def _notes(groups: list[dict[str, Any]], summary: dict[str, Any]) -> list[str]:
 
 
 def _study_value(st: dict[str, Any], p: dict[str, Any]) -> str:
+    if st["study"] == "consolidation":
+        return str(p["strategy"]) + ("" if p.get("budget") is None else f" {p['budget']}")
     if st["study"] == "compression":
         return str(p["stride"])
     if st["study"] == "coverage":
@@ -288,7 +290,9 @@ def _study(st: dict[str, Any]) -> list[str]:
             _table(head, body),
             "",
         ]
-    first = {"compression": "Stride", "coverage": "Coverage"}.get(st["study"], st.get("option", "value"))
+    first = {"compression": "Stride", "coverage": "Coverage", "consolidation": "Strategy / budget"}.get(
+        st["study"], st.get("option", "value")
+    )
     head = [
         first,
         "Method",
@@ -302,11 +306,15 @@ def _study(st: dict[str, Any]) -> list[str]:
     ]
     if st["study"] in ("compression", "coverage"):
         head[1:1] = ["Memories", "Frames"]
+    elif st["study"] == "consolidation":
+        head[1:1] = ["Memories"]
     body = []
     for p in st["points"]:
         line = [_study_value(st, p)]
         if st["study"] in ("compression", "coverage"):
             line += [str(p["memories"]), str(p["frames"])]
+        elif st["study"] == "consolidation":
+            line += [str(p["memories"])]
         line += [
             p["method"],
             _pct(p["accuracy"]),
@@ -489,6 +497,8 @@ def plot_study(st: dict[str, Any], path: Path) -> bool:
     plt = _plt()
     if st["study"] == "embedders":
         return _plot_embedders(st, path)
+    if st["study"] == "consolidation":
+        return _plot_consolidation(st, path)
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     xkey = {"compression": "sparsification", "coverage": "coverage"}.get(st["study"], "value")
     raw = [p[xkey] for p in st["points"]]
@@ -517,6 +527,30 @@ def plot_study(st: dict[str, Any], path: Path) -> bool:
         ax.set_title(f"Accuracy vs {st.get('option', 'value')} ({st['study']} study)")
     ax.set_ylabel("accuracy (%)")
     ax.set_ylim(0, 105)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def _plot_consolidation(st: dict[str, Any], path: Path) -> bool:
+    """Accuracy against memories kept (log), one line per method and strategy; the full memory
+    is the rightmost point of every line."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    full = {p["method"]: p for p in st["points"] if p["strategy"] == "full"}
+    styles = {"consolidate": "-", "uniform": "--"}
+    for m in sorted({p["method"] for p in st["points"]}):
+        for strategy in [s for s in styles if any(p["strategy"] == s for p in st["points"])]:
+            ps = [p for p in st["points"] if p["method"] == m and p["strategy"] == strategy]
+            ps += [full[m]] if m in full else []
+            ps.sort(key=lambda p: p["memories"])
+            ys = [100 * (p["accuracy"].get("mean") or 0.0) for p in ps]
+            ax.plot([p["memories"] for p in ps], ys, styles[strategy], marker="o", label=f"{m}, {strategy}")
+    ax.set_xscale("log")
+    ax.set_xlabel("memories kept (log)")
+    ax.set_ylabel("accuracy (%)")
+    ax.set_ylim(0, 105)
+    ax.set_title("Accuracy vs memory budget (consolidation study)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     return _save(fig, path)

@@ -6,6 +6,9 @@
   (default 1 m) its whole trajectory visits, so questions about places not yet explored become
   unanswerable; meant for simulated episodes (exported in RAVEN-QA layout), works on any
   dataset with poses;
+- consolidation: each memory consolidated (`ravenmem consolidate`) to a budget of memories, and
+  beside it thinned uniformly in time to the same budget (forgetting the rest), plus the full
+  memory: accuracy against memories kept (`consolidation_study`);
 - the agent ablations, one method option swept (`option_study`): `top-k` (memories per tool
   call), `scores` (similarity scores shown to the model or hidden), `time-mode` (the time tool
   looking forward from the asked time, or centred on it) and `tool-calls` (the tool-call budget).
@@ -30,7 +33,7 @@ from ..ingest.keyframes import KeyframeConfig
 from .config import OutputConfig, RunConfig
 from .datasets import load_dataset
 from .datasets.frames import Subsampled
-from .runner import Runner, read_rows
+from .runner import Runner, read_json, read_rows
 from .types import Episode
 
 # study name -> the method option it sweeps
@@ -194,3 +197,121 @@ def option_study(
     }
     _write(out, doc)
     return doc
+
+
+STRATEGIES = ("consolidate", "uniform")
+_DONE = "study_memory.json"
+
+
+def _reduced_copy(base: Path, dest: Path, strategy: str, budget: int, max_distance: float) -> dict[str, Any]:
+    """`base` (a cached memory) copied to `dest` and reduced to `budget` memories; the copy is
+    made under a temporary name and renamed when done, so a killed study redoes it."""
+    import shutil
+    import uuid
+
+    import numpy as np
+
+    import ravenmem
+
+    marker = dest / _DONE
+    if marker.exists():
+        return dict(read_json(marker))
+    if dest.exists():
+        shutil.rmtree(dest)
+    tmp = dest.with_name(f".{dest.name}.{uuid.uuid4().hex[:8]}")
+    shutil.copytree(base, tmp, ignore=shutil.ignore_patterns("writer.lock", ".*.tmp"))
+    info: dict[str, Any]
+    with ravenmem.open(tmp, writable=True) as mem:
+        n = mem.count()
+        if strategy == "consolidate":
+            rep = mem.consolidate(budget=budget, max_distance=max_distance)
+            info = {"kept": rep.after, "budget_met": rep.budget_met}
+        else:  # uniform: keep `budget` memories evenly spaced in time, forget the others
+            recs = mem.all_records()
+            keep = {recs[int(i)].id for i in np.unique(np.linspace(0, n - 1, min(budget, n)).round())}
+            mem.forget(ids=[r.id for r in recs if r.id not in keep])
+            info = {"kept": mem.count(), "budget_met": mem.count() <= budget}
+    info |= {"strategy": strategy, "budget": budget, "memories_before": n}
+    atomic_write_json(tmp / _DONE, info)
+    tmp.rename(dest)
+    return info
+
+
+def consolidation_study(
+    base: RunConfig,
+    budgets: list[int],
+    out: str | Path,
+    strategies: tuple[str, ...] = STRATEGIES,
+    max_distance: float = 1.0,
+    episodes: list[Episode] | None = None,
+    **runner_kw: Any,
+) -> dict[str, Any]:
+    """Accuracy against the number of memories kept: each episode's memory (built once, as
+    `base` builds it) consolidated to each budget, and thinned uniformly in time to the same
+    budget; the full memory is the reference point. Returns (and writes) the points."""
+    import hashlib
+
+    from .cache import CachingEmbedder, build_memory
+
+    if not budgets or any(b < 1 for b in budgets):
+        raise InputError(f"--budgets: give whole numbers >= 1, got {budgets}")
+    bad = [s for s in strategies if s not in STRATEGIES]
+    if bad or not strategies:
+        raise InputError(f"--strategies: choose from {', '.join(STRATEGIES)}, got {', '.join(bad) or 'none'}")
+    out = Path(out)
+    ds, mcfg = base.dataset, base.memory
+    eps = episodes if episodes is not None else load_dataset(ds.spec, queries=ds.queries, **ds.options())
+    inner = runner_kw.get("embedder")
+    if inner is None:
+        from ..embed.base import create_embedder
+
+        inner = create_embedder(base.models.embedder)
+    emb = CachingEmbedder(inner, Path(mcfg.cache_dir) / "embeddings")
+    bases: dict[str, tuple[Path, Episode]] = {}
+    try:
+        for ep in eps:
+            mem, info = build_memory(
+                ep, Path(mcfg.cache_dir), emb, mcfg.keyframe_config(), mcfg.ocr, mcfg.thumb_size
+            )
+            path = mem.path
+            t0 = ep.t0 if ep.t0 is not None else (info.get("first_t") or mem.time_span()[0])
+            mem.close()
+            bases[ep.id] = (path, replace(ep, t0=t0))
+    finally:
+        emb.close()
+    points: list[dict[str, Any]] = []
+
+    def run_point(label: str, strategy: str, budget: int | None, eps_at: list[Episode], kept: int) -> None:
+        cfg = _at(base, out / label, label.replace("-", "=", 1))
+        summary = Runner(cfg, episodes=eps_at, **runner_kw).run()
+        for g in summary["groups"]:
+            points.append(_point(g, strategy=strategy, budget=budget, value=kept, memories=kept))
+
+    full = sum(_count(p) for p, _ in bases.values())
+    run_point("full", "full", None, [e for _, e in bases.values()], full)
+    for strategy in strategies:
+        for budget in sorted(set(budgets), reverse=True):
+            eps_at, kept = [], 0
+            for path, ep in bases.values():
+                tag = hashlib.sha1(str(path).encode()).hexdigest()[:12]
+                dest = out / "memories" / f"{strategy}-{budget}" / tag
+                info = _reduced_copy(path, dest, strategy, budget, max_distance)
+                kept += int(info["kept"])
+                eps_at.append(replace(ep, memory_path=dest))
+            run_point(f"{strategy}-{budget}", strategy, budget, eps_at, kept)
+    doc = {
+        "study": "consolidation",
+        "dataset": ds.spec,
+        "keyframes": asdict(mcfg.keyframe_config()),
+        "max_distance_m": max_distance,
+        "points": points,
+    }
+    _write(out, doc)
+    return doc
+
+
+def _count(path: Path) -> int:
+    import ravenmem
+
+    with ravenmem.open(path) as mem:
+        return mem.count()

@@ -662,9 +662,13 @@ class Memory:
         if n:
             out["duration_s"] = float(st["t_max"]) - float(st["t_min"])  # type: ignore[arg-type]
         groups = self._groups.get(self.store)
-        if groups:  # consolidated memories (additive keys: absent on a memory never consolidated)
-            out["consolidated"] = len(groups)
-            out["memories_represented"] = n + sum(g[0] - 1 for g in groups.values())
+        if groups and n:  # consolidated memories (additive keys: absent on a memory never consolidated)
+            live = set(self.store.select().tolist())  # rows a killed forget left are not counted
+            out["consolidated"] = sum(1 for i in groups if i in live)
+            out["memories_represented"] = n + sum(g[0] - 1 for i, g in groups.items() if i in live)
+            self._span = None
+            out["t_min"], out["t_max"] = self.time_span()  # what the merged memories saw, too
+            out["duration_s"] = out["t_max"] - out["t_min"]
         out["ingests"] = ingests
         return out
 

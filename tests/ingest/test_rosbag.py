@@ -10,7 +10,8 @@ import pytest
 
 from ravenmem.errors import InputError
 from ravenmem.ingest.poses import SKIP_OUTSIDE
-from ravenmem.ingest.rosbag import SKIP_COMPRESSED, RosbagSource
+from ravenmem.ingest.rosbag import RosbagSource
+from ravenmem.ingest.rosmsg import SKIP_COMPRESSED
 
 from .bags import BAG_DELAY, RGB, write_bag
 

@@ -90,6 +90,9 @@ def ask(
     ] = None,
     max_retries: RetriesOpt = None,
     config: ConfigOpt = None,
+    sheet: Annotated[
+        Path | None, typer.Option(help="also draw the evidence as a contact sheet (PNG) here")
+    ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
     server: Annotated[
         str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
@@ -120,6 +123,11 @@ def ask(
         with ServerClient(url) as remote:
             method_asked = None if method is None and not offline else name
             data = remote.ask(question, method_asked, parse_top_k(top_k), max_tool_calls, image, preset)
+            if sheet is not None:
+                from ravenmem.viz.sheet import answer_title, remote_sheet
+
+                remote_sheet(data["evidence"], remote.picture, sheet, answer_title(data))
+                data["sheet"] = str(sheet)
         for ev in data["evidence"]:
             ev["image_file"] = ev.get("image")
         _output(data, json_out)
@@ -156,7 +164,13 @@ def ask(
         m = create_method(name, mem, preset=preset, **opts)
         ans = m.ask(question, image=img)
         root = Path(mem.path)
+        if sheet is not None:
+            from ravenmem.viz.sheet import answer_sheet
+
+            answer_sheet(mem, ans.model_dump(mode="json"), sheet)
     data = ans.model_dump(mode="json")
+    if sheet is not None:
+        data["sheet"] = str(sheet)
     for ev in data["evidence"]:
         p = ev.get("image_path")
         ev["image_file"] = str(root / p) if p and not Path(p).is_absolute() else p
@@ -168,6 +182,8 @@ def _output(data: dict[str, Any], json_out: bool) -> None:
         sys.stdout.write(json.dumps(data, indent=2) + "\n")
     else:
         _render(data)
+        if data.get("sheet"):
+            out_console().print(f"contact sheet: {esc(str(data['sheet']))}", highlight=False)
     if data["failed"]:
         raise typer.Exit(1)
 

@@ -265,6 +265,9 @@ def search(
             "a verdict: still there, not revisited, moved or gone (-k counts places)",
         ),
     ] = False,
+    sheet: Annotated[
+        Path | None, typer.Option(help="also draw the hits as a contact sheet (PNG) here")
+    ] = None,
     json_out: JsonOpt = False,
 ) -> None:
     """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
@@ -304,6 +307,10 @@ def search(
         args.update(x=xyz[0], y=xyz[1], z=xyz[2] if len(xyz) == 3 else None, radius=radius)
     tool = get_tool(mode)
     call = tool.validate(args)
+    what = f"{mode} search: " + {
+        "text": f'"{text}"',
+        "image": f"like memory {like}" if like is not None else str(image),
+    }.get(mode, str(given[mode]))
     url = resolve_server(server, memory)
     if url:
         if all_hits:
@@ -312,6 +319,12 @@ def search(
             )
         with ServerClient(url) as remote:
             rows = remote.search(tool, call, k, image)["results"]
+            if sheet is not None:
+                from ravenmem.viz.sheet import remote_sheet
+
+                remote_sheet(
+                    rows, remote.picture, sheet, [what, f"{len(rows)} hit(s), {tool.order_for(call)}  |  {url}"]
+                )
     else:
         assert memory is not None
         with ravenmem.open(memory) as mem:
@@ -323,8 +336,14 @@ def search(
                 return str(p) if p else rec.image_path
 
             rows = [hit_json(h, i + 1, t0, image_file) for i, h in enumerate(hits)]
+            if sheet is not None:
+                from ravenmem.viz.sheet import search_sheet
+
+                search_sheet(mem, hits, rows, sheet, what, tool.order_for(call))
     if json_out:
-        print_json({"mode": mode, "tool": tool.name, "results": rows})
+        print_json(
+            {"mode": mode, "tool": tool.name, "results": rows} | ({"sheet": str(sheet)} if sheet else {})
+        )
         return
     table = Table(title=f"{mode} search: {len(rows)} result(s), {tool.order_for(call)}")
     metric = "dist m" if tool.metric == "distance" else "score"
@@ -346,8 +365,8 @@ def search(
         ]
         if latest:
             ch = r.get("change", {})
-            what = ch.get("verdict", "") if ch.get("role") == "sighting" else "view without it"
-            cells.append(f"place {ch.get('place')}: {esc(what)}")
+            verdict = ch.get("verdict", "") if ch.get("role") == "sighting" else "view without it"
+            cells.append(f"place {ch.get('place')}: {esc(verdict)}")
         table.add_row(*cells)
     if latest:
         first = rows[0].get("change", {}) if rows else {}
@@ -359,6 +378,8 @@ def search(
             if ch.get("role") == "sighting":
                 console.print(f"  {esc(ch.get('text', ''))}", highlight=False)
     console.print(table)
+    if sheet is not None:
+        console.print(f"contact sheet: {esc(str(sheet))}", highlight=False)
 
 
 @app.command()
@@ -400,7 +421,7 @@ def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: J
 
 def _register_extensions() -> None:
     """Let the agent / nav / eval areas add their commands when their modules are present."""
-    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong"):
+    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong", "viz"):
         try:
             module = importlib.import_module(f"ravenmem.cli.{mod}")
         except ModuleNotFoundError as e:

@@ -54,6 +54,19 @@ class TfTree:
         e.quat.append(quat)
         self.parent_of.setdefault(child, parent)
 
+    def prune(self, before: float) -> None:
+        """Forget moving samples older than `before`, keeping the last one before it on each edge
+        (so a lookup at `before` still interpolates). A live stream keeps bounded memory this way."""
+        for e in self.edges.values():
+            if e.static or not e.t or e.t[0] >= before:
+                continue
+            order = np.argsort(np.asarray(e.t), kind="stable")
+            ts = np.asarray(e.t)[order]
+            keep = order[max(int(np.searchsorted(ts, before, side="right")) - 1, 0) :]
+            e.t = [e.t[i] for i in keep]
+            e.xyz = [e.xyz[i] for i in keep]
+            e.quat = [e.quat[i] for i in keep]
+
     @property
     def frames(self) -> list[str]:
         return sorted({f for edge in self.edges for f in edge})

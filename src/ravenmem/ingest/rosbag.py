@@ -20,7 +20,6 @@ REP-103 body frame (x forward, z up).
 
 from __future__ import annotations
 
-import io
 from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -28,77 +27,28 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 from ..types import Frame, Intrinsics
+from . import rosmsg
 from ._tf import TfTree, norm_frame
-from ._util import build, existing, pil_to_rgb
+from ._util import build, existing
 from .base import SOURCES, SourceStats
 from .depth import camera_info_intrinsics, decode_depth_message, parse_intrinsics
 from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
+from .rosmsg import IMAGE, IMAGE_TYPES, POSE_TYPES, SKIP_DECODE, TF, decode_image
 
-IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED = "sensor_msgs/msg/CompressedImage"
-POSE_TYPES = (
-    "nav_msgs/msg/Odometry",
-    "geometry_msgs/msg/PoseStamped",
-    "geometry_msgs/msg/PoseWithCovarianceStamped",
-)
-TF = "tf2_msgs/msg/TFMessage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 # The optical frame (x right, y down, z forward) in a REP-103 camera body frame (x forward, z up).
 _OPTICAL_IN_BODY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
-SKIP_DECODE = "undecodable message"
-SKIP_MALFORMED = "malformed image message"
-SKIP_COMPRESSED = "undecodable compressed image"
-_CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "mono16": 1}
-
-
-def decode_image(msg: Any, msgtype: str) -> np.ndarray | str:
-    """RGB uint8 from an Image/CompressedImage message, or the skip reason."""
-    if msgtype == COMPRESSED:
-        fmt = str(msg.format).lower()
-        if "compresseddepth" in fmt:
-            return "compressed depth image"
-        try:
-            with Image.open(io.BytesIO(np.asarray(msg.data, dtype=np.uint8).tobytes())) as im:
-                return pil_to_rgb(im)
-        except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
-            return SKIP_COMPRESSED
-    enc = str(msg.encoding).lower()
-    if enc not in _CHANNELS:
-        return f"unsupported encoding {msg.encoding!r}"
-    h, w, step, ch = int(msg.height), int(msg.width), int(msg.step), _CHANNELS[enc]
-    bpp = 2 if enc == "mono16" else ch
-    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
-    if h <= 0 or w <= 0 or step < w * bpp or data.size < h * step:
-        return SKIP_MALFORMED
-    rows = data[: h * step].reshape(h, step)[:, : w * bpp]
-    if enc == "mono16":
-        v = np.ascontiguousarray(rows).view(">u2" if msg.is_bigendian else "<u2").astype(np.float64)
-        g = (v * (255.0 / max(float(v.max()), 1.0))).astype(np.uint8)
-        return np.repeat(g[:, :, None], 3, axis=2)
-    img = rows.reshape(h, w, ch)
-    if ch == 1:
-        return np.repeat(img, 3, axis=2)
-    if enc.startswith("bgr"):
-        img = img[:, :, 2::-1]
-    return np.array(img[:, :, :3])  # a writable copy, independent of the message buffer
-
 
 def _stamp(msg: Any, bag_ns: int, time_source: str) -> float:
-    header = getattr(msg, "header", None)
-    if time_source == "header" and header is not None:
-        s = int(header.stamp.sec) + int(header.stamp.nanosec) * 1e-9
-        if s > 0:
-            return s
-    return bag_ns * 1e-9
+    return rosmsg.stamp(msg, bag_ns * 1e-9, use_header=time_source == "header")
 
 
 def _pick(kind: str, available: dict[str, str], wanted: str | None, option: str) -> str:
@@ -141,7 +91,7 @@ class RosbagSource:
         self.max_gap = max_gap if max_gap is not None or self.pose_match != "nearest" else 0.05
         with self._reader() as reader:
             topics = {c.topic: c.msgtype for c in reader.connections}
-            images = {t: m for t, m in topics.items() if m in (IMAGE, COMPRESSED)}
+            images = {t: m for t, m in topics.items() if m in IMAGE_TYPES}
             colour = {t: m for t, m in images.items() if "depth" not in t.lower()} or images
             self.image_topic = _pick("image", images if image_topic else colour, image_topic, "image_topic")
             counts = [c.msgcount for c in reader.connections if c.topic == self.image_topic]
@@ -275,17 +225,16 @@ class RosbagSource:
             except Exception:
                 self.stats.skip(f"undecodable pose message on {topic}")
                 continue
-            p = msg.pose if conn.msgtype == "geometry_msgs/msg/PoseStamped" else msg.pose.pose
-            q = (p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)
-            if not np.isfinite(q).all() or np.linalg.norm(q) < 1e-9:
+            pq = rosmsg.pose_of(msg, conn.msgtype)
+            if pq is None:
                 self.stats.skip(f"invalid pose message on {topic}")
                 continue
             t.append(_stamp(msg, ns, self.time_source))
-            xyz.append((p.position.x, p.position.y, p.position.z))
-            quat.append(q)
+            xyz.append(pq[0])
+            quat.append(pq[1])
         if not t:
             raise InputError(f"{self.path}: pose topic {topic!r} has no usable messages")
-        return PoseTrack.from_samples(t, xyz, np.asarray(quat), name=f"{self.path}:{topic}")
+        return PoseTrack.from_samples(t, xyz, quat, name=f"{self.path}:{topic}")
 
     def _tf_track(self, reader: AnyReader, tf_topics: list[str], parent: str | None, child: str) -> PoseTrack:
         tree = TfTree()
@@ -296,19 +245,9 @@ class RosbagSource:
             except Exception:
                 self.stats.skip("undecodable tf message")
                 continue
-            for tfm in msg.transforms:
-                tr, r = tfm.transform.translation, tfm.transform.rotation
-                q = (r.x, r.y, r.z, r.w)
-                if not np.isfinite(q).all() or np.linalg.norm(q) < 1e-9:
-                    continue
-                tree.add(
-                    tfm.header.frame_id,
-                    tfm.child_frame_id,
-                    _stamp(tfm, ns, self.time_source),
-                    (tr.x, tr.y, tr.z),
-                    q,
-                    static=conn.topic.endswith("tf_static"),
-                )
+            static = conn.topic.endswith("tf_static")
+            for tf in rosmsg.tf_samples(msg, ns * 1e-9, use_header=self.time_source == "header"):
+                tree.add(tf.parent, tf.child, tf.t, tf.xyz, tf.quat, static=static)
         tree.require(child, str(self.path))
         if parent is None:
             parent = tree.default_parent(child)
@@ -373,8 +312,7 @@ class RosbagSource:
                 except Exception:
                     self.stats.skip(SKIP_DECODE)
                     continue
-                if conn.msgtype == IMAGE:
-                    self.stats.raw_bytes += int(msg.height) * int(msg.width) * 3
+                self.stats.raw_bytes += rosmsg.raw_image_bytes(msg, conn.msgtype)
                 t = _stamp(msg, ns, self.time_source)
                 pose = self.track.match(t, self.pose_match, self.max_gap)
                 if isinstance(pose, str):

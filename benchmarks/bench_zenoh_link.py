@@ -1,0 +1,167 @@
+"""Throughput of the robot link (not a test; prints numbers).
+
+Run: python benchmarks/bench_zenoh_link.py [--frames 300]
+Measures, for 640x480 camera frames with odometry at 50 Hz and a sink that only counts (the
+embedder and the store are measured elsewhere):
+1. the link's own work per frame (CDR decode, pose pairing, image conversion), raw rgb8 and JPEG;
+2. the same over Zenoh on loopback (a publishing peer and the link in one process, tcp/127.0.0.1),
+   frames published at a camera's rate (30 and 100 frames/s): how many reach the sink, how many
+   the link dropped because its queue was full, and the delay from publishing to the sink.
+A camera at 30 fps needs 30 frames/s; ROS image topics are usually 15 to 30 Hz.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+import socket
+import time
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from ravenmem.ingest import rosmsg
+from ravenmem.server.zenoh_link import RosLink, ZenohEndpoints, ZenohLink, parse_link_spec
+from ravenmem.types import Pose
+
+H, W = 480, 640
+TS = rosmsg.typestore()
+T = TS.types
+
+
+def header(t: float, frame: str) -> Any:
+    sec = math.floor(t)
+    return T["std_msgs/msg/Header"](
+        stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=int((t - sec) * 1e9)), frame_id=frame
+    )
+
+
+def odom(t: float) -> bytes:
+    q = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(t / 20), w=math.cos(t / 20))
+    pose = T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=t, y=0.0, z=0.0), orientation=q
+    )
+    cov = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36))
+    v = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    tw = T["geometry_msgs/msg/TwistWithCovariance"](
+        twist=T["geometry_msgs/msg/Twist"](linear=v, angular=v), covariance=np.zeros(36)
+    )
+    msg = T[rosmsg.ODOMETRY](header=header(t, "odom"), child_frame_id="base_link", pose=cov, twist=tw)
+    return rosmsg.serialize(msg, rosmsg.ODOMETRY)
+
+
+def frames(n: int, jpeg: bool) -> list[bytes]:
+    rng = np.random.default_rng(0)
+    base = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+    out = []
+    for i in range(n):
+        t = 1.0 + i / 30
+        img = np.roll(base, i, axis=1)
+        if jpeg:
+            buf = io.BytesIO()
+            Image.fromarray(img).save(buf, format="JPEG", quality=80)
+            msg = T[rosmsg.COMPRESSED](
+                header=header(t, "cam"), format="jpeg", data=np.frombuffer(buf.getvalue(), np.uint8)
+            )
+            out.append(rosmsg.serialize(msg, rosmsg.COMPRESSED))
+        else:
+            msg = T[rosmsg.IMAGE](
+                header=header(t, "cam"),
+                height=H,
+                width=W,
+                encoding="rgb8",
+                is_bigendian=0,
+                step=W * 3,
+                data=img.reshape(-1),
+            )
+            out.append(rosmsg.serialize(msg, rosmsg.IMAGE))
+    return out
+
+
+class Count:
+    """Counts frames and notes when each arrived (stamp -> perf_counter)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.arrived: dict[float, float] = {}
+
+    def __call__(self, image: np.ndarray, pose: Pose, t: float) -> int:
+        self.n += 1
+        self.arrived[round(t, 6)] = time.perf_counter()
+        return self.n
+
+
+def in_process(msgs: list[bytes], poses: list[bytes], label: str) -> None:
+    sink = Count()
+    link = RosLink(parse_link_spec("image=cam,pose=odom"), sink)
+    for p in poses:
+        link.pose("odom", p)
+    t0 = time.perf_counter()
+    for m in msgs:
+        link.image("cam", m)
+    dt = time.perf_counter() - t0
+    assert sink.n == len(msgs), link.stats
+    print(f"link only, {label}: {1000 * dt / len(msgs):.2f} ms/frame = {len(msgs) / dt:.0f} frames/s")
+
+
+def over_zenoh(msgs: list[bytes], poses: list[bytes], label: str, rate: float) -> None:
+    import zenoh
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    sink = Count()
+    link = ZenohLink(parse_link_spec("image=cam,pose=odom"), sink, ZenohEndpoints(listen=(endpoint,))).start()
+    conf = zenoh.Config()
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    robot = zenoh.open(conf)
+    sent: dict[float, float] = {}
+    try:
+        pub_img = robot.declare_publisher("cam", congestion_control=zenoh.CongestionControl.BLOCK)
+        pub_pose = robot.declare_publisher("odom", congestion_control=zenoh.CongestionControl.BLOCK)
+        while not (pub_img.matching_status and pub_pose.matching_status):
+            time.sleep(0.01)
+        for p in poses:
+            pub_pose.put(p)
+        t0 = time.perf_counter()
+        for i, m in enumerate(msgs):
+            while time.perf_counter() < t0 + i / rate:
+                time.sleep(0.0005)
+            sent[round(1.0 + i / 30, 6)] = time.perf_counter()
+            pub_img.put(m)
+        deadline = time.perf_counter() + 10
+        while sink.n + sum(link.stats.skipped.values()) < len(msgs) and time.perf_counter() < deadline:
+            time.sleep(0.005)
+    finally:
+        robot.close()
+        link.close()
+    st = link.stats.as_dict()
+    delay = sorted(1000 * (sink.arrived[k] - sent[k]) for k in sink.arrived if k in sent)
+    p50 = delay[len(delay) // 2] if delay else float("nan")
+    p99 = delay[min(len(delay) - 1, int(0.99 * len(delay)))] if delay else float("nan")
+    print(
+        f"over Zenoh at {rate:.0f} frames/s, {label}: {len(msgs)} published, {sink.n} reached the sink, "
+        f"dropped {st['skipped'] or 0}; publish -> sink {p50:.1f} ms p50, {p99:.1f} ms p99"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--frames", type=int, default=150)
+    args = ap.parse_args()
+    n = args.frames
+    poses = [odom(0.9 + k / 50) for k in range(int((n / 30 + 0.3) * 50))]
+    for jpeg in (False, True):
+        label = "JPEG CompressedImage" if jpeg else "rgb8 Image (921 KB)"
+        msgs = frames(n, jpeg)
+        in_process(msgs, poses, label)
+        for rate in (30.0, 100.0):
+            over_zenoh(msgs, poses, label, rate)
+
+
+if __name__ == "__main__":
+    main()

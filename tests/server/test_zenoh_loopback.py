@@ -93,9 +93,10 @@ def test_frames_published_over_zenoh_become_memories(mem: ravenmem.Memory) -> No
         for k in range(17):
             pub_odom.put(w.odom(9.95 + 0.05 * k))
         times = [10.0 + 0.1 * i for i in range(8)]
-        for i, t in enumerate(times):
+        for i, t in enumerate(times):  # at 50 frames/s, as a camera sends them
             pic = w.picture(i)
             pub_img.put(w.jpeg(t, pic) if i % 3 == 2 else w.image(t, pic, "bgr8" if i % 3 else "rgb8"))
+            time.sleep(0.02)
         pub_img.put(w.image(10.9, w.picture(9)))  # after the last pose: no pose ever comes
         assert wait_until(
             lambda: link.stats.images == 9 and link.link.waiting == 0 and link.link.stats.stored > 0

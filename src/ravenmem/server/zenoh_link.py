@@ -501,7 +501,7 @@ class ZenohLink:
         cfg: LinkConfig,
         sink: Sink,
         endpoints: ZenohEndpoints | None = None,
-        max_queued_images: int = 8,
+        max_queued_images: int = 16,
     ) -> None:
         self.cfg = cfg
         self.link = RosLink(cfg, sink)

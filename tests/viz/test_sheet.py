@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+import ravenmem
 from ravenmem.imageio import read_image
 from ravenmem.timeparse import fmt_time
 from ravenmem.viz.sheet import BACKGROUND, BORDER, SheetLayout, fit, sheet_layout
@@ -128,4 +129,40 @@ def test_sheet_into_a_folder_that_cannot_be_written(memory: Path, tmp_path: Path
     blocker = tmp_path / "file"
     blocker.write_text("x")
     r = cli("search", "--memory", str(memory), "--time", str(T0), "--sheet", str(blocker / "out.png"))
-    assert "out.png" in assert_one_line_error(r) or "file" in assert_one_line_error(r)
+    assert "cannot write the contact sheet" in assert_one_line_error(r)
+
+
+def test_sheets_through_a_running_service_match_local_ones(memory: Path, tmp_path: Path) -> None:
+    """With `--server` the pictures come from the service (`/memories/{id}/image`): the cells
+    are the same pixels as a sheet drawn from the memory folder."""
+    import signal
+
+    pytest.importorskip("fastapi", reason="the serve extra is not installed")
+    from tests.server.conftest import serve_subprocess
+
+    proc, url = serve_subprocess(memory, "--read-only")
+    try:
+        local, remote = tmp_path / "local.png", tmp_path / "remote.png"
+        args = ["search", "--position", "3,1", "-k", "6", "--json"]
+        rows = cli_json(*args[:-1], "--memory", str(memory), "--sheet", str(local))["results"]
+        rows_remote = cli_json(*args[:-1], "--server", url, "--sheet", str(remote))["results"]
+        assert [r["id"] for r in rows] == [r["id"] for r in rows_remote]
+        a, b = read_image(local), read_image(remote)
+        layout = sheet_layout(len(rows))
+        assert a.shape == b.shape == (layout.height, layout.width, 3)
+        for x0, y0, x1, y1 in layout.cells:
+            assert np.array_equal(a[y0:y1, x0:x1], b[y0:y1, x0:x1])
+        ask = cli_json(
+            "ask", "where did I see something green?", "--server", url, "--offline", "--sheet", str(remote)
+        )
+        ev = ask["evidence"]
+        img = read_image(remote)
+        layout = sheet_layout(len(ev))
+        with ravenmem.open(memory) as mem:
+            thumb = mem.load_image(mem.get([ev[0]["id"]])[0])
+        assert thumb is not None
+        got, want = drawn_picture(img, layout, 0, thumb)
+        assert float(np.abs(got - want).mean()) < 3.0
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(60)

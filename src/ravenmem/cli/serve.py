@@ -3,10 +3,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+
+from ..errors import InputError
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 MethodOpt = Annotated[
@@ -69,8 +72,25 @@ def serve(
     embedder: Annotated[str, typer.Option(help="with --create: the new memory's embedder")] = "offline",
     ocr: Annotated[bool, typer.Option(help="with --create: read text in live frames (slower)")] = True,
     log_level: Annotated[str, typer.Option(help="critical | error | warning | info | debug")] = "info",
+    zenoh: Annotated[
+        str | None,
+        typer.Option(
+            help="ROS 2 topics over Zenoh into the memory, e.g. 'image=camera/color/image_raw,pose=odom"
+            ",goal=goal_pose' (needs the robot extra; keys in docs/serve.md)"
+        ),
+    ] = None,
+    zenoh_connect: Annotated[
+        list[str] | None,
+        typer.Option(help="Zenoh endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)"),
+    ] = None,
+    zenoh_listen: Annotated[
+        list[str] | None, typer.Option(help="Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    ] = None,
+    zenoh_config: Annotated[
+        Path | None, typer.Option(help="a Zenoh JSON5 config file (routers, TLS, ...)")
+    ] = None,
 ) -> None:
-    """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds."""
+    """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds, a robot."""
     from ravenmem.agent.presets import parse_top_k
     from ravenmem.ingest.keyframes import parse_keyframes
     from ravenmem.server.run import serve as run_serve
@@ -88,9 +108,37 @@ def serve(
         writable=not read_only,
     )
     new = {"embedder": embedder, "ocr": ocr} if create else None
+    links = [_zenoh_link(zenoh, zenoh_connect, zenoh_listen, zenoh_config, read_only)] if zenoh else []
+    if not zenoh and (zenoh_connect or zenoh_listen or zenoh_config):
+        raise InputError("--zenoh-connect, --zenoh-listen and --zenoh-config need --zenoh")
     run_serve(
-        memory, host=host, port=port, token=token or None, cfg=cfg, log_level=log_level, create=new, wait=wait
+        memory,
+        host=host,
+        port=port,
+        token=token or None,
+        cfg=cfg,
+        log_level=log_level,
+        create=new,
+        wait=wait,
+        links=links,
     )
+
+
+def _zenoh_link(
+    spec: str, connect: list[str] | None, listen: list[str] | None, config: Path | None, read_only: bool
+) -> Callable[[Any], Any]:
+    """Check `--zenoh` before anything opens; return what starts the link on the service."""
+    from ravenmem.errors import require
+    from ravenmem.server.zenoh_link import ZenohEndpoints, parse_link_spec, start_link
+
+    if read_only:
+        raise InputError("--zenoh adds frames to the memory: it cannot run with --read-only")
+    cfg = parse_link_spec(spec)
+    require("zenoh", "robot")
+    if config is not None and not config.is_file():
+        raise InputError(f"zenoh config {config} is not a file")
+    endpoints = ZenohEndpoints(tuple(connect or ()), tuple(listen or ()), config)
+    return lambda service: start_link(service, cfg, endpoints)
 
 
 def mcp(

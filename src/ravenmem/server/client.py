@@ -107,6 +107,17 @@ class ServerClient:
             body["image"] = base64.b64encode(_read(image)).decode()
         return dict(self._call("POST", "/ask", json=body))
 
+    def picture(self, memory_id: int) -> bytes | None:
+        """A memory's stored picture as the service sends it (JPEG/PNG bytes), or None when the
+        memory has none the service may serve (the contact sheets of `--server` use it)."""
+        import httpx
+
+        try:
+            r = self._http.get(f"/memories/{int(memory_id)}/image")
+        except httpx.HTTPError as e:
+            raise InputError(f"cannot reach the ravenmem service at {self.url}: {e}") from None
+        return r.content if r.status_code == 200 else None
+
 
 def _read(path: Path) -> bytes:
     try:

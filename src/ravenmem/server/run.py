@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import socket
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -63,13 +64,16 @@ def serve(
     out: TextIO | None = None,
     create: dict[str, Any] | None = None,
     wait: float = 0.0,
+    links: Sequence[Callable[[Service], Any]] = (),
 ) -> None:
     """Serve a memory until interrupted (Ctrl-C or SIGTERM store what is queued, then close).
 
     `create` (keyword arguments of `ravenmem.create`) makes a new, empty memory when the folder
     holds none yet: a robot can start from nothing and fill it with live adds. Unless read-only,
     the service holds the memory's writer lock for its whole life (`wait` seconds for another
-    writer to finish; a busy memory is a one-line error naming the holder)."""
+    writer to finish; a busy memory is a one-line error naming the holder).
+    `links` start other front ends on the service before it listens (the robot link:
+    `zenoh_link.start_link`); they are closed with it."""
     check_bind(host, token)
     require("fastapi", "serve")
     uvicorn = require("uvicorn", "serve")
@@ -89,6 +93,12 @@ def serve(
             mem = ravenmem.create(memory, **(create or {}), wait=wait or False)
         service = Service(mem, cfg)
         warm_up(service)
+        try:
+            for start_link in links:
+                start_link(service)
+        except BaseException:
+            service.close()
+            raise
         app = create_app(service, token=token, loopback=is_loopback(host))
     except BaseException:
         sock.close()

@@ -114,6 +114,7 @@ class Service:
         self._traj: tuple[int, list[list[float]]] | None = None
         self._map: tuple[int, tuple[bytes, dict[str, Any]]] | None = None
         self._image_url: ImageUrl = lambda rec: None
+        self._links: list[Any] = []
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> Service:
@@ -124,12 +125,23 @@ class Service:
             self.writer.start()
         return self
 
+    def attach(self, link: Any) -> None:
+        """Another front end that lives as long as the service (the robot link): it is told each
+        answer (`on_answer(data)`), shown in `/info` under `links` (`describe()`), and closed
+        before the writer (`close()`), so the frames it handed over are stored."""
+        self._links.append(link)
+
     def stop_streams(self) -> None:
         """End the open event streams (the server is stopping; listeners reconnect elsewhere)."""
         self.bus.close()
 
     def close(self) -> None:
         """Store what is queued, note the live counts in the manifest, end the streams, close."""
+        for link in self._links:
+            try:
+                link.close()
+            except Exception:
+                log.exception("closing %r failed", link)
         self.bus.close()
         if self.writer is not None:
             self.writer.close()
@@ -248,6 +260,8 @@ class Service:
             "vlm": bool(self.cfg.vlm is not None and self.cfg.vlm.configured),
             "methods": METHODS.names(),
         }
+        if self._links:
+            data["links"] = [link.describe() for link in self._links]
         return data
 
     # ---------------------------------------------------------------- asking
@@ -305,6 +319,11 @@ class Service:
 
     def publish_answer(self, data: dict[str, Any]) -> None:
         self.bus.publish("answer", {"answer": data})
+        for link in self._links:
+            try:
+                link.on_answer(data)
+            except Exception:  # a robot link's failure must not fail the question
+                log.exception("%r could not take the answer", link)
 
     # ---------------------------------------------------------------- writing
     def _on_result(self, res: AddResult, rec: MemoryRecord | None) -> None:

@@ -31,9 +31,10 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,12 +44,16 @@ from ..ingest._tf import TfTree, norm_frame
 from ..ingest.poses import PoseTrack, check_match_mode
 from ..types import Pose
 
+if TYPE_CHECKING:
+    from .live import LiveWriter
+    from .service import Service
+
 log = logging.getLogger(__name__)
 
 SKIP_NO_POSE = "no pose in time"  # the pose stream is late, stopped or never started
 SKIP_BUSY = "link busy: frame dropped before storing"
 SKIP_TYPE = "undecodable message"  # not CDR of any type this key may carry
-SKIP_NOT_IMAGE = "not an image message"
+SKIP_SLOW = "not stored in time"  # the writer did not answer within its timeout
 
 # What a sink does with a posed frame: the new memory's id, or the reason it was not kept.
 Sink = Callable[[np.ndarray, Pose, float], "int | str"]
@@ -476,7 +481,7 @@ class ZenohEndpoints:
         try:
             conf = zenoh.Config.from_file(str(self.config_file)) if self.config_file else zenoh.Config()
         except Exception as e:  # zenoh raises its own ZError for unreadable or invalid files
-            raise InputError(f"zenoh config {self.config_file}: {e}") from None
+            raise InputError(f"zenoh config {self.config_file}: {_short(e)}") from None
         if self.connect or self.listen:
             conf.insert_json5("scouting/multicast/enabled", "false")
             conf.insert_json5("scouting/gossip/enabled", "false")
@@ -486,8 +491,16 @@ class ZenohEndpoints:
             if self.listen:
                 conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         except Exception as e:
-            raise InputError(f"zenoh endpoints {list(self.connect) + list(self.listen)}: {e}") from None
+            raise InputError(
+                f"zenoh endpoints {list(self.connect) + list(self.listen)}: {_short(e)}"
+            ) from None
         return conf
+
+
+def _short(e: BaseException) -> str:
+    """Zenoh's error text on one line, without the Rust source location it appends."""
+    text = " ".join(str(e).split())
+    return text.split(" at /", 1)[0][:300]
 
 
 class ZenohLink:
@@ -527,7 +540,7 @@ class ZenohLink:
         except InputError:
             raise
         except Exception as e:
-            raise InputError(f"zenoh: cannot open a session ({e})") from None
+            raise InputError(f"zenoh: cannot open a session ({_short(e)})") from None
         try:
             for role, key in (("image", self.cfg.image), ("pose", self.cfg.pose)):
                 self._subs.append(self._session.declare_subscriber(key, self._callback(role)))
@@ -537,7 +550,7 @@ class ZenohLink:
                 self._goal_pub = self._session.declare_publisher(self.cfg.goal)
         except Exception as e:
             self.close()
-            raise InputError(f"zenoh: cannot subscribe ({e})") from None
+            raise InputError(f"zenoh: cannot subscribe ({_short(e)})") from None
         self._thread = threading.Thread(target=self._run, name="ravenmem-zenoh", daemon=True)
         self._thread.start()
         return self
@@ -613,6 +626,20 @@ class ZenohLink:
         self.link.stats.add("goals")
         return True
 
+    def on_answer(self, answer: dict[str, Any]) -> None:
+        """The service's answer hook: an answer with a position becomes a goal (when configured)."""
+        self.publish_goal(answer)
+
+    def describe(self) -> dict[str, Any]:
+        """What `/info` shows under `links`: the keys and the counts."""
+        keys = {"image": self.cfg.image, "pose": self.cfg.pose, "tf_static": self.cfg.tf_static_key}
+        return {
+            "kind": "zenoh",
+            **keys,
+            "goal": self.cfg.goal,
+            "waiting": self.link.waiting,
+        } | self.stats.as_dict()
+
     def close(self, timeout: float = 30.0) -> None:
         """Stop taking messages, settle what is queued, then close the session."""
         for sub in self._subs:
@@ -627,3 +654,34 @@ class ZenohLink:
             with contextlib.suppress(Exception):
                 self._session.close()
             self._session = None
+
+
+def writer_sink(writer: LiveWriter, source: str, timeout: float = 60.0) -> Sink:
+    """The service's one writer as a sink: each frame goes through its keyframe rule, embedder
+    and store, and the call returns once the frame is durable (or skipped, with the reason)."""
+
+    def sink(image: np.ndarray, pose: Pose, t: float) -> int | str:
+        try:
+            res = writer.add(image, pose, t, source=source, timeout=timeout)
+        except FutureTimeout:
+            return SKIP_SLOW
+        return res.id if res.id is not None else str(res.skipped)
+
+    return sink
+
+
+def start_link(service: Service, cfg: LinkConfig, endpoints: ZenohEndpoints | None = None) -> ZenohLink:
+    """Start the robot link on a service (`ravenmem serve --zenoh`): frames into its writer,
+    answers with a position out as goals; closed with the service."""
+    if service.writer is None:
+        raise InputError("--zenoh adds frames to the memory: it cannot run with --read-only")
+    service.start()
+    link = ZenohLink(cfg, writer_sink(service.writer, cfg.source), endpoints).start()
+    service.attach(link)
+    log.info(
+        "zenoh link: images on %s, poses on %s%s",
+        cfg.image,
+        cfg.pose,
+        f", goals on {cfg.goal}" if cfg.goal else "",
+    )
+    return link

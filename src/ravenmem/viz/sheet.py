@@ -8,6 +8,7 @@ crash-safely. Rows are the one hit shape (`tools.hit_json`, or an answer's evide
 
 from __future__ import annotations
 
+import io
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -163,6 +164,17 @@ def draw_sheet(
     return layout
 
 
+def decode_picture(data: bytes | None) -> np.ndarray | None:
+    """RGB from JPEG/PNG bytes (a picture fetched from a service), None when it does not decode."""
+    if not data:
+        return None
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            return np.asarray(im.convert("RGB"), dtype=np.uint8)
+    except Exception:  # decoders raise many kinds (and DecompressionBombError): no picture then
+        return None
+
+
 def hit_cells(
     rows: Sequence[dict[str, Any]],
     load: Callable[[dict[str, Any]], np.ndarray | None],
@@ -208,6 +220,23 @@ def search_sheet(
     return draw_sheet(hit_cells(rows, lambda r: mem.load_image(recs[r["id"]])), out, title)
 
 
+def remote_sheet(
+    rows: Sequence[dict[str, Any]],
+    fetch: Callable[[int], bytes | None],
+    out: str | Path,
+    title: Sequence[str],
+    t0: float | None = None,
+) -> SheetLayout:
+    """A sheet of hits or evidence from a running service: `fetch(id)` gives a memory's picture."""
+    return draw_sheet(hit_cells(rows, lambda r: decode_picture(fetch(int(r["id"]))), t0), out, title)
+
+
+def answer_title(answer: dict[str, Any]) -> list[str]:
+    """The question and the answer, as a sheet's two title lines."""
+    status = "FAILED" if answer.get("failed") else ("found" if answer.get("found") else "not found")
+    return [f"Q: {answer.get('question', '')}", f"A ({status}): {answer.get('text', '')}"]
+
+
 def answer_sheet(mem: Any, answer: dict[str, Any], out: str | Path) -> SheetLayout:
     """The sheet of an answer: its evidence memories, under the question and the answer."""
     ev = list(answer.get("evidence") or [])
@@ -221,6 +250,4 @@ def answer_sheet(mem: Any, answer: dict[str, Any], out: str | Path) -> SheetLayo
         rec = recs.get(r["id"])
         return None if rec is None else mem.load_image(rec)
 
-    status = "FAILED" if answer.get("failed") else ("found" if answer.get("found") else "not found")
-    title = [f"Q: {answer.get('question', '')}", f"A ({status}): {answer.get('text', '')}"]
-    return draw_sheet(hit_cells(ev, load, t0), out, title)
+    return draw_sheet(hit_cells(ev, load, t0), out, answer_title(answer))

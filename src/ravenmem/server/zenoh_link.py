@@ -633,12 +633,10 @@ class ZenohLink:
     def describe(self) -> dict[str, Any]:
         """What `/info` shows under `links`: the keys and the counts."""
         keys = {"image": self.cfg.image, "pose": self.cfg.pose, "tf_static": self.cfg.tf_static_key}
-        return {
-            "kind": "zenoh",
-            **keys,
-            "goal": self.cfg.goal,
-            "waiting": self.link.waiting,
-        } | self.stats.as_dict()
+        out: dict[str, Any] = {"kind": "zenoh", **keys, "goal": self.cfg.goal, "waiting": self.link.waiting}
+        if self.cfg.tf:  # which frame the poses are in, or why none could be found yet
+            out["tf_parent"], out["tf_note"] = self.link.poses.parent, self.link.poses.tf_note
+        return out | self.stats.as_dict()
 
     def close(self, timeout: float = 30.0) -> None:
         """Stop taking messages, settle what is queued, then close the session."""

@@ -44,10 +44,11 @@ def make_memory(path: Path, n: int = 7) -> Path:
 
 
 def cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    """The real command in a subprocess, with this checkout's sources and the colour embedder."""
+    """The real command in a subprocess, with this checkout's sources and the colour embedder
+    registered by name (tests/server/serve_color.py)."""
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
     return subprocess.run(
-        [sys.executable, str(REPO / "tests" / "viz" / "color_cli.py"), *args],
+        [sys.executable, str(REPO / "tests" / "server" / "serve_color.py"), *args],
         capture_output=True,
         text=True,
         env=env,

@@ -141,7 +141,7 @@ def test_tf_over_zenoh_with_tf_static_sent_before_the_link_started(mem: ravenmem
     )
     static.put(w.tf_static())  # before anyone listens
     cfg = parse_link_spec("image=camera/image_raw/compressed,pose=tf")  # parent: map, found in tf
-    link = ZenohLink(cfg, MemorySink(mem, KeyframeConfig()), ZenohEndpoints(connect=(endpoint,))).start()
+    link = ZenohLink(cfg, MemorySink(mem, KeyframeConfig.only()), ZenohEndpoints(connect=(endpoint,))).start()
     try:
         pubs = {k: robot.declare_publisher(k) for k in ("camera/image_raw/compressed", "tf")}
         assert wait_until(lambda: all(p.matching_status for p in pubs.values()))

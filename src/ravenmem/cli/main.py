@@ -323,7 +323,10 @@ def search(
                 from ravenmem.viz.sheet import remote_sheet
 
                 remote_sheet(
-                    rows, remote.picture, sheet, [what, f"{len(rows)} hit(s), {tool.order_for(call)}  |  {url}"]
+                    rows,
+                    remote.picture,
+                    sheet,
+                    [what, f"{len(rows)} hit(s), {tool.order_for(call)}  |  {url}"],
                 )
     else:
         assert memory is not None

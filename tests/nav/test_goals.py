@@ -95,3 +95,13 @@ def test_heading_falls_back_to_the_answer_yaw(tum_like: ravenmem.Memory) -> None
     gp = plan_to_answer(tum_like, a)
     assert gp.ok and gp.goal[2] == 1.0
     assert np.isfinite(gp.plan.length_m)
+
+
+def test_a_models_yaw_on_a_map_whose_up_is_not_world_z_gives_way_to_the_evidence_view(
+    tum_like: ravenmem.Memory,
+) -> None:
+    a = _answer(tum_like, 7)
+    a.yaw, a.yaw_source = 2.5, "model"  # about world z: meaningless on this y-up recording
+    gp = plan_to_answer(tum_like, a)
+    assert gp.ok and gp.goal[2] == pytest.approx(0.25 * math.sin(6), abs=1e-3)
+    assert any("not this map's up" in n for n in gp.notes)

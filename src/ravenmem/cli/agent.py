@@ -97,8 +97,23 @@ def ask(
     server: Annotated[
         str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
     ] = None,
+    navigate: Annotated[
+        bool,
+        typer.Option(
+            "--navigate",
+            help="also plan (A* on the memory's map) from the robot's last pose to the answer's "
+            "position and heading; prints the path and the goal as a Nav2 PoseStamped",
+        ),
+    ] = False,
+    from_: Annotated[
+        str | None, typer.Option("--from", help="with --navigate: start 'x,y' in map metres")
+    ] = None,
+    robot_radius: Annotated[
+        float | None, typer.Option(help="with --navigate: robot radius in metres (default: the map's)")
+    ] = None,
 ) -> None:
-    """Answer a question from a memory: position, time, yes/no, duration or text, with evidence."""
+    """Answer a question from a memory: position, time, yes/no, duration or text, with evidence.
+    With --navigate, exit 0 means a path to the answer was planned (1: answered, no path)."""
     import ravenmem
     from ravenmem.agent import VLMConfig, create_method, get_preset, parse_top_k
     from ravenmem.agent.base import needs_vlm
@@ -111,7 +126,12 @@ def ask(
         raise InputError(f"--offline and --method {method} contradict each other")
     name = "offline" if offline else (method or "raven")
     get_preset(preset)  # an unknown preset is an error before anything is opened
+    if (from_ is not None or robot_radius is not None) and not navigate:
+        raise InputError("--from and --robot-radius apply with --navigate only")
     url = resolve_server(server, memory)
+    if url and navigate:
+        raise InputError("--navigate plans on a local memory's map: give --memory, not --server")
+    grid, start = _navigation_inputs(memory, from_, robot_radius) if navigate else (None, None)
     if url:  # a running service answers, with its own VLM settings
         local_only = [base_url, model, api_key, tool_mode, timeout, question_timeout, max_retries, config]
         local_only += [trace, temperature, seed, time_mode, frames, segment_frames, image_max_side]
@@ -163,29 +183,83 @@ def ask(
     with ravenmem.open(memory) as mem:
         m = create_method(name, mem, preset=preset, **opts)
         ans = m.ask(question, image=img)
-        root = Path(mem.path)
         if sheet is not None:
             from ravenmem.viz.sheet import answer_sheet
 
             answer_sheet(mem, ans.model_dump(mode="json"), sheet)
-    data = ans.model_dump(mode="json")
+        data = ans.model_dump(mode="json")
+        for ev, e in zip(data["evidence"], ans.evidence):
+            ev["image_file"] = _picture(mem, e.id)
+        if grid is not None:
+            from ravenmem.nav.goals import plan_to_answer
+
+            data["navigation"] = plan_to_answer(mem, ans, start, robot_radius, grid=grid).as_dict()
     if sheet is not None:
         data["sheet"] = str(sheet)
-    for ev in data["evidence"]:
-        p = ev.get("image_path")
-        ev["image_file"] = str(root / p) if p and not Path(p).is_absolute() else p
     _output(data, json_out)
 
 
+def _picture(mem: Any, memory_id: int) -> str | None:
+    """The evidence picture's file, only when it lies inside the memory folder (a stored path
+    is never shown or followed as it is)."""
+    from ravenmem.errors import InputError
+
+    try:
+        (rec,) = mem.get([int(memory_id)])
+    except (KeyError, ValueError, InputError):
+        return None
+    f = mem.image_file(rec)
+    return str(f) if f else None
+
+
+def _navigation_inputs(
+    memory: Path | None, from_: str | None, robot_radius: float | None
+) -> tuple[Any, tuple[float, float] | None]:
+    """The memory's map and the start, checked before the question costs a model call."""
+    from ravenmem.errors import InputError
+    from ravenmem.nav.grid import OccupancyGrid
+
+    from .nav import _xy
+
+    assert memory is not None
+    grid = OccupancyGrid.load(memory)  # no map: one line naming how to build one
+    start = _xy(from_, "--from") if from_ is not None else None
+    if from_ is not None and start is None:
+        raise InputError(f"--from: expected 'x,y' in metres, got {from_!r}")
+    if robot_radius is not None and not (math.isfinite(robot_radius) and robot_radius >= 0):
+        raise InputError(f"--robot-radius: expected a finite radius >= 0 in metres, got {robot_radius}")
+    return grid, start
+
+
 def _output(data: dict[str, Any], json_out: bool) -> None:
+    nav = data.get("navigation")
     if json_out:
         sys.stdout.write(json.dumps(data, indent=2) + "\n")
     else:
         _render(data)
         if data.get("sheet"):
             out_console().print(f"contact sheet: {esc(str(data['sheet']))}", highlight=False)
-    if data["failed"]:
+        if nav is not None:
+            _render_navigation(nav)
+    if data["failed"] or (nav is not None and not nav["ok"]):
         raise typer.Exit(1)
+
+
+def _render_navigation(nav: dict[str, Any]) -> None:
+    con = out_console()
+    if not nav["ok"]:
+        con.print(f"[bold]navigate:[/] [red]no path[/]: {esc(nav['reason'])}", highlight=False)
+        return
+    (sx, sy), (gx, gy, gyaw) = nav["start"], nav["goal"]
+    con.print(
+        f"[bold]navigate:[/] A* path {nav['path_length_m']:.2f} m, {len(nav['waypoints'])} waypoints, "
+        f"from ({sx:.2f}, {sy:.2f}) to ({gx:.2f}, {gy:.2f}) facing {math.degrees(gyaw):.0f} deg "
+        f"(frame {esc(nav['frame_id'])})",
+        highlight=False,
+    )
+    for note in nav.get("notes", []):
+        con.print(f"[yellow]note:[/] {esc(note)}", highlight=False)
+    sys.stdout.write(json.dumps(nav["pose_stamped"]) + "\n")
 
 
 def _render(a: dict[str, Any]) -> None:

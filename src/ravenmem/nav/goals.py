@@ -2,10 +2,13 @@
 a goal pose (position and heading) in the map frame.
 
 The goal is where the camera was when it saw the thing asked about (the answer's position),
-facing the way the camera looked then, so that on arrival the robot sees it again. The heading
-comes from the evidence memory's full orientation and the map's camera mount when the memory
-has them (a hand-held camera's own yaw is not its viewing direction); otherwise from the
-answer's yaw (a z-up robot's heading).
+facing the way the camera looked then, so that on arrival the robot sees it again. The heading:
+1. the model's own yaw (`yaw_source == "model"`) when the map's x, y are the world's x, y (a
+   z-up robot or simulator): the model chose it, and a yaw about world z is a map heading;
+2. else the evidence memory's viewing direction on the map, from its full orientation and the
+   map's camera mount (a hand-held camera's yaw about world z is not where it looked; on a map
+   whose up is not world z, a model's yaw cannot be placed either, and a note says so);
+3. else the answer's yaw; else map +x, with a note.
 """
 
 from __future__ import annotations
@@ -38,6 +41,9 @@ class AnswerLike(Protocol):
     found: bool
     position: list[float] | None
     yaw: float | None
+
+    @property
+    def yaw_source(self) -> str: ...
 
     @property
     def evidence(self) -> Sequence[Any]: ...
@@ -153,9 +159,15 @@ def plan_to_answer(
         return GoalPlan(PlanResult(ok=False, reason=f"bad answer position {answer.position!r}"), None, start)
     target = to_map_xy(grid, [float(v) for v in answer.position])
     yaw = answer.yaw
-    pose = _evidence_pose(m, answer)
+    from_model = yaw is not None and answer.yaw_source == "model"
+    pose = None if from_model and grid.frame.is_world_xy else _evidence_pose(m, answer)
     if pose is not None:
         yaw = heading_of(grid, pose)
+        if from_model:
+            notes.append(
+                "the model's yaw is about world z, which is not this map's up: the goal faces "
+                "where the evidence camera looked"
+            )
     elif yaw is None:
         yaw = 0.0
         notes.append("no heading in the answer: the goal faces map +x")

@@ -572,24 +572,11 @@ def _cut(subject: str, words: re.Pattern[str]) -> str:
 
 
 def _ev_hit(h: Hit) -> Evidence:
-    p = h.memory.pose
-    return Evidence(
-        id=h.memory.id,
-        t=h.memory.t,
-        x=p.x,
-        y=p.y,
-        z=p.z,
-        yaw=p.yaw,
-        score=h.score,
-        image_path=h.memory.image_path,
-    )
+    return Evidence.of(h.memory, h.score)
 
 
 def _ev(c: Cand) -> Evidence:
-    p = c.rec.pose
-    return Evidence(
-        id=c.rec.id, t=c.rec.t, x=p.x, y=p.y, z=p.z, yaw=p.yaw, score=c.score, image_path=c.rec.image_path
-    )
+    return Evidence.of(c.rec, c.score)
 
 
 def _group_scores(

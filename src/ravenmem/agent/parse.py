@@ -168,17 +168,7 @@ class ModelAnswer(BaseModel):
 
 
 def evidence_of(s: Shown) -> Evidence:
-    p = s.record.pose
-    return Evidence(
-        id=s.record.id,
-        t=s.record.t,
-        x=p.x,
-        y=p.y,
-        z=p.z,
-        yaw=p.yaw,
-        score=s.score,
-        image_path=s.record.image_path,
-    )
+    return Evidence.of(s.record, s.score)
 
 
 def build_answer(

@@ -10,6 +10,8 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
+from ..types import MemoryRecord
+
 QuestionType = Literal["position", "time", "binary", "text", "duration"]
 Source = Literal["model", "evidence", "none"]
 
@@ -25,6 +27,12 @@ class Evidence(BaseModel):
     yaw: float = 0.0
     score: float | None = None
     image_path: str | None = None
+
+    @classmethod
+    def of(cls, rec: MemoryRecord, score: float | None = None) -> Evidence:
+        """A stored memory as evidence (its time, pose and picture), with the score it got."""
+        p = rec.pose
+        return cls(id=rec.id, t=rec.t, x=p.x, y=p.y, z=p.z, yaw=p.yaw, score=score, image_path=rec.image_path)
 
 
 class Cost(BaseModel):

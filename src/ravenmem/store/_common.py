@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import re
 import unicodedata
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -19,6 +19,30 @@ from ..types import Filter, MemoryRecord
 
 DIM_KEY = "store.dim"
 _WORD = re.compile(r"[^\W_]+")
+
+
+Batch = tuple[Sequence[MemoryRecord], np.ndarray]
+
+
+def import_key(resume: str | None) -> str | None:
+    """The meta key that keeps a named import's progress (None: the import is not resumable)."""
+    if resume is None:
+        return None
+    if not isinstance(resume, str) or not resume.strip():
+        raise InputError(f"resume: expected a non-empty name, got {resume!r}")
+    return f"import.{resume}"
+
+
+def skip_rows(batches: Iterable[Batch], skip: int) -> Iterator[Batch]:
+    """The batches of a bulk import without their first `skip` rows (those a previous run of a
+    resumed import committed)."""
+    for records, embeddings in batches:
+        if skip >= len(records):
+            skip -= len(records)
+            continue
+        if skip:
+            records, embeddings, skip = records[skip:], embeddings[skip:], 0
+        yield records, embeddings
 
 
 def check_dim(where: str, stored: str | None, dim: int) -> None:

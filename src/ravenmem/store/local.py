@@ -41,8 +41,10 @@ from ._common import (
     check_k,
     check_point,
     check_query,
+    import_key,
     query_words,
     rank_text,
+    skip_rows,
 )
 from ._vindex import CODES, IndexFileError, VectorIndex, nlist_for
 from .base import STORES, SourceFrames
@@ -339,21 +341,12 @@ class LocalStore:
         (crossing `ann_threshold`, or doubling), and done once, from SQLite, at the end; the
         imported memories are searchable when this returns.
         """
-        key = None
-        if resume is not None:
-            if not isinstance(resume, str) or not resume.strip():
-                raise InputError(f"resume: expected a non-empty name, got {resume!r}")
-            key = f"import.{resume}"
+        key = import_key(resume)
         done = int(self.get_meta(key) or 0) if key else 0
-        skip, added = done, 0
+        added = 0
         self.wait_for_index()  # a rebuild already under way finishes first
         try:
-            for records, embeddings in batches:
-                if skip >= len(records):
-                    skip -= len(records)
-                    continue
-                if skip:
-                    records, embeddings, skip = records[skip:], embeddings[skip:], 0
+            for records, embeddings in skip_rows(batches, done):
                 emb = check_add(records, embeddings, self.dim)
                 if not len(records):
                     continue

@@ -34,9 +34,11 @@ from ._common import (
     check_k,
     check_point,
     check_query,
+    import_key,
     norm_text,
     query_words,
     rank_text,
+    skip_rows,
 )
 from .base import STORES, SourceFrames
 
@@ -238,11 +240,7 @@ class MilvusStore:
         exists), so a crash between the insert and the count neither loses nor repeats rows.
         For millions of memories on a Milvus cluster, Milvus's own bulk import (files in object
         storage) is faster: see docs/store.md."""
-        key = None
-        if resume is not None:
-            if not isinstance(resume, str) or not resume.strip():
-                raise InputError(f"resume: expected a non-empty name, got {resume!r}")
-            key = f"import.{resume}"
+        key = import_key(resume)
         prog: dict[str, Any] = json.loads(self.get_meta(key) or '{"rows": 0}') if key else {"rows": 0}
         if key and prog.get("pending"):
             first, n = prog.pop("pending")
@@ -250,13 +248,8 @@ class MilvusStore:
                 if self._query(f"id == {int(first) + int(n) - 1}", ["id"]):
                     prog["rows"] += int(n)
             self.set_meta(key, json.dumps(prog))
-        skip, added = int(prog["rows"]), 0
-        for records, embeddings in batches:
-            if skip >= len(records):
-                skip -= len(records)
-                continue
-            if skip:
-                records, embeddings, skip = records[skip:], embeddings[skip:], 0
+        added = 0
+        for records, embeddings in skip_rows(batches, int(prog["rows"])):
             emb = check_add(records, embeddings, self.dim)
             for s in range(0, len(records), _INSERT_ROWS):
                 part = records[s : s + _INSERT_ROWS]

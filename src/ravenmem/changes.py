@@ -120,6 +120,21 @@ class Place:
         return self.sightings[-1].memory
 
     @property
+    def seen(self) -> int:
+        """How many memories showed it here: a consolidated sighting counts what it stands for."""
+        return sum(h.count for h in self.sightings)
+
+    @property
+    def first_t(self) -> float:
+        """When it was first seen here (a consolidated sighting's span starts earlier than its t)."""
+        return min(h.span[0] if h.span else h.memory.t for h in self.sightings)
+
+    @property
+    def last_t(self) -> float:
+        """When it was last seen here (a consolidated sighting's span ends later than its t)."""
+        return max(h.span[1] if h.span else h.memory.t for h in self.sightings)
+
+    @property
     def best(self) -> Hit:
         return max(self.sightings, key=lambda h: h.score or 0.0)
 
@@ -135,11 +150,11 @@ class Place:
 
     def sentence(self) -> str:
         """The place and its verdict in one line, with the times and memory ids it rests on."""
-        p, n = self.last.pose, len(self.sightings)
+        p, n = self.last.pose, self.seen
         seen = (
-            f"seen {n} times from {fmt_time(self.first.t)} to {fmt_time(self.last.t)}"
+            f"seen {n} times from {fmt_time(self.first_t)} to {fmt_time(self.last_t)}"
             if n > 1
-            else f"seen once at {fmt_time(self.last.t)}"
+            else f"seen once at {fmt_time(self.last_t)}"
         )
         head = f"place {self.index} (camera at x={p.x:.2f} y={p.y:.2f}): {seen} (last m{self.last.id})"
         if self.verdict in ("moved", "gone"):
@@ -167,10 +182,10 @@ class Place:
             "x": p.x,
             "y": p.y,
             "z": p.z,
-            "sightings": len(self.sightings),
-            "first_seen": self.first.t,
-            "last_seen": self.last.t,
-            "last_seen_time": fmt_time(self.last.t),
+            "sightings": self.seen,
+            "first_seen": self.first_t,
+            "last_seen": self.last_t,
+            "last_seen_time": fmt_time(self.last_t),
             "last_seen_id": self.last.id,
             "later_visit": self.later_visit,
             "revisited": self.revisited,
@@ -239,13 +254,28 @@ class Whereabouts:
         thing = {"status": self.status, "status_note": self.status_note}
         for p in self.places[:k]:
             info = {**p.as_dict(), **thing}
+            last = p.sightings[-1]
             out.append(
-                ChangeHit(memory=p.last, score=p.sightings[-1].score, change={**info, "role": "sighting"})
+                ChangeHit(
+                    memory=last.memory,
+                    score=last.score,
+                    count=last.count,
+                    span=last.span,
+                    change={**info, "role": "sighting"},
+                )
             )
             if p.verdict in ("moved", "gone"):
                 shown = p.revisits[:1] + (p.revisits[-1:] if len(p.revisits) > 1 else [])
                 for h in shown[:revisits]:
-                    out.append(ChangeHit(memory=h.memory, score=h.score, change={**info, "role": "revisit"}))
+                    out.append(
+                        ChangeHit(
+                            memory=h.memory,
+                            score=h.score,
+                            count=h.count,
+                            span=h.span,
+                            change={**info, "role": "revisit"},
+                        )
+                    )
         return out
 
 
@@ -294,6 +324,8 @@ def last_seen(
     places.sort(key=lambda p: _chrono(p.sightings[-1]), reverse=True)
     for i, p in enumerate(places, 1):
         p.index = i
+    # consolidated memories stand for several: counts and spans (ravenmem.lifelong) on the evidence
+    mem._grouped([h for p in places for h in (*p.sightings, *p.revisits)])
     out = Whereabouts(label, places, thr, floor, best)
     _judge(out, _episodes(places, gap))
     return out
@@ -361,8 +393,11 @@ def _sample(mem: Memory, ids: Sequence[int], embeddings: bool = False) -> list[M
 
 def _spread(mem: Memory, n: int) -> list[int]:
     """About n ids spread evenly over the memory: ids grow with insertion, so between the ids
-    of the oldest and the newest memory (a few may be missing: `_sample` skips them)."""
-    t0, t1 = mem.time_span()
+    of the oldest and the newest memory (a few may be missing: `_sample` skips them). The
+    stored times, not `mem.time_span()`: a consolidated memory's span reaches past its newest
+    representative's own time, where no memory starts."""
+    st = mem.store.stats()
+    t0, t1 = float(st["t_min"]), float(st["t_max"])  # type: ignore[arg-type]
     ends = [r.id for t in (t0, t1) for r in mem.store.by_time(t, 1)]
     lo, hi = min(ends), max(ends)
     return sorted({int(i) for i in np.linspace(lo, hi, max(1, min(n, hi - lo + 1)))})

@@ -3,6 +3,7 @@ their span and count; budgets, similarity, places and revisits; what the tools t
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import pytest
 
 import ravenmem
 from ravenmem.lifelong.consolidate import plan
+from ravenmem.timeparse import fmt_time
 from tests.cli.helpers import assert_one_line_error
 from tests.conftest import ColorEmbedder
 from tests.lifelong.lifelong_helpers import (
@@ -115,6 +117,55 @@ def test_forgetting_a_representative_drops_its_group(walk: Path) -> None:
     info = rm_json("info", "-m", str(walk))
     assert (info["memories"], info["consolidated"], info["memories_represented"]) == (5, 5, 25)
     assert_consistent(walk)
+
+
+def test_the_latest_mode_counts_what_a_representative_stands_for(tmp_path: Path) -> None:
+    """`search --latest` on a consolidated memory: the place's sightings, first and last time
+    include the merged memories, and its hits carry count and span like every other hit."""
+    from ravenmem.types import Frame, Pose
+    from tests.conftest import solid
+
+    day, east, west, north = 86_400.0, 0.0, math.pi, math.pi / 2
+
+    def look(t: float, colour: str, x: float, yaw: float) -> Frame:
+        return Frame(image=solid(colour), t=T0 + t, pose=Pose(x, 0.0, 0.5, yaw), source="s", index=int(t))
+
+    frames = [look(t, "red", 0.0, east) for t in (0, 1, 2)] + [look(t, "black", 0.0, west) for t in (3, 4)]
+    frames += [look(5 + i, "black", 3.0 + 2 * i, north) for i in range(10)]
+    frames += [look(day + t, "black", 0.0, east) for t in (0, 1)] + [look(day + 2, "black", 6.0, west)]
+    frames += [look(day + t, "red", 10.0, north) for t in (3, 4, 5)]
+    path = tmp_path / "moved.mem"
+    with ravenmem.create(path, embedder=ColorEmbedder(), ocr=False, thumb_size=16) as m:
+        m.add_frames(frames)
+    rm_json("consolidate", "-m", str(path), "--max-similarity", "0.99")
+    now = [h for h in hits(path) if h["t"] >= T0 + day + 3]
+    assert len(now) == 1 and now[0]["count"] == 3  # the second red visit is one representative
+    rows = rm_json("search", "--like", str(now[0]["id"]), "--latest", "-k", "5", "-m", str(path))["results"]
+    sightings = [r for r in rows if r["change"]["role"] == "sighting"]
+    assert [r["change"]["verdict"] for r in sightings] == ["not revisited", "moved"]
+    for r, (first, last) in zip(sightings, [(day + 3, day + 5), (0, 2)]):
+        assert (r["count"], r["first_t"], r["last_t"]) == (3, T0 + first, T0 + last)
+        c = r["change"]
+        assert (c["sightings"], c["first_seen"], c["last_seen"]) == (3, T0 + first, T0 + last)
+        assert f"seen 3 times from {fmt_time(T0 + first)} to {fmt_time(T0 + last)}" in c["text"]
+    revisit = next(r for r in rows if r["change"]["role"] == "revisit")
+    assert revisit["count"] == 2 and revisit["first_t"] == T0 + day  # the empty place, seen twice
+    with ravenmem.open(path) as m:  # what the offline reasoner and the agent read
+        w = m.last_seen(memory_id=now[0]["id"])
+    assert w.now is not None and w.now.last_t == T0 + day + 5 and w.now.seen == 3
+
+
+def test_the_agent_reads_what_a_representative_stands_for(walk: Path) -> None:
+    from ravenmem.agent.tools import ToolRunner, WorkingMemory
+
+    rm_json("consolidate", "-m", str(walk), "--max-similarity", "0.95")
+    with ravenmem.open(walk) as m:
+        out = ToolRunner(m, top_k=10, attach_images=False).run(
+            "search_time", {"time": "start"}, WorkingMemory()
+        )
+    lines = out.text.splitlines()[1:]
+    assert len(lines) == 6
+    assert f"stands for {PER_RUN} memories seen from {fmt_time(T0)} to {fmt_time(T0 + 40)}" in lines[0]
 
 
 def test_dry_run_and_bad_input_change_nothing(walk: Path) -> None:

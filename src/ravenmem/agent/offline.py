@@ -503,8 +503,8 @@ class OfflineReasoner:
         name = subject[:1].upper() + subject[1:]
         moved = w.moved_from[:1]
         before = "".join(
-            f" It was at x={p.last.pose.x:.2f}, y={p.last.pose.y:.2f} until {fmt_time(p.last.t)}; that place "
-            f"was looked at again at {fmt_time(p.revisited or p.last.t)} without it."
+            f" It was at x={p.last.pose.x:.2f}, y={p.last.pose.y:.2f} until {fmt_time(p.last_t)}; that place "
+            f"was looked at again at {fmt_time(p.revisited or p.last_t)} without it."
             for p in moved
         )
         here = w.now
@@ -513,23 +513,23 @@ class OfflineReasoner:
             assert top is not None
             p = top.last.pose
             why = w.status_note or top.sentence()
-            ans.found, ans.position, ans.yaw, ans.time = False, None, None, top.last.t
+            ans.found, ans.position, ans.yaw, ans.time = False, None, None, top.last_t
             ans.position_source = ans.yaw_source = "none"
             ans.evidence = [_ev_hit(h) for h in [top.sightings[-1], *top.revisits]][: self.top_k]
             ans.text = (
                 f"I don't know where {subject} is now: last seen from x={p.x:.2f}, y={p.y:.2f} at "
-                f"{fmt_time(top.last.t)}, and not seen since ({why})."
+                f"{fmt_time(top.last_t)}, and not seen since ({why})."
             )
             if qtype == "binary":
                 ans.yes = False
                 ans.text = "No: " + ans.text
             return
-        rec, p = here.last, here.last.pose
-        ans.position, ans.yaw, ans.time = [p.x, p.y, p.z], p.yaw, rec.t
+        p = here.last.pose
+        ans.position, ans.yaw, ans.time = [p.x, p.y, p.z], p.yaw, here.last_t
         ans.position_source = ans.yaw_source = "evidence"
         newest_first = sorted(here.sightings, key=lambda h: (-h.memory.t, -h.memory.id))
         ans.evidence = [_ev_hit(h) for h in newest_first][: self.top_k]
-        where, when = f"x={p.x:.2f}, y={p.y:.2f}, z={p.z:.2f}", fmt_time(rec.t)
+        where, when = f"x={p.x:.2f}, y={p.y:.2f}, z={p.z:.2f}", fmt_time(here.last_t)
         if qtype == "binary":
             ans.yes = not moved
             ans.text = (

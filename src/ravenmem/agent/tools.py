@@ -236,6 +236,8 @@ class ToolRunner:
             cap = self.captions(rec.id) if self.captions else None
             new = wm.add(h, name, cap)
             line = describe(rec, self.t0, h.score, h.distance, self.show_scores)
+            if h.count > 1 and h.span is not None:  # a consolidated memory (ravenmem consolidate)
+                line += f"; stands for {h.count} memories seen from {fmt_time(h.span[0])} to {fmt_time(h.span[1])}"
             if cap:
                 line += f"; caption: {json.dumps(cap)}"
             change = getattr(h, "change", None)

@@ -210,3 +210,41 @@ def test_depth_message_errors_are_reasons() -> None:
     d = decode_depth_message(Msg())
     assert np.isnan(d[0, 0]) and d[0, 1] == pytest.approx(1.0) and d[1, 0] == pytest.approx(2.0)
     assert math.isnan(float(d[1, 1]))
+
+
+def test_ingest_command_takes_the_folder_camera_frame_and_depth_scale(tmp_path: Path) -> None:
+    """`ravenmem ingest FOLDER --depth D --camera-frame optical`: optical-frame poses (what a
+    SLAM system writes) put the wall where it is; `--depth-scale` says what a 16-bit unit is."""
+    from tests.cli.helpers import assert_one_line_error, run_cli
+
+    root = _scene_folder(tmp_path / "scene", n=12)  # a wall at x = 4.0 .. 4.2 m, depth in mm
+    args = [
+        "--depth",
+        str(root / "depth"),
+        "--intrinsics",
+        "200,200,160,120",
+        "--no-ocr",
+        "--keyframes",
+        "all",
+    ]
+
+    def wall_x(mem: Path) -> np.ndarray:
+        grid = ravenmem.nav.load_map(mem)
+        _, cc = np.nonzero(grid.occupied)
+        return grid.origin[0] + (cc + 0.5) * grid.resolution
+
+    r = run_cli("ingest", str(root), "--memory", str(tmp_path / "o.mem"), "--camera-frame", "optical", *args)
+    assert r.returncode == 0, r.stderr
+    x = wall_x(tmp_path / "o.mem")
+    assert len(x) > 20 and np.all((x > 3.85) & (x < 4.35))
+    # the same millimetres read as 1/2000 m: every depth halves, the wall comes halfway closer
+    cmd = ["ingest", str(root), "--memory", str(tmp_path / "h.mem"), "--camera-frame", "optical"]
+    r = run_cli(*cmd, "--depth-scale", "2000", *args)
+    assert r.returncode == 0, r.stderr
+    x = wall_x(tmp_path / "h.mem")
+    assert len(x) > 20 and 1.9 < np.median(x) < 2.7
+    bad = run_cli(
+        "ingest", str(root), "--memory", str(tmp_path / "b.mem"), "--camera-frame", "sideways", *args
+    )
+    assert "camera_frame must be 'body' or 'optical'" in assert_one_line_error(bad)
+    assert not (tmp_path / "b.mem").exists()

@@ -143,6 +143,16 @@ def ingest(
     batch_size: Annotated[int, typer.Option(help="frames embedded per batch")] = 16,
     depth: Annotated[Path | None, typer.Option(help="image folders: the matching depth images")] = None,
     depth_topic: Annotated[str | None, typer.Option(help="bag depth topic (16UC1 mm / 32FC1 m)")] = None,
+    depth_scale: Annotated[
+        float | None, typer.Option(help="image folders: 16-bit depth units per metre (default 1000 = mm)")
+    ] = None,
+    camera_frame: Annotated[
+        str | None,
+        typer.Option(
+            help="image folders: the poses are of a 'body' (x forward, z up; default) or of the "
+            "camera's 'optical' frame (x right, y down, z forward, as SLAM systems write them)"
+        ),
+    ] = None,
     intrinsics: Annotated[
         str | None, typer.Option(help="depth camera: fr1 | fr2 | fr3 | kinect | fx,fy,cx,cy")
     ] = None,
@@ -172,7 +182,13 @@ def ingest(
     kwargs = {
         k: v
         for k, v in dict(
-            poses=poses, image_topic=image_topic, pose_topic=pose_topic, depth=depth, depth_topic=depth_topic
+            poses=poses,
+            image_topic=image_topic,
+            pose_topic=pose_topic,
+            depth=depth,
+            depth_topic=depth_topic,
+            depth_scale=depth_scale,
+            camera_frame=camera_frame,
         ).items()
         if v is not None
     }

@@ -363,12 +363,12 @@ def _chrono(h: Hit) -> tuple[float, int]:
 
 def _search(mem: Memory, q: np.ndarray, k: int, filt: Filter) -> dict[int, tuple[MemoryRecord, float]]:
     scored = mem.store.search_vector(q, max(1, min(k, _MAX_K)), filt)
-    recs = mem.store.get([i for i, _ in scored])
-    return {r.id: (r, float(sc)) for r, (_, sc) in zip(recs, scored)}
+    recs = {r.id: r for r in _sample(mem, [i for i, _ in scored])}
+    return {i: (recs[i], float(sc)) for i, sc in scored if i in recs}
 
 
 def _scores(mem: Memory, q: np.ndarray, ids: Sequence[int]) -> list[tuple[MemoryRecord, float]]:
-    recs = mem.store.get(list(ids), with_embeddings=True)
+    recs = _sample(mem, ids, embeddings=True)
     out = []
     for r in recs:
         assert r.embedding is not None
@@ -379,16 +379,7 @@ def _scores(mem: Memory, q: np.ndarray, ids: Sequence[int]) -> list[tuple[Memory
 
 def _sample(mem: Memory, ids: Sequence[int], embeddings: bool = False) -> list[MemoryRecord]:
     """The records of `ids` that exist (ids a forget removed are skipped)."""
-    try:
-        return mem.store.get(list(ids), with_embeddings=embeddings)
-    except KeyError:
-        out = []
-        for i in ids:
-            try:
-                out += mem.store.get([i], with_embeddings=embeddings)
-            except KeyError:
-                continue
-        return out
+    return mem.stored(ids, with_embeddings=embeddings)
 
 
 def _spread(mem: Memory, n: int) -> list[int]:
@@ -513,7 +504,7 @@ def _newest_views(
     hi = asof.before if asof.before is not None else mem.time_span()[1]
     if thr is not None:  # one search over the whole time first: mostly there is no later sighting
         found = mem.store.search_vector(q, s.pool, Filter(after=lo, before=hi, region=disc))
-        recs = mem.store.get([i for i, sc in found if sc >= thr])
+        recs = _sample(mem, [i for i, sc in found if sc >= thr])
         if not any(_chrono(h) > _chrono(p.sightings[-1]) for h in _views(mem, q, recs, cams, s)):
             return []
     width = max((hi - lo) / 64.0, 1e-3)
@@ -524,7 +515,7 @@ def _newest_views(
             recs = mem.store.by_time(start, s.pool, filt)
         else:
             found = mem.store.search_vector(q, s.pool, filt)
-            recs = mem.store.get([i for i, sc in found if sc >= thr])
+            recs = _sample(mem, [i for i, sc in found if sc >= thr])
         got = [h for h in _views(mem, q, recs, cams, s) if _chrono(h) > _chrono(p.sightings[-1])]
         if thr is not None:
             got = [h for h in got if (h.score or 0.0) >= thr]

@@ -37,7 +37,7 @@ from .lock import LOCK_FILE, WriterLock
 from .manifest import FORMAT_VERSION, MANIFEST, Manifest, confine, store_for_create
 from .store.base import Store, open_store
 from .timeparse import TimeContext, parse_time
-from .tools import check_k
+from .tools import MAX_K, check_k
 from .types import Filter, Frame, Hit, MemoryRecord, Pose, Region
 
 if TYPE_CHECKING:
@@ -370,12 +370,28 @@ class Memory:
             raise EmptyMemoryError(f"memory {self.path} is empty: ingest something first")
 
     def _hits(self, scored: Sequence[tuple[int, float]], kind: str = "score") -> list[Hit]:
-        recs = self.store.get([i for i, _ in scored])
+        recs = {r.id: r for r in self.stored([i for i, _ in scored])}
         if kind == "distance":
-            hits = [Hit(memory=r, distance=float(d)) for r, (_, d) in zip(recs, scored)]
+            hits = [Hit(memory=recs[i], distance=float(d)) for i, d in scored if i in recs]
         else:
-            hits = [Hit(memory=r, score=float(s)) for r, (_, s) in zip(recs, scored)]
+            hits = [Hit(memory=recs[i], score=float(s)) for i, s in scored if i in recs]
         return self._grouped(hits)
+
+    def stored(self, ids: Sequence[int], with_embeddings: bool = False) -> list[MemoryRecord]:
+        """The records of `ids` that are still stored, in the order given. A reader that opened
+        the memory before another process ran `forget` or `consolidate` (a read-only service,
+        `ravenmem mcp`) still has the removed memories in its index; they are skipped here
+        rather than failing the search."""
+        try:
+            return self.store.get(list(ids), with_embeddings=with_embeddings)
+        except KeyError:
+            out: list[MemoryRecord] = []
+            for i in ids:
+                try:
+                    out += self.store.get([i], with_embeddings=with_embeddings)
+                except KeyError:
+                    continue
+            return out
 
     def _grouped(self, hits: list[Hit]) -> list[Hit]:
         """Hits with `count`/`span` set where a memory stands for several (consolidated)."""
@@ -547,7 +563,13 @@ class Memory:
         self._require_nonempty()
         filt = self.make_filter(after, before)
         r = None if radius is None else float(radius)
-        return self._hits(self.store.nearest(x, y, z, k, r, filt), kind="distance")
+        want = k
+        while True:  # more when memories another process forgot were skipped (`stored`)
+            scored = self.store.nearest(x, y, z, want, r, filt)
+            hits = self._hits(scored, kind="distance")
+            if len(hits) >= k or len(scored) < want or want >= MAX_K:
+                return hits[:k]
+            want = min(MAX_K, 4 * want)
 
     def last_seen(
         self,

@@ -167,3 +167,20 @@ def test_memories_without_thumbnails_keep_their_original_files(tmp_path: Path) -
     out = rm_json("forget", "-m", str(tmp_path / "ext.mem"), "--before", "+5")
     assert out["removed"] == 3 and out["thumbnails"] == 0 and out["thumbnail_bytes"] == 0
     assert all(p.exists() for p in originals)
+
+
+def test_a_reader_opened_before_forget_keeps_answering(walk: Path) -> None:
+    """A read-only service or `ravenmem mcp` runs beside the writer: its index still holds the
+    memories another process forgot. Its searches skip them instead of failing."""
+    with ravenmem.open(walk, embedder=ColorEmbedder()) as reader:
+        assert len(reader.search_position(0.1, 0.0, k=3)) == 3
+        gone = {r.id for r in records(walk) if r.pose.x < 2.5}  # the first red run
+        out = rm_json("forget", "--memory", str(walk), "--region", "0,0,2.5")
+        assert out["removed"] == len(gone) == 5
+        near = reader.search_position(0.1, 0.0, k=3)
+        red = reader.search_text("red", k=3)
+        image = reader.search_image(tinted("red", 99), k=3)
+        w = reader.last_seen("red")
+    assert len(near) == 3 and not {h.memory.id for h in near + red + image} & gone
+    assert red and red[0].memory.pose.x == pytest.approx(15, abs=0.3)  # the red run that is left
+    assert w.places and all(h.memory.id not in gone for p in w.places for h in p.sightings)

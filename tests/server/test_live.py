@@ -262,3 +262,54 @@ def test_the_service_is_the_one_writer_of_its_memory(tmp_path):
         proc.wait(60)
     with ravenmem.open(path, writable=True) as mem:  # released when the service stopped
         assert mem.is_writer and mem.count() == len(SCENE) + 1
+
+
+def test_live_adds_with_depth_update_the_memory_map(tmp_path):
+    """`ravenmem serve --intrinsics ... --camera-frame optical`: frames posted with a depth PNG
+    are fused into the memory's map (every one, keyframe or not), saved when the service stops;
+    a bad depth upload is a one-line 400 and stores nothing."""
+    from scipy.spatial.transform import Rotation
+
+    from ravenmem.nav import load_map
+    from tests.nav.depthscene import look, render
+
+    path = tmp_path / "live.mem"
+    extra = ["--create", "--embedder", "test-color", "--no-ocr", "--keyframes", "stride=4"]
+    proc, url = serve_subprocess(path, *extra, "--intrinsics", "200,200,160,120", "--camera-frame", "optical")
+    try:
+        with httpx.Client(base_url=url, timeout=30) as c:
+            for i in range(12):  # a camera walking towards a wall at x = 4.0 .. 4.2 m, depth in mm
+                cam = look(0.1 * i, 0.05 * i, 1.0, 0.1 * np.sin(i), np.radians(15))
+                d = io.BytesIO()
+                Image.fromarray(
+                    np.round(render(cam, [(4.0, -3.0, 4.2, 3.0, 2.0)]) * 1000).astype(np.uint16)
+                ).save(d, "PNG")
+                q = Rotation.from_matrix(cam[:3, :3]).as_quat()
+                x, y, z = cam[:3, 3]
+                pose = dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"), map(str, (x, y, z, *q))))
+                r = c.post(
+                    "/memories",
+                    files={
+                        "image": ("f.png", png(i), "image/png"),
+                        "depth": ("d.png", d.getvalue(), "image/png"),
+                    },
+                    data={**pose, "t": str(T0 + i), "source": "head"},
+                )
+                assert r.status_code in (200, 201), r.text
+            bad = c.post(
+                "/memories",
+                files={"image": ("f.png", png(0), "image/png"), "depth": ("d.png", png(1), "image/png")},
+                data={"x": "0", "y": "0", "t": str(T0 + 20)},
+            )
+            assert bad.status_code == 400 and "one channel of depth" in bad.json()["error"]
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(60)
+    grid = load_map(path)
+    assert grid.kind == "recorded" and grid.meta["sources"]["head"] == T0 + 11  # all 12 frames mapped
+    _, cc = np.nonzero(grid.occupied)
+    wall_x = grid.origin[0] + (cc + 0.5) * grid.resolution
+    assert len(wall_x) > 20 and np.all((wall_x > 3.85) & (wall_x < 4.35))
+    with ravenmem.open(path) as mem:
+        assert mem.count() == 3  # stride 4: three keyframes; the map took every frame
+        assert mem.manifest.ingests[-1]["map"]["frames_mapped"] == 12

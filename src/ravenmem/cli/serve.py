@@ -66,6 +66,15 @@ def serve(
     timeout: Annotated[float, typer.Option(help="seconds a search, question or add may take")] = 120.0,
     read_only: Annotated[bool, typer.Option("--read-only", help="no live adds (and no writer lock)")] = False,
     wait: Annotated[float, typer.Option(help="seconds to wait for another writer of the memory")] = 0.0,
+    intrinsics: Annotated[
+        str | None,
+        typer.Option(
+            help="live depth camera (fr1 | fr2 | fr3 | kinect | fx,fy,cx,cy): live adds with depth update the map"
+        ),
+    ] = None,
+    camera_frame: Annotated[
+        str, typer.Option(help="live poses are of a 'body' (x forward, z up) or the camera's 'optical' frame")
+    ] = "body",
     create: Annotated[
         bool, typer.Option("--create", help="start a new, empty memory when DIR holds none")
     ] = False,
@@ -92,6 +101,7 @@ def serve(
 ) -> None:
     """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds, a robot."""
     from ravenmem.agent.presets import parse_top_k
+    from ravenmem.ingest.depth import parse_intrinsics
     from ravenmem.ingest.keyframes import parse_keyframes
     from ravenmem.server.run import serve as run_serve
     from ravenmem.server.service import ServiceConfig
@@ -106,6 +116,8 @@ def serve(
         max_upload_bytes=int(max_upload_mb * 2**20),
         timeout_s=timeout,
         writable=not read_only,
+        intrinsics=parse_intrinsics(intrinsics) if intrinsics else None,
+        camera_frame=camera_frame,
     )
     new = {"embedder": embedder, "ocr": ocr} if create else None
     links = [_zenoh_link(zenoh, zenoh_connect, zenoh_listen, zenoh_config, read_only)] if zenoh else []

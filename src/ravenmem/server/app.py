@@ -28,7 +28,7 @@ from ..tools import MAX_K
 from ..types import MemoryRecord, Pose
 from .events import StreamRefused
 from .http_errors import add_error_handlers
-from .images import decode_base64_image, decode_image
+from .images import decode_base64_image, decode_depth, decode_image
 from .search_routes import add_search_routes
 from .security import Guard
 from .service import NotFound, Service
@@ -163,6 +163,13 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         source: Annotated[
             str, Form(max_length=200, description="camera name: keyframes are per source")
         ] = "live",
+        depth: Annotated[
+            UploadFile | None,
+            File(
+                description="depth for the map: a 16-bit PNG (units per metre: depth_scale) or .npy in metres"
+            ),
+        ] = None,
+        depth_scale: Annotated[float, Form(description="16-bit depth units per metre (1000: mm)")] = 1000.0,
     ) -> Response:
         """Live add: the frame goes through the online keyframe rule, the embedder and the store.
         201 with the new memory once it is durable, or 200 with the reason it was skipped."""
@@ -171,8 +178,12 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         pose = _pose(x, y, z, yaw, (qx, qy, qz, qw))
         data = await image.read()
         rgb = await run_in_threadpool(decode_image, data, cfg.max_pixels, "image")
+        metres = None
+        if depth is not None:
+            raw = await depth.read()
+            metres = await run_in_threadpool(decode_depth, raw, cfg.max_pixels, depth_scale, "depth")
         when = _now() if t is None else t
-        fut = service.writer.submit(rgb, pose, when, source)
+        fut = service.writer.submit(rgb, pose, when, source, metres)
         try:
             res = await asyncio.wait_for(asyncio.wrap_future(fut), cfg.timeout_s)
         except asyncio.TimeoutError:

@@ -48,3 +48,38 @@ def decode_base64_image(text: str, max_pixels: int, what: str = "image") -> np.n
     except (binascii.Error, ValueError):
         raise InputError(f"{what}: not valid base64") from None
     return decode_image(data, max_pixels, what)
+
+
+def decode_depth(data: bytes, max_pixels: int, scale: float, what: str = "depth") -> np.ndarray:
+    """A depth upload as float32 metres: a single-channel PNG (integers divided by `scale`, units
+    per metre: 1000 for millimetres) or a `.npy` array (metres); 0 and invalid readings are NaN."""
+    from ..ingest.depth import to_metres
+
+    if not data:
+        raise InputError(f"{what}: empty upload")
+    if not scale > 0:
+        raise InputError(f"{what}: depth_scale must be > 0, got {scale}")
+    try:
+        if data.startswith(b"\x93NUMPY"):
+            raw = np.load(io.BytesIO(data), allow_pickle=False)
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", Image.DecompressionBombWarning)
+                with Image.open(io.BytesIO(data)) as im:
+                    if im.format != "PNG":
+                        raise InputError(f"{what}: send a 16-bit PNG or a .npy array, not {im.format}")
+                    w, h = im.size
+                    if w * h > max_pixels:
+                        raise InputError(f"{what}: {w}x{h} pixels is more than the limit of {max_pixels}")
+                    raw = np.asarray(im)
+    except InputError:
+        raise
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError, Warning) as e:
+        raise InputError(f"{what}: not a readable depth PNG or .npy array ({type(e).__name__})") from None
+    if (
+        raw.ndim != 2
+        or raw.size > max_pixels
+        or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating))
+    ):
+        raise InputError(f"{what}: expected one channel of depth, got shape {raw.shape} {raw.dtype}")
+    return to_metres(raw, scale)

@@ -14,6 +14,10 @@ route, the Zenoh link) calls `LiveWriter.add` (blocking) or `LiveWriter.submit` 
     writer.start()
     result = writer.add(rgb, Pose(1.0, 2.0, yaw=0.3), t=time.time(), source="front")
     result.id or result.skipped   # the new memory's id, or why the frame was not kept
+
+With a `mapper` (a `ravenmem.nav.mapping.MapBuilder`), every frame that comes with depth is
+fused into the memory's occupancy map before the keyframe rule, as a recorded ingest does; the
+map is saved every `mapper.save_every` mapped frames and when the writer closes.
 """
 
 from __future__ import annotations
@@ -113,8 +117,10 @@ class LiveWriter:
         on_result: Callable[[AddResult, MemoryRecord | None], None] | None = None,
         max_pending: int = 256,
         batch: int = 16,
+        mapper: Any | None = None,
     ) -> None:
         self.mem = mem
+        self.mapper = mapper
         self.cfg = keyframes or KeyframeConfig()
         self.on_result = on_result
         self.batch = max(1, batch)
@@ -143,11 +149,29 @@ class LiveWriter:
         if thread is not None:
             self._queue.put(None)
             thread.join(timeout)
+        if self.mapper is not None:
+            try:
+                self.mapper.close()
+            except Exception:  # the memory itself is stored; a map that failed to save is logged
+                log.exception("saving the live map failed")
 
     # ---------------------------------------------------------------- adding
-    def submit(self, image: np.ndarray, pose: Pose, t: float, source: str = "live") -> Future[AddResult]:
-        """Queue one frame; the future resolves once it is stored (or skipped)."""
+    def submit(
+        self, image: np.ndarray, pose: Pose, t: float, source: str = "live", depth: np.ndarray | None = None
+    ) -> Future[AddResult]:
+        """Queue one frame (with `depth` in metres, for the map); the future resolves once it
+        is stored (or skipped)."""
         frame = _checked_frame(image, pose, t, source)
+        if depth is not None:
+            if (
+                not isinstance(depth, np.ndarray)
+                or depth.ndim != 2
+                or not np.issubdtype(depth.dtype, np.floating)
+            ):
+                raise InputError(
+                    f"depth must be a 2-D float array in metres, got {getattr(depth, 'shape', None)}"
+                )
+            frame.depth = depth
         fut: Future[AddResult] = Future()
         with self._lock:
             if self._closed:
@@ -161,10 +185,16 @@ class LiveWriter:
         return fut
 
     def add(
-        self, image: np.ndarray, pose: Pose, t: float, source: str = "live", timeout: float | None = 60.0
+        self,
+        image: np.ndarray,
+        pose: Pose,
+        t: float,
+        source: str = "live",
+        timeout: float | None = 60.0,
+        depth: np.ndarray | None = None,
     ) -> AddResult:
         """Add one frame and wait until it is durable (or skipped); the blocking form of `submit`."""
-        return self.submit(image, pose, t, source).result(timeout)
+        return self.submit(image, pose, t, source, depth).result(timeout)
 
     # ---------------------------------------------------------------- the writer thread
     def _run(self) -> None:
@@ -205,6 +235,8 @@ class LiveWriter:
                 j.future.set_exception(e)
                 continue
             j.frame.index, src.frames = src.frames, src.frames + 1
+            if self.mapper is not None and j.frame.depth is not None:
+                self._map(j.frame)
             reason = SKIP_TIME if j.frame.t < src.last_t else src.keyframer.pre(j.frame)
             if reason is None:
                 src.last_t = j.frame.t
@@ -233,6 +265,15 @@ class LiveWriter:
             j.future.set_result(res)
             self._notify(res, rec)
 
+    def _map(self, frame: Frame) -> None:
+        """Every depth frame into the map, keyframe or not; a mapping failure is logged, the
+        frame still goes on to the memory."""
+        try:
+            self.mapper.add(frame)  # type: ignore[union-attr]
+        except Exception:
+            log.exception("mapping a live frame failed")
+        frame.depth = None  # not kept past the map
+
     def _source(self, name: str) -> _Source:
         src = self._sources.get(name)
         if src is None:
@@ -257,13 +298,19 @@ class LiveWriter:
 
     def report(self) -> dict[str, Any]:
         """The live counts in the shape of an ingest report (appended to the manifest on close)."""
-        return {
+        out = {
             "source": "live",
             "frames_seen": self.stats.seen,
             "kept": self.stats.kept,
             "skipped": dict(self.stats.skipped),
             "ended": time.time(),
         }
+        if self.mapper is not None:
+            out["map"] = {
+                "frames_mapped": self.mapper.stats.mapped,
+                "skipped": dict(self.mapper.stats.skipped),
+            }
+        return out
 
 
 def _checked_frame(image: np.ndarray, pose: Pose, t: float, source: str) -> Frame:

@@ -29,7 +29,7 @@ from ..ingest.keyframes import KeyframeConfig
 from ..manifest import confine
 from ..memory import Memory
 from ..tools import TOOLS, Tool, ToolArgs, check_k, hit_json
-from ..types import Hit, MemoryRecord
+from ..types import Hit, Intrinsics, MemoryRecord
 from .events import EventBus
 from .live import AddResult, LiveWriter
 
@@ -57,6 +57,8 @@ class ServiceConfig:
     max_pixels: int = 40_000_000
     timeout_s: float = 120.0
     writable: bool = True
+    intrinsics: Intrinsics | None = None  # the depth camera of live adds: they update the map
+    camera_frame: str = "body"  # live poses are of a body (x forward, z up) or the optical frame
 
     def __post_init__(self) -> None:
         from ..agent.presets import get_preset
@@ -68,6 +70,8 @@ class ServiceConfig:
             raise InputError("upload size, pixel count and timeout must be > 0")
         if self.method is not None:
             METHODS.get(self.method)  # an unknown name is a one-line error now, not on the first question
+        if self.camera_frame not in ("body", "optical"):
+            raise InputError(f"camera frame must be 'body' or 'optical', got {self.camera_frame!r}")
 
     @property
     def default_method(self) -> str:
@@ -96,6 +100,9 @@ def check_calls(calls: object) -> int | None:
     return calls
 
 
+LIVE_MAP_SAVE_EVERY = 30  # live depth frames between saves of the map (the page and /map read it)
+
+
 class NotFound(InputError):
     """A memory id that the memory does not hold (HTTP 404)."""
 
@@ -107,8 +114,17 @@ class Service:
         self.mem = mem
         self.cfg = cfg or ServiceConfig()
         self.bus = EventBus()
+        mapper = None
+        if self.cfg.writable and self.cfg.intrinsics is not None:
+            from ..nav.mapping import MapBuilder
+
+            mapper = MapBuilder(
+                mem.path, self.cfg.intrinsics, self.cfg.camera_frame, save_every=LIVE_MAP_SAVE_EVERY
+            )
         self.writer: LiveWriter | None = (
-            LiveWriter(mem, self.cfg.keyframes, on_result=self._on_result) if self.cfg.writable else None
+            LiveWriter(mem, self.cfg.keyframes, on_result=self._on_result, mapper=mapper)
+            if self.cfg.writable
+            else None
         )
         self._traj_lock = threading.Lock()
         self._traj: tuple[int, list[list[float]]] | None = None

@@ -24,6 +24,10 @@ class MemoryBusyError(RavenmemError):
     """Another process (or another Memory object) holds the memory's writer lock (ravenmem.lock)."""
 
 
+class StoreUnavailableError(RavenmemError):
+    """A store server (Milvus) cannot be reached or refused the connection."""
+
+
 class MissingDependencyError(RavenmemError):
     """An optional extra is not installed; the message says which `pip install` fixes it."""
 

@@ -652,8 +652,7 @@ class Memory:
         thumb_bytes = sum(p.stat().st_size for p in thumbs.glob("*.jpg")) if thumbs.exists() else 0
         store_bytes = int(st.get("bytes") or 0)  # type: ignore[call-overload]
         ingests = self.manifest.ingests
-        seen = sum(_count(r.get("frames_seen")) for r in ingests)
-        raw = sum(_count(r.get("raw_bytes")) for r in ingests)
+        seen, raw = _recording_totals(ingests)
         out: dict[str, Any] = {
             "path": str(self.path),
             "embedder": self.manifest.embedder,
@@ -768,6 +767,24 @@ def _finite(name: str, v: object) -> float:
     if not math.isfinite(f):
         raise InputError(f"{name} must be a finite number, got {v!r}")
     return f
+
+
+def _recording_totals(ingests: list[dict[str, Any]]) -> tuple[int, int]:
+    """Frames seen and raw decoded bytes over the ingest history, each recording counted once:
+    running an ingest again (a resume, or the same recording appended twice) sees the same
+    frames again, so runs with the same source identity count as their largest run. Runs
+    without an identity (live adds) are all different and add up."""
+    seen = raw = 0
+    per_source: dict[str, tuple[int, int]] = {}
+    for r in ingests:
+        frames, size = _count(r.get("frames_seen")), _count(r.get("raw_bytes"))
+        sid = r.get("source_id")
+        if isinstance(sid, str) and sid:
+            old = per_source.get(sid, (0, 0))
+            per_source[sid] = (max(old[0], frames), max(old[1], size))
+        else:
+            seen, raw = seen + frames, raw + size
+    return seen + sum(f for f, _ in per_source.values()), raw + sum(b for _, b in per_source.values())
 
 
 def _count(v: object) -> int:

@@ -280,3 +280,68 @@ def test_ingest_again_with_default_flags_appends(tmp_path: Path, frames: Path):
         r = run_cli("ingest", str(src), "-m", str(mem), "--no-ocr", "--json")
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["memories_total"] == total
+
+
+def test_appending_the_same_recording_again_does_not_inflate_the_counts(tmp_path: Path, frames: Path):
+    """A second run of the same recording sees the same frames: `info` counts them once, so the
+    frames seen, the keyframe ratio and the compression figure stay what one run gave."""
+    mem = tmp_path / "m.mem"
+    infos = []
+    for _ in range(3):
+        r = run_cli("ingest", str(frames), "-m", str(mem), "--no-ocr", "--keyframes", "all", "--json")
+        assert r.returncode == 0, r.stderr
+        infos.append(json.loads(run_cli("info", "-m", str(mem), "--json").stdout))
+    assert [len(i["ingests"]) for i in infos] == [1, 2, 3]
+    assert {i["frames_seen"] for i in infos} == {3}
+    assert {i["raw_video_bytes"] for i in infos} == {3 * 64 * 48 * 3}
+
+
+# ---------------------------------------------------------------- nothing kept, store unreachable
+def test_an_ingest_that_keeps_nothing_fails_and_leaves_no_empty_memory(tmp_path: Path, frames: Path):
+    posed = frames
+    stamped = tmp_path / "stamped"  # images named by their time, and a pose track that covers none
+    stamped.mkdir()
+    for i in range(3):
+        Image.new("RGB", (64, 48), (80 * i, 40, 90)).save(stamped / f"{1000 + i}.0.png")
+    off = tmp_path / "off.csv"
+    off.write_text("t,x,y\n5000,0,0\n5001,1,0\n")
+    frames = stamped
+    new = tmp_path / "new.mem"
+    r = run_cli("ingest", str(frames), "-m", str(new), "--no-ocr", "--poses", str(off))
+    line = assert_one_line_error(r)
+    assert "no frame of" in line and "the new memory was not kept" in line
+    assert "skipped 3: outside pose track" in r.stdout  # the report still says why
+    assert not new.exists()
+    # every frame already stored is a finished resume, not a failure
+    mem = tmp_path / "m.mem"
+    for _ in range(2):
+        r = run_cli("ingest", str(posed), "-m", str(mem), "--no-ocr", "--json")
+        assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["kept"] == 0 and json.loads(r.stdout)["skipped"]["already in memory"] >= 1
+    # into a memory that holds memories: the same failure, and its memories are untouched
+    before = {k: v for k, v in tree(mem).items() if k != "memory.json"}
+    line = assert_one_line_error(
+        run_cli("ingest", str(frames), "-m", str(mem), "--no-ocr", "--poses", str(off))
+    )
+    assert "nothing was added" in line and "not kept" not in line
+    assert {k: v for k, v in tree(mem).items() if k != "memory.json"} == before
+
+
+def test_an_unreachable_milvus_server_is_one_line(tmp_path: Path, frames: Path):
+    pytest.importorskip("pymilvus")
+    import socket
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    uri = f"milvus://127.0.0.1:{port}"
+    new = tmp_path / "new.mem"
+    line = assert_one_line_error(run_cli("ingest", str(frames), "-m", str(new), "--no-ocr", "--store", uri))
+    assert f"127.0.0.1:{port}" in line and "cannot connect" in line
+    assert not new.exists()
+    mem = make_memory(tmp_path / "m.mem", n=2)
+    mf = mem / "memory.json"
+    mf.write_text(json.dumps(json.loads(mf.read_text()) | {"store": uri}))
+    for args in (["info"], ["search", "--time", "0"]):
+        line = assert_one_line_error(run_cli(*args, "-m", str(mem)))
+        assert "cannot connect" in line

@@ -166,7 +166,7 @@ def ingest(
     already in it are skipped, so running the same command again after an interruption resumes
     where it stopped."""
     import ravenmem
-    from ravenmem.ingest.keyframes import KeyframeConfig, describe, parse_keyframes
+    from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
@@ -194,6 +194,7 @@ def ingest(
     }
     src = open_source(source, format, **kwargs)
     mapper = _mapper(memory, src, intrinsics) if build_map else None
+    existed = (memory / "memory.json").is_file()
     mem = ravenmem.create(
         memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True, wait=wait
     )
@@ -201,6 +202,21 @@ def ingest(
         rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size, wait=wait, mapper=mapper)
         total = mem.count()
         size = mem.info()
+        if rep.kept == 0 and not rep.skipped.get(ALREADY):
+            # nothing new and nothing already stored: report why, then fail (exit 2); a memory
+            # this command created is removed again rather than left behind empty
+            _print_ingest(rep, total, size, cfg, mapper, memory, json_out)
+            gone = " (the new memory was not kept)" if total == 0 and not existed else ""
+            raise InputError(f"no frame of {source} was kept: nothing was added to {memory}{gone}")
+    _print_ingest(rep, total, size, cfg, mapper, memory, json_out)
+
+
+def _print_ingest(
+    rep: Any, total: int, size: dict[str, Any], cfg: Any, mapper: Any, memory: Path, json_out: bool
+) -> None:
+    """The ingest report: JSON, or a summary line with the skip reasons, the map and the ratio."""
+    from ravenmem.ingest.keyframes import describe
+
     for w in rep.warnings:
         print_warning(w)
     out = rep.as_dict() | {
@@ -239,8 +255,6 @@ def ingest(
             f"  memory: {size['compression_vs_raw']:,.0f}x smaller than the raw decoded video "
             f"({size['compression_vs_raw_with_thumbs']:,.0f}x with thumbnails), all ingests together"
         )
-    if rep.kept == 0 and not rep.skipped.get(ALREADY):
-        raise InputError(f"no frame of {source} was kept: nothing was added to {memory}")
 
 
 def _mapper(memory: Path, src: Any, intrinsics: str | None) -> Any:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, require
+from ..errors import InputError, StoreUnavailableError, require
 from ..types import Filter, MemoryRecord, Pose
 from ._common import (
     DIM_KEY,
@@ -107,8 +107,12 @@ class MilvusStore:
         self.nprobe = nprobe
         self._lock = threading.RLock()
         self._closed = False
-        self.client = pm.MilvusClient(uri=uri, token=token)
-        version = str(self.client.get_server_version())
+        try:
+            self.client = pm.MilvusClient(uri=uri, token=token)
+            version = str(self.client.get_server_version())
+        except pm.exceptions.MilvusException as e:  # unreachable server, refused token, ...
+            reason = " ".join(str(getattr(e, "message", "") or e).split())[:200]
+            raise StoreUnavailableError(f"milvus store {uri}: cannot connect ({reason})") from None
         old = re.match(r"v?2\.[0-3]\.", version) is not None
         self._infix = not old  # `like "%w%"` arrived in Milvus 2.4
         self.index_type = index_type or ("FLAT" if self.lite else "IVF_FLAT")

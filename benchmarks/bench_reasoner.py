@@ -129,8 +129,11 @@ def sweep(mem: object, times: list[float], seen: dict[str, list[int]], tol: floa
                 mem, settings=OfflineSettings(temporal_margin=margin, decoy_quantile=quantile)
             )  # type: ignore[arg-type]
             per = score(r, times, seen, tol)
-            print(f"decoy_quantile {quantile} temporal_margin {margin:4}: "
-                  + "  ".join(f"{g} {sum(v)}/{len(v)}" for g, v in per.items()), flush=True)  # fmt: skip
+            print(
+                f"decoy_quantile {quantile} temporal_margin {margin:4}: "
+                + "  ".join(f"{g} {sum(v)}/{len(v)}" for g, v in per.items()),
+                flush=True,
+            )
 
 
 def build(path: Path, keyframes: str) -> None:
@@ -193,8 +196,11 @@ def main() -> None:
                     )
             per_q = (time.perf_counter() - t0) / len(QUESTIONS)
             results[name] = per
-            print(f"{name:14s} " + "  ".join(f"{g} {sum(v)}/{len(v)} ({100 * sum(v) / len(v):.0f}%)" for g, v in per.items())
-                  + f"  | {per_q * 1000:.0f} ms/question (first call {warm:.1f} s)")  # fmt: skip
+            print(
+                f"{name:14s} "
+                + "  ".join(f"{g} {sum(v)}/{len(v)} ({100 * sum(v) / len(v):.0f}%)" for g, v in per.items())
+                + f"  | {per_q * 1000:.0f} ms/question (first call {warm:.1f} s)"
+            )
 
 
 if __name__ == "__main__":

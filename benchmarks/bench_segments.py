@@ -119,8 +119,10 @@ def quality(cache_dir: Path, probe: int, k: int) -> None:
     img = np.asarray(emb_model.embed_images(load_images(labels, DATA / "rgb")), np.float32)
     txt = np.asarray(emb_model.embed_texts([labels.queries[o] for o in objects]), np.float32)
     emb_model.close()
-    print(f"A. quality: {len(names)} labelled TUM frames, {len(objects)} objects, offline embedder; "
-          f"recall@{k} with {probe} segments probed")  # fmt: skip
+    print(
+        f"A. quality: {len(names)} labelled TUM frames, {len(objects)} objects, offline embedder; "
+        f"recall@{k} with {probe} segments probed"
+    )
     print(
         f"{'segmentation':32} {'segs':>5} {'t->i mAP':>9} {'i->i mAP':>9} {'t->i R@k':>9} {'i->i R@k':>9} {'scored':>7}"
     )
@@ -162,8 +164,11 @@ def quality(cache_dir: Path, probe: int, k: int) -> None:
             i_ap.append(float(np.nanmean(aps)))
             i_rk.append(float(np.mean(rks)))
         n_seg = "-" if seg is None else str(int(seg.max()) + 1)
-        print(f"{label:32} {n_seg:>5} {np.nanmean(t_ap):9.3f} {np.nanmean(i_ap):9.3f} "
-              f"{np.mean(t_rk):9.3f} {np.mean(i_rk):9.3f} {np.mean(scored):7.1f}", flush=True)  # fmt: skip
+        print(
+            f"{label:32} {n_seg:>5} {np.nanmean(t_ap):9.3f} {np.nanmean(i_ap):9.3f} "
+            f"{np.mean(t_rk):9.3f} {np.mean(i_rk):9.3f} {np.mean(scored):7.1f}",
+            flush=True,
+        )
 
     row("frame level (exact)", None)
     for max_len in (2, 4, 8):
@@ -198,9 +203,11 @@ def quality_all_frames(cache_dir: Path, probe: int, k: int) -> None:
     near = np.abs(ft[:, None] - lab_t[None, :]).argmin(1)
     truth = lab_truth[:, near]
     judged = np.abs(ft - lab_t[near]) < 1e-3  # the labelled frames themselves
-    print(f"\nA2. all {len(frames)} posed frames searched; text->image. mAP and R@k: every frame takes the "
-          f"labels of the nearest labelled frame; mAP exact: the ranking of the {judged.sum()} labelled "
-          "frames alone (the others removed from it)")  # fmt: skip
+    print(
+        f"\nA2. all {len(frames)} posed frames searched; text->image. mAP and R@k: every frame takes the "
+        f"labels of the nearest labelled frame; mAP exact: the ranking of the {judged.sum()} labelled "
+        "frames alone (the others removed from it)"
+    )
     print(f"{'segmentation':32} {'segs':>5} {'mAP':>7} {'R@k':>7} {'mAP exact':>10} {'scored':>7}")
     for label, seg in (
         [("frame level (exact)", None)]
@@ -226,8 +233,11 @@ def quality_all_frames(cache_dir: Path, probe: int, k: int) -> None:
             exact.append(ap_of_order(idx_judged[order[judged[order]]], tr[judged]))
             scored.append(n_sc)
         n_seg = "-" if seg is None else str(int(seg.max()) + 1)
-        print(f"{label:32} {n_seg:>5} {np.nanmean(aps):7.3f} {np.mean(rks):7.3f} {np.nanmean(exact):10.3f} "
-              f"{np.mean(scored):7.1f}", flush=True)  # fmt: skip
+        print(
+            f"{label:32} {n_seg:>5} {np.nanmean(aps):7.3f} {np.mean(rks):7.3f} {np.nanmean(exact):10.3f} "
+            f"{np.mean(scored):7.1f}",
+            flush=True,
+        )
 
 
 # ------------------------------------------------------------------------------------ B. cost
@@ -279,9 +289,11 @@ def cost(
     pool = pooled(emb, seg)
     members = members_of(seg)
     build_seg = time.perf_counter() - t
-    print(f"\nB. cost: {n:,} synthetic memories, dim {dim}, {what}, made in {made:.0f} s; "
-          f"{len(pool):,} segments (cos >= {min_sim}, <= {4 * mean_len} frames; mean {n / len(pool):.1f} "
-          f"frames) in {build_seg:.1f} s")  # fmt: skip
+    print(
+        f"\nB. cost: {n:,} synthetic memories, dim {dim}, {what}, made in {made:.0f} s; "
+        f"{len(pool):,} segments (cos >= {min_sim}, <= {4 * mean_len} frames; mean {n / len(pool):.1f} "
+        f"frames) in {build_seg:.1f} s"
+    )
     qi = rng.integers(0, n, queries)
     noise = 0.5 if data == "store" else 0.8
     qs = emb[qi] + rng.normal(0, noise / np.sqrt(dim), (queries, dim)).astype(np.float32)
@@ -303,8 +315,11 @@ def cost(
             times.append(time.perf_counter() - t)
             rec.append(len(ex & set(top.tolist())) / k)
             scored.append(n_sc)
-        print(f"{f'segments, {probe} probed (numpy)':34} {statistics.mean(scored):>13,.0f} "
-              f"{p50_ms(times):8.2f} {statistics.mean(rec):10.3f}", flush=True)  # fmt: skip
+        print(
+            f"{f'segments, {probe} probed (numpy)':34} {statistics.mean(scored):>13,.0f} "
+            f"{p50_ms(times):8.2f} {statistics.mean(rec):10.3f}",
+            flush=True,
+        )
     nlist = int(4 * np.sqrt(n))
     t = time.perf_counter()
     quant = faiss.IndexFlatIP(dim)
@@ -321,8 +336,11 @@ def cost(
             times.append(time.perf_counter() - t)
             rec.append(len(ex & set(ids[0].tolist())) / k)
         scored = nlist + n * nprobe / nlist
-        print(f"{f'FAISS IVF nlist {nlist}, nprobe {nprobe}':34} {scored:>13,.0f} "
-              f"{p50_ms(times):8.2f} {statistics.mean(rec):10.3f}", flush=True)  # fmt: skip
+        print(
+            f"{f'FAISS IVF nlist {nlist}, nprobe {nprobe}':34} {scored:>13,.0f} "
+            f"{p50_ms(times):8.2f} {statistics.mean(rec):10.3f}",
+            flush=True,
+        )
     print(f"build: segments {build_seg:.1f} s (one pass, no training), IVF {build_ivf:.1f} s")
 
 

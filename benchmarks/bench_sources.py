@@ -54,8 +54,11 @@ def bench_video(d: Path, n: int = 300) -> None:
             c.mux(p)
     track = PoseTrack([0.0, n / 30], [[0.0, 0.0, 0.0], [n / 30, 0.0, 0.0]], yaw=[0.0, 1.0])
     _timed(f"video h264 {W}x{H} all frames", VideoSource(path, poses=track), path.stat().st_size, repeat=3)
-    _timed(f"video h264 {W}x{H} fps=2 prefilter (decodes all, converts 20)", VideoSource(path, poses=track, fps=2.0),
-           repeat=3)  # fmt: skip
+    _timed(
+        f"video h264 {W}x{H} fps=2 prefilter (decodes all, converts 20)",
+        VideoSource(path, poses=track, fps=2.0),
+        repeat=3,
+    )
 
 
 def bench_bag(d: Path, n: int = 100) -> None:

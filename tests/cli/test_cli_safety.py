@@ -195,8 +195,20 @@ def test_ask_never_sends_files_outside_the_memory(tmp_path: Path):
     leaked = [base64.b64encode(p.read_bytes()).decode()[:40] for p in (private, notes)]
     env = {"XDG_CONFIG_HOME": str(tmp_path), "RAVENMEM_VLM_API_KEY": "k"}
     with ScriptedModel(default=answer(question_type="text", answer="no idea", evidence=[])) as srv:
-        r = run_cli("ask", "What did I see?", "-m", str(mem), "--method", "vlm-only", "--base-url", srv.base_url,
-                    "--model", "vlm", "--json", env=env)  # fmt: skip
+        r = run_cli(
+            "ask",
+            "What did I see?",
+            "-m",
+            str(mem),
+            "--method",
+            "vlm-only",
+            "--base-url",
+            srv.base_url,
+            "--model",
+            "vlm",
+            "--json",
+            env=env,
+        )
         assert r.returncode == 0, r.stderr
         sent = json.dumps(srv.requests)
         assert srv.requests and sum(srv.images(i) for i in range(len(srv.requests))) == 1

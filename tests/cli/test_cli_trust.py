@@ -49,9 +49,18 @@ def test_a_failed_ask_exits_1(mem: Path, tmp_path: Path):
     env.update({v: "" for v in ("RAVENMEM_VLM_MODEL", "RAVENMEM_CONFIG")})
     with ScriptedModel(default=error(503, "overloaded")) as srv:
         r = run_cli(
-            "ask", "Where is the red box?", "-m", str(mem), "--base-url", srv.base_url, "--model", "vlm",
-            "--max-retries", "0", env=env,
-        )  # fmt: skip
+            "ask",
+            "Where is the red box?",
+            "-m",
+            str(mem),
+            "--base-url",
+            srv.base_url,
+            "--model",
+            "vlm",
+            "--max-retries",
+            "0",
+            env=env,
+        )
     assert r.returncode == 1, (r.stdout, r.stderr)
     assert "FAILED" in r.stdout and "Traceback" not in r.stderr + r.stdout
 

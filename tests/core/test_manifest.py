@@ -12,8 +12,18 @@ from ravenmem.manifest import FORMAT_VERSION, Manifest, confine, store_for_creat
 
 
 def test_round_trip_keeps_unknown_keys(tmp_path: Path):
-    data = {"embedder": "e", "dim": 8, "store": "local", "thumb_size": 320, "thumb_quality": 85, "ocr": True,
-            "created": 1.5, "ingests": [{"kept": 3}], "format_version": 1, "added_later": {"x": 1}}  # fmt: skip
+    data = {
+        "embedder": "e",
+        "dim": 8,
+        "store": "local",
+        "thumb_size": 320,
+        "thumb_quality": 85,
+        "ocr": True,
+        "created": 1.5,
+        "ingests": [{"kept": 3}],
+        "format_version": 1,
+        "added_later": {"x": 1},
+    }
     (tmp_path / "memory.json").write_text(json.dumps(data))
     m = Manifest.load(tmp_path)
     assert (m.embedder, m.dim, m.thumb_size, m.ocr, m.ingests) == ("e", 8, 320, True, [{"kept": 3}])
@@ -57,8 +67,12 @@ def test_bad_fields_name_the_field(change: dict[str, object], needle: str):
 
 def test_unreadable_files(tmp_path: Path):
     mf = tmp_path / "memory.json"
-    for raw, needle in [(b"\xff\xfe{}", "not UTF-8"), (b"{", "not valid JSON"), (b"[" * 100_000, "JSON"),
-                        (b'"text"', "expected a JSON object")]:  # fmt: skip
+    for raw, needle in [
+        (b"\xff\xfe{}", "not UTF-8"),
+        (b"{", "not valid JSON"),
+        (b"[" * 100_000, "JSON"),
+        (b'"text"', "expected a JSON object"),
+    ]:
         mf.write_bytes(raw)
         with pytest.raises(InputError, match=needle) as e:
             Manifest.load(tmp_path)
@@ -67,19 +81,36 @@ def test_unreadable_files(tmp_path: Path):
 
 @pytest.mark.parametrize(
     "value,kind",
-    [("local", "local"), ("milvus-lite:milvus.db", "lite"), ("milvus-lite:sub/m.db", "lite"),
-     ("milvus://host:19530", "remote"), ("milvus://10.0.0.2:19530", "remote"),
-     ("milvus://https://milvus.example.org", "remote"), ("milvus://http://h:19530/", "remote")],
-)  # fmt: skip
+    [
+        ("local", "local"),
+        ("milvus-lite:milvus.db", "lite"),
+        ("milvus-lite:sub/m.db", "lite"),
+        ("milvus://host:19530", "remote"),
+        ("milvus://10.0.0.2:19530", "remote"),
+        ("milvus://https://milvus.example.org", "remote"),
+        ("milvus://http://h:19530/", "remote"),
+    ],
+)
 def test_store_kinds(value: str, kind: str):
     assert store_kind(value) == kind
 
 
 @pytest.mark.parametrize(
     "value",
-    ["/elsewhere", "local:/elsewhere", "../x", "milvus-lite:../x.db", "milvus-lite:/abs/x.db",
-     "milvus-lite:x.txt", "s3://bucket", "milvus://", "milvus://host", "milvus://ftp://h:1", ""],
-)  # fmt: skip
+    [
+        "/elsewhere",
+        "local:/elsewhere",
+        "../x",
+        "milvus-lite:../x.db",
+        "milvus-lite:/abs/x.db",
+        "milvus-lite:x.txt",
+        "s3://bucket",
+        "milvus://",
+        "milvus://host",
+        "milvus://ftp://h:1",
+        "",
+    ],
+)
 def test_store_values_refused(value: str):
     with pytest.raises(InputError, match="store"):
         store_kind(value)

@@ -25,8 +25,12 @@ EMBEDDERS.register("test-color-alias")(lambda spec, **kw: ColorEmbedder())  # a 
 @pytest.fixture
 def mem(tmp_path):
     m = ravenmem.create(tmp_path / "m.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=32)
-    m.add_frames([Frame(image=solid(c), t=T0 + 10 * i, pose=Pose(float(i), 0.0, 0.0), index=i)
-                  for i, c in enumerate(["red", "green", "blue", "red"])])  # fmt: skip
+    m.add_frames(
+        [
+            Frame(image=solid(c), t=T0 + 10 * i, pose=Pose(float(i), 0.0, 0.0), index=i)
+            for i, c in enumerate(["red", "green", "blue", "red"])
+        ]
+    )
     yield m
     m.close()
 

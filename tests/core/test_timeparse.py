@@ -13,17 +13,23 @@ CTX = TimeContext(START, START + 27.0)
 @pytest.mark.parametrize(
     "expr,expected",
     [
-        ("12", START + 12), (12, START + 12), ("+12s", START + 12), ("start+1m", START + 60),
+        ("12", START + 12),
+        (12, START + 12),
+        ("+12s", START + 12),
+        ("start+1m", START + 60),
         ("00:00:12", START + 12),  # outside the day's span but fits as an offset
         ("+00:00:05", START + 5),
         ("12:40:40", datetime(2011, 5, 10, 12, 40, 40, tzinfo=timezone.utc).timestamp()),
         ("2011-05-10T12:40:35Z", datetime(2011, 5, 10, 12, 40, 35, tzinfo=timezone.utc).timestamp()),
         ("2011-05-10T14:40:35+02:00", datetime(2011, 5, 10, 12, 40, 35, tzinfo=timezone.utc).timestamp()),
         ("2011-05-10 12:40:35", datetime(2011, 5, 10, 12, 40, 35, tzinfo=timezone.utc).timestamp()),
-        ("10 seconds ago", START + 17), ("1 min ago", START + 27 - 60), ("now", START + 27),
-        ("start", START), ("1305031230.5", 1305031230.5),
+        ("10 seconds ago", START + 17),
+        ("1 min ago", START + 27 - 60),
+        ("now", START + 27),
+        ("start", START),
+        ("1305031230.5", 1305031230.5),
     ],
-)  # fmt: skip
+)
 def test_parse_time_forms(expr, expected):
     assert parse_time(expr, CTX) == pytest.approx(expected, abs=1e-6)
 

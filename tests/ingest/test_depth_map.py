@@ -71,10 +71,18 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict:
     cam = truth["camera"]
     mem = root / "rec.mem"
     r = rm(
-        "ingest", str(root / "rec"), "--memory", str(mem), "--stride", "25", "--no-ocr",
-        "--intrinsics", f"{cam['fx']},{cam['fy']},{cam['cx']},{cam['cy']}", "--json",
+        "ingest",
+        str(root / "rec"),
+        "--memory",
+        str(mem),
+        "--stride",
+        "25",
+        "--no-ocr",
+        "--intrinsics",
+        f"{cam['fx']},{cam['fy']},{cam['cx']},{cam['cy']}",
+        "--json",
         cwd=root,
-    )  # fmt: skip
+    )
     assert r.returncode == 0, r.stderr
     return {
         "root": root,
@@ -180,8 +188,15 @@ def test_navigate_goes_around_a_wall(recorded: dict) -> None:
     assert pairs, "the recording should pass on both sides of some wall"
     straight, a, b = max(pairs, key=lambda p: p[0])
     r = rm(
-        "navigate", "--memory", str(recorded["mem"]), "--from", f"{a[0]},{a[1]}", "--to", f"{b[0]},{b[1]}", "--json"
-    )  # fmt: skip
+        "navigate",
+        "--memory",
+        str(recorded["mem"]),
+        "--from",
+        f"{a[0]},{a[1]}",
+        "--to",
+        f"{b[0]},{b[1]}",
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["ok"] and out["path_length_m"] > straight + 0.2

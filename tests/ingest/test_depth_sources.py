@@ -138,35 +138,70 @@ def _bag(path: Path, enc: str) -> Path:
     for i in range(5):
         t = 10.0 + 0.1 * i
         rgb = np.tile(np.array([200, 100, 50], np.uint8), h * w)
-        msgs.append(("/camera/color/image_raw", t, T("sensor_msgs/msg/Image")(
-            header=m.header(t, "camera_color_optical_frame"), height=h, width=w, encoding="rgb8",
-            is_bigendian=0, step=w * 3, data=rgb)))  # fmt: skip
+        msgs.append(
+            (
+                "/camera/color/image_raw",
+                t,
+                T("sensor_msgs/msg/Image")(
+                    header=m.header(t, "camera_color_optical_frame"),
+                    height=h,
+                    width=w,
+                    encoding="rgb8",
+                    is_bigendian=0,
+                    step=w * 3,
+                    data=rgb,
+                ),
+            )
+        )
         metres = 1.0 + i
         raw = (
             np.full(h * w, int(metres * 1000), "<u2").view(np.uint8)
             if enc == "16UC1"
             else np.full(h * w, metres, "<f4").view(np.uint8)
         )
-        msgs.append(("/camera/depth/image_raw", t + 0.01, T("sensor_msgs/msg/Image")(
-            header=m.header(t + 0.01, "camera_depth_optical_frame"), height=h, width=w, encoding=enc,
-            is_bigendian=0, step=w * (2 if enc == "16UC1" else 4), data=raw)))  # fmt: skip
+        msgs.append(
+            (
+                "/camera/depth/image_raw",
+                t + 0.01,
+                T("sensor_msgs/msg/Image")(
+                    header=m.header(t + 0.01, "camera_depth_optical_frame"),
+                    height=h,
+                    width=w,
+                    encoding=enc,
+                    is_bigendian=0,
+                    step=w * (2 if enc == "16UC1" else 4),
+                    data=raw,
+                ),
+            )
+        )
     for k in range(8):
         t = 9.95 + 0.1 * k
         msgs.append(("/odom", t, m.odom(t)))
     info = T("sensor_msgs/msg/CameraInfo")(
-        header=m.header(10.0, "camera_depth_optical_frame"), height=h, width=w, distortion_model="plumb_bob",
-        d=np.zeros(5), k=np.array([5.0, 0, 3.0, 0, 5.5, 2.0, 0, 0, 1]), r=np.eye(3).reshape(-1),
-        p=np.zeros(12), binning_x=0, binning_y=0,
-        roi=T("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
-    )  # fmt: skip
+        header=m.header(10.0, "camera_depth_optical_frame"),
+        height=h,
+        width=w,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=np.array([5.0, 0, 3.0, 0, 5.5, 2.0, 0, 0, 1]),
+        r=np.eye(3).reshape(-1),
+        p=np.zeros(12),
+        binning_x=0,
+        binning_y=0,
+        roi=T("sensor_msgs/msg/RegionOfInterest")(
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )
     msgs.append(("/camera/depth/camera_info", 10.0, info))
     q = Rotation.from_matrix([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]).as_quat()
     tf = T("geometry_msgs/msg/TransformStamped")(
-        header=m.header(9.0, "base_link"), child_frame_id="camera_depth_optical_frame",
+        header=m.header(9.0, "base_link"),
+        child_frame_id="camera_depth_optical_frame",
         transform=T("geometry_msgs/msg/Transform")(
             translation=T("geometry_msgs/msg/Vector3")(x=0.2, y=0.0, z=1.0),
-            rotation=T("geometry_msgs/msg/Quaternion")(x=q[0], y=q[1], z=q[2], w=q[3])),
-    )  # fmt: skip
+            rotation=T("geometry_msgs/msg/Quaternion")(x=q[0], y=q[1], z=q[2], w=q[3]),
+        ),
+    )
     msgs.append(("/tf_static", 9.0, T("tf2_msgs/msg/TFMessage")(transforms=[tf])))
     msgs.sort(key=lambda x: x[1])
     with Writer(path, version=9) as wr:

@@ -24,10 +24,22 @@ ALLOWED = {
     "sim": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "sim"},
     "nav": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "memory", "tools", "nav"},
     "robot": {
-        "types", "errors", "registry", "fsio", "timeparse", "imageio", "memory", "tools",
-        "store", "embed", "sim", "nav", "ingest", "robot",
+        "types",
+        "errors",
+        "registry",
+        "fsio",
+        "timeparse",
+        "imageio",
+        "memory",
+        "tools",
+        "store",
+        "embed",
+        "sim",
+        "nav",
+        "ingest",
+        "robot",
     },
-}  # fmt: skip
+}
 
 
 def _ravenmem_imports(path: Path, package: str) -> set[str]:

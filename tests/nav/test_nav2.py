@@ -34,8 +34,15 @@ def test_export_follows_map_server_conventions(tmp_path: Path) -> None:
     yml, pgm = export_map_server(_grid(), tmp_path / "room.yaml")
     assert pgm == tmp_path / "room.pgm" and pgm.read_bytes()[:2] == b"P5"
     text = yml.read_text()
-    for line in ("image: room.pgm", "mode: trinary", "resolution: 0.1", "origin: [-1.0, 2.0, 0.0]",
-                 "negate: 0", "occupied_thresh: 0.65", "free_thresh: 0.196"):  # fmt: skip
+    for line in (
+        "image: room.pgm",
+        "mode: trinary",
+        "resolution: 0.1",
+        "origin: [-1.0, 2.0, 0.0]",
+        "negate: 0",
+        "occupied_thresh: 0.65",
+        "free_thresh: 0.196",
+    ):
         assert line in text.splitlines(), line
     with Image.open(pgm) as im:
         px = np.asarray(im)

@@ -20,8 +20,12 @@ def test_full_demo_as_a_user_runs_it(tmp_path) -> None:
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
     r = subprocess.run(
         [sys.executable, "-m", "ravenmem.cli.main", "demo"],
-        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=1800,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=env,
+        timeout=1800,
+    )
     assert r.returncode == 0, r.stderr
     # nothing but the demo's own output folder appears in the working folder
     assert [p.name for p in tmp_path.iterdir()] == ["ravenmem-demo"]

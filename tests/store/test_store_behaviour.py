@@ -54,8 +54,13 @@ def test_get_round_trip(filled: Data) -> None:
     for g, i in zip(got, [7, 3, 7, 250], strict=True):
         want = recs[i]
         assert (g.t, g.pose, g.source, g.frame_index, g.image_path, g.ocr_text) == (
-            want.t, want.pose, want.source, want.frame_index, want.image_path, want.ocr_text,
-        )  # fmt: skip
+            want.t,
+            want.pose,
+            want.source,
+            want.frame_index,
+            want.image_path,
+            want.ocr_text,
+        )
         assert g.embedding is not None and np.allclose(g.embedding, emb[i], atol=1e-6)
     assert store.get([recs[1].id])[0].embedding is None
     assert store.count() == N

@@ -88,8 +88,14 @@ def test_import_resume_again_and_search(tmp_path: Path) -> None:
         got = m.get(range(1, 1_501))
         for g, row in zip(got, rows, strict=True):
             assert (g.t, g.pose.x, g.pose.y, g.pose.z, g.source, g.frame_index, g.ocr_text) == (
-                row["t"], row["x"], row["y"], row["z"], row["source"], row["frame_index"], row["ocr_text"],
-            )  # fmt: skip
+                row["t"],
+                row["x"],
+                row["y"],
+                row["z"],
+                row["source"],
+                row["frame_index"],
+                row["ocr_text"],
+            )
             if "qz" in row:
                 assert g.pose.quat is not None and g.pose.yaw == pytest.approx(0.5)
             else:
@@ -157,8 +163,13 @@ def test_killed_import_resumes_where_it_stopped(tmp_path: Path) -> None:
     mem = tmp_path / "m.mem"
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
     args = ["import", str(vec), "--meta", str(meta), "--memory", str(mem), "--chunk", "1000", "--json"]
-    proc = subprocess.Popen([sys.executable, "-m", "ravenmem.cli.main", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ravenmem.cli.main", *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     db, done = mem / "store.sqlite", 0
     deadline = time.time() + 300
     while time.time() < deadline and proc.poll() is None:

@@ -51,14 +51,24 @@ def import_cmd(
         total = mem.count()
         if added:
             mem.record_ingest(
-                {"source": str(vectors), "kind": "import", "frames_seen": added, "kept": added,
-                 "skipped": {}, "seconds": round(dt, 3)}
-            )  # fmt: skip
+                {
+                    "source": str(vectors),
+                    "kind": "import",
+                    "frames_seen": added,
+                    "kept": added,
+                    "skipped": {},
+                    "seconds": round(dt, 3),
+                }
+            )
     out = {
-        "memory": str(memory), "rows": n, "added": added, "already_imported": n - added,
-        "seconds": round(dt, 3), "memories_per_s": round(added / dt, 1) if added and dt > 0 else None,
+        "memory": str(memory),
+        "rows": n,
+        "added": added,
+        "already_imported": n - added,
+        "seconds": round(dt, 3),
+        "memories_per_s": round(added / dt, 1) if added and dt > 0 else None,
         "memories_total": total,
-    }  # fmt: skip
+    }
     if json_out:
         sys.stdout.write(json.dumps(out, indent=2) + "\n")
         return

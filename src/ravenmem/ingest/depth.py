@@ -29,8 +29,16 @@ PRESETS: dict[str, Intrinsics] = {
     "fr3": Intrinsics(535.4, 539.2, 320.1, 247.6, 640, 480),
     "kinect": Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480),  # ROS OpenNI default
 }
-_ALIASES = {"freiburg1": "fr1", "freiburg2": "fr2", "freiburg3": "fr3", "tum-fr1": "fr1", "tum-fr2": "fr2",
-            "tum-fr3": "fr3", "ros-default": "kinect", "openni": "kinect"}  # fmt: skip
+_ALIASES = {
+    "freiburg1": "fr1",
+    "freiburg2": "fr2",
+    "freiburg3": "fr3",
+    "tum-fr1": "fr1",
+    "tum-fr2": "fr2",
+    "tum-fr3": "fr3",
+    "ros-default": "kinect",
+    "openni": "kinect",
+}
 
 
 def parse_intrinsics(text: str) -> Intrinsics:

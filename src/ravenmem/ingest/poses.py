@@ -190,9 +190,14 @@ def read_pose_table(path: str | Path) -> PoseTable:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 arr = np.loadtxt(
-                    io.StringIO(text), comments="#", delimiter="," if "," in line else None, skiprows=skip,
-                    usecols=None if len(num_idx) == len(cols) else num_idx, ndmin=2, dtype=np.float64,
-                )  # fmt: skip
+                    io.StringIO(text),
+                    comments="#",
+                    delimiter="," if "," in line else None,
+                    skiprows=skip,
+                    usecols=None if len(num_idx) == len(cols) else num_idx,
+                    ndmin=2,
+                    dtype=np.float64,
+                )
             if arr.shape == (len(nums), len(num_idx)) and np.isfinite(arr).all():
                 data = arr
         except ValueError:

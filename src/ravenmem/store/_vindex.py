@@ -253,9 +253,17 @@ class VectorIndex:
         params = faiss.SearchParametersIVF(sel=sel, nprobe=len(lists))
         with _one_thread():
             self.index.search_preassigned_c(
-                1, faiss.swig_ptr(x), k, faiss.swig_ptr(iq), faiss.swig_ptr(dq),
-                faiss.swig_ptr(dist), faiss.swig_ptr(ids), False, params, None,
-            )  # fmt: skip
+                1,
+                faiss.swig_ptr(x),
+                k,
+                faiss.swig_ptr(iq),
+                faiss.swig_ptr(dq),
+                faiss.swig_ptr(dist),
+                faiss.swig_ptr(ids),
+                False,
+                params,
+                None,
+            )
         return [(int(i), float(d)) for i, d in zip(ids[0], dist[0], strict=True) if i >= 0]
 
     def _run(self, q: np.ndarray, k: int, params: Any) -> list[tuple[int, float]]:

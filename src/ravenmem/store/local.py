@@ -455,9 +455,15 @@ class LocalStore:
             chunks = _sql.read_vectors(self._conn, lo, hi)
         else:
             chunks = (
-                (np.array(list(v), np.int64), np.frombuffer(b"".join(v.values()), np.float32).reshape(len(v), -1))
-                for v in (_sql.fetch_vectors(self._conn, allowed[s : s + 50_000]) for s in range(0, len(allowed), 50_000))
-            )  # fmt: skip
+                (
+                    np.array(list(v), np.int64),
+                    np.frombuffer(b"".join(v.values()), np.float32).reshape(len(v), -1),
+                )
+                for v in (
+                    _sql.fetch_vectors(self._conn, allowed[s : s + 50_000])
+                    for s in range(0, len(allowed), 50_000)
+                )
+            )
         best_ids, best = np.empty(0, np.int64), np.empty(0, np.float32)
         for ids, vecs in chunks:
             if len(ids) == 0:

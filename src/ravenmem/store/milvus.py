@@ -45,8 +45,23 @@ from .base import STORES, SourceFrames
 log = logging.getLogger(__name__)
 
 _MAXQ = 16384  # Milvus' cap on limit (and offset + limit) per query or search
-_FIELDS = ["id", "t", "x", "y", "z", "yaw", "has_quat", "qx", "qy", "qz", "qw", "source", "frame_index",
-           "image_path", "ocr_text"]  # fmt: skip
+_FIELDS = [
+    "id",
+    "t",
+    "x",
+    "y",
+    "z",
+    "yaw",
+    "has_quat",
+    "qx",
+    "qy",
+    "qz",
+    "qw",
+    "source",
+    "frame_index",
+    "image_path",
+    "ocr_text",
+]
 _STATE = "store.state"  # JSON: next id and an over-approximation of the time span and extent
 _LIMITS = {"source": 1024, "image_path": 4096, "ocr_text": 16384}
 _INSERT_ROWS = 5000  # rows per insert request: Milvus caps the size of one gRPC message
@@ -224,8 +239,12 @@ class MilvusStore:
             first = int(st["next_id"])
             ids = list(range(first, first + len(records)))
             st["next_id"] = first + len(records)
-            for key, vals in (("t", [r.t for r in records]), ("x", [r.pose.x for r in records]),
-                              ("y", [r.pose.y for r in records]), ("z", [r.pose.z for r in records])):  # fmt: skip
+            for key, vals in (
+                ("t", [r.t for r in records]),
+                ("x", [r.pose.x for r in records]),
+                ("y", [r.pose.y for r in records]),
+                ("z", [r.pose.z for r in records]),
+            ):
                 st[f"{key}_min"] = min([*vals, st.get(f"{key}_min", math.inf)])
                 st[f"{key}_max"] = max([*vals, st.get(f"{key}_max", -math.inf)])
             self.set_meta(_STATE, json.dumps(st))
@@ -337,8 +356,14 @@ class MilvusStore:
             self._check_open()
             limit = min(_MAXQ, k if filt is None or filt.region is None else 4 * k)
             while True:
-                res = self.client.search(self.name, data=[q[0].tolist()], limit=limit, filter=expr,
-                                         output_fields=["x", "y"], search_params=params)[0]  # fmt: skip
+                res = self.client.search(
+                    self.name,
+                    data=[q[0].tolist()],
+                    limit=limit,
+                    filter=expr,
+                    output_fields=["x", "y"],
+                    search_params=params,
+                )[0]
                 hits = [(int(h["id"]), float(h["distance"])) for h in res if _in_region(h["entity"], filt)]
                 if len(hits) >= k:
                     return hits[:k]
@@ -428,10 +453,17 @@ class MilvusStore:
                 else max(1e-3, 2 * math.sqrt(area * k / max(1, st["next_id"] - 1)))
             )
             while True:
-                rows = [r for r in self._query(_expr(filt, _box(x, y, half)), ["id", "x", "y", "z"])
-                        if _in_region(r, filt)]  # fmt: skip
-                d = [math.sqrt((r["x"] - x) ** 2 + (r["y"] - y) ** 2 + (0.0 if z is None else (r["z"] - z) ** 2))
-                     for r in rows]  # fmt: skip
+                rows = [
+                    r
+                    for r in self._query(_expr(filt, _box(x, y, half)), ["id", "x", "y", "z"])
+                    if _in_region(r, filt)
+                ]
+                d = [
+                    math.sqrt(
+                        (r["x"] - x) ** 2 + (r["y"] - y) ** 2 + (0.0 if z is None else (r["z"] - z) ** 2)
+                    )
+                    for r in rows
+                ]
                 covers = x - half <= st["x_min"] and x + half >= st["x_max"]
                 covers = covers and y - half <= st["y_min"] and y + half >= st["y_max"]
                 inside = [(int(r["id"]), di) for r, di in zip(rows, d, strict=True) if di <= half or covers]

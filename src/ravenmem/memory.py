@@ -577,14 +577,18 @@ class Memory:
         *,
         image: np.ndarray | str | os.PathLike[str] | None = None,
         memory_id: int | None = None,
+        vector: np.ndarray | None = None,
         after: TimeLike = None,
         before: TimeLike = None,
         near: Near | None = None,
+        min_score: float | None = None,
         settings: ChangeSettings | None = None,
     ) -> Whereabouts:
         """Where a thing was seen, place by place (newest first), and whether each place still
         shows it: `still there`, `not revisited`, `moved` or `gone` (see `ravenmem.changes`).
-        `before` is the "as of" time; `.now` is the place it is at now, if any."""
+        `before` is the "as of" time; `.now` is the place it is at now, if any. The thing is a
+        `query` text, an `image`, a stored memory's picture (`memory_id`) or a query `vector`;
+        `min_score` puts a floor under the match threshold."""
         from .changes import last_seen
 
         if query is not None:
@@ -595,9 +599,11 @@ class Memory:
             query,
             image=img,
             memory_id=memory_id,
+            vector=vector,
             after=after,
             before=before,
             near=near,
+            min_score=min_score,
             settings=settings,
         )
 

@@ -282,20 +282,18 @@ def _or_latest(search: Runner) -> Runner:
 def _latest(
     mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None, text_search: Runner | None
 ) -> list[Hit]:
-    from .changes import last_seen
-
     name = "search_text" if isinstance(a, TextArgs) else "search_image"
-    if text_search is not None or not hasattr(mem, "store"):
+    if text_search is not None:
         raise InputError(f"{name}: latest=true needs the memory's own embeddings (not available here)")
     near = a.disc() if isinstance(a, _Near) else None
     if isinstance(a, TextArgs):
-        found = last_seen(mem, a.query, after=a.after, before=a.before, near=near)  # type: ignore[arg-type]
+        found = mem.last_seen(a.query, after=a.after, before=a.before, near=near)
     else:
         assert isinstance(a, ImageArgs)
         if a.memory_id is None and image is None:
             raise InputError("search_image: give memory_id (no image is attached to this question)")
         pick = {"memory_id": a.memory_id} if a.memory_id is not None else {"image": image}
-        found = last_seen(mem, after=a.after, before=a.before, near=near, **pick)  # type: ignore[arg-type]
+        found = mem.last_seen(after=a.after, before=a.before, near=near, **pick)
     return list(found.hits(k))
 
 

@@ -186,3 +186,39 @@ def test_nothing_that_stands_out_and_bad_input(tmp_path) -> None:
     with pytest.raises(InputError, match="latest"):
         TOOLS["search_text"].validate({"query": "red", "latest": "maybe"})
     mem.close()
+
+
+class ProtocolOnly:
+    """A memory that offers exactly `MemoryLike` (no store, no private parts): what a method may
+    rely on. Any other attribute is an AttributeError, so probing for more would show."""
+
+    def __init__(self, mem: ravenmem.Memory) -> None:
+        self._mem = mem
+        self.path = mem.path
+
+    def __getattr__(self, name: str) -> object:
+        from ravenmem.agent.base import MemoryLike
+
+        if name.startswith("_") or name not in dir(MemoryLike):
+            raise AttributeError(name)
+        return getattr(self._mem, name)
+
+
+def test_the_latest_mode_needs_only_the_memory_protocol(tmp_path) -> None:
+    from ravenmem.agent.base import MemoryLike
+    from ravenmem.agent.offline import OfflineReasoner
+
+    later = [look(DAY + t, "black", 0.0, 0.0, EAST) for t in (0, 1)]
+    later += [look(DAY + 2, "black", 6.0, 0.0, WEST)] + [
+        look(DAY + t, "red", 10.0, 0.0, NORTH) for t in (3, 4)
+    ]
+    mem = build(tmp_path, first_pass() + later)
+    like = ProtocolOnly(mem)
+    assert isinstance(mem, MemoryLike) and isinstance(like, MemoryLike) and not hasattr(like, "store")
+    hits = TOOLS["search_text"].run(like, {"query": "red", "latest": True}, k=5)
+    assert hits == TOOLS["search_text"].run(mem, {"query": "red", "latest": True}, k=5)
+    assert [h.memory.t - T0 for h in hits] == [DAY + 4, 2, DAY, DAY + 1]
+    answers = [OfflineReasoner(m).ask("where is the red thing now?") for m in (mem, like)]
+    assert answers[1].model_dump(exclude={"cost"}) == answers[0].model_dump(exclude={"cost"})
+    assert not any("need a ravenmem Memory" in n for n in answers[1].notes)
+    mem.close()

@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -17,6 +17,9 @@ from ..embed.base import Embedder
 from ..registry import Registry
 from ..types import Hit, MemoryRecord
 from .schema import Answer
+
+if TYPE_CHECKING:
+    from ..changes import ChangeSettings, Whereabouts
 
 TimeLike = float | int | str | None
 Near = tuple[float, float, float]
@@ -103,6 +106,20 @@ class MemoryLike(Protocol):
     def time_span(self) -> tuple[float, float]: ...
 
     def parse_time(self, expr: TimeLike) -> float: ...
+
+    def last_seen(
+        self,
+        query: str | None = None,
+        *,
+        image: np.ndarray | str | os.PathLike[str] | None = None,
+        memory_id: int | None = None,
+        vector: np.ndarray | None = None,
+        after: TimeLike = None,
+        before: TimeLike = None,
+        near: Near | None = None,
+        min_score: float | None = None,
+        settings: ChangeSettings | None = None,
+    ) -> Whereabouts: ...
 
 
 @runtime_checkable

@@ -481,12 +481,7 @@ class OfflineReasoner:
     def _whereabouts(self, vector: np.ndarray, thr: float, notes: list[str]) -> Whereabouts | None:
         """The thing's places and verdicts (`ravenmem.changes`), or None (with a note) when the
         memory cannot give them or no sighting stands out."""
-        if not hasattr(self.memory, "store"):
-            notes.append("the latest sightings need a ravenmem Memory: answered from the best matches")
-            return None
-        from ..changes import last_seen
-
-        w = last_seen(self.memory, vector=vector, min_score=thr)  # type: ignore[arg-type]
+        w = self.memory.last_seen(vector=vector, min_score=thr)
         if not w.places:
             notes.append("latest mode: no sighting stands out; answered from the best matches")
             return None

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..changes import ChangeHit
 from ..errors import InputError, RavenmemError
 from ..timeparse import fmt_time
 from ..tools import TOOLS, TimeMode, check_k, get_tool
@@ -224,14 +225,13 @@ class ToolRunner:
         self, label: str, order: str, hits: list[Hit], name: str, wm: WorkingMemory, query: str = ""
     ) -> ToolOutput:
         lines = [f"{label} -> {len(hits)} memories, {order}:" if hits else f"{label} -> no memories matched."]
-        status = next(
-            (getattr(h, "change", {}).get("status") for h in hits if getattr(h, "change", None)), None
-        )
+        changes = [h.change if isinstance(h, ChangeHit) else {} for h in hits]
+        status = next((c.get("status") for c in changes if c), None)
         if status:
-            note = getattr(hits[0], "change", {}).get("status_note")
+            note = changes[0].get("status_note")
             lines.append(f"status now: {status}" + (f" ({note})" if note else ""))
         images: list[SentImage] = []
-        for h in hits:
+        for h, change in zip(hits, changes, strict=True):
             rec = h.memory
             cap = self.captions(rec.id) if self.captions else None
             new = wm.add(h, name, cap)
@@ -240,7 +240,6 @@ class ToolRunner:
                 line += f"; stands for {h.count} memories seen from {fmt_time(h.span[0])} to {fmt_time(h.span[1])}"
             if cap:
                 line += f"; caption: {json.dumps(cap)}"
-            change = getattr(h, "change", None)
             if change:
                 wm.changes.setdefault(rec.id, {**change, "query": query})
                 if change.get("role") == "sighting":

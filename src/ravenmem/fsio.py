@@ -84,6 +84,18 @@ def atomic_write_json(path: str | os.PathLike[str], obj: Any, **dumps: Any) -> N
     atomic_write(path, json.dumps(obj, **dumps))
 
 
+def publish_dir(tmp: str | os.PathLike[str], final: str | os.PathLike[str]) -> None:
+    """Give a folder built under a temporary name (`tmp`, next to `final`) its final name, once
+    complete: a crash before leaves no `final`, after leaves the whole folder. The files inside
+    should be written with `atomic_write*` (fsynced); the rename itself is made durable here.
+    `final` must not exist (an `OSError` otherwise, and `tmp` is left as it was)."""
+    src, dest = Path(tmp), Path(final)
+    if dest.exists():
+        raise FileExistsError(f"{dest} already exists")
+    os.rename(src, dest)
+    fsync_dir(dest.parent)
+
+
 def is_temp_file(path: Path) -> bool:
     """True for a name `atomic_open` gives its temporary files (`.NAME.<12 hex>.tmp`)."""
     return _TEMP_NAME.fullmatch(path.name) is not None

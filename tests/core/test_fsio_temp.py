@@ -5,7 +5,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ravenmem.fsio import atomic_open, is_temp_file, remove_stale_temp_files
+import pytest
+
+from ravenmem.fsio import atomic_open, is_temp_file, publish_dir, remove_stale_temp_files
 
 
 def test_a_temp_file_being_written_is_never_removed(tmp_path: Path) -> None:
@@ -33,3 +35,32 @@ def test_only_unlocked_old_files_with_ravenmem_names_go(tmp_path: Path) -> None:
     assert young.exists() and all(p.exists() for p in others)
     assert remove_stale_temp_files(tmp_path / "missing") == []
     assert remove_stale_temp_files(tmp_path, min_age=0, target="index.faiss") == []  # another target
+
+
+def test_a_folder_built_under_a_temporary_name_is_published_whole(tmp_path: Path) -> None:
+    tmp, final = tmp_path / ".cache.building-1", tmp_path / "cache"
+    tmp.mkdir()
+    (tmp / "done.json").write_text("{}")
+    publish_dir(tmp, final)
+    assert not tmp.exists() and (final / "done.json").read_text() == "{}"
+    again = tmp_path / ".cache.building-2"
+    again.mkdir()
+    with pytest.raises(FileExistsError):
+        publish_dir(again, final)
+    assert again.is_dir() and (final / "done.json").exists()
+
+
+def test_renames_happen_only_in_fsio() -> None:
+    """Every crash-safe replace goes through `ravenmem.fsio` (no hand-written tmp + rename)."""
+    import re
+
+    src = Path(__file__).resolve().parents[2] / "src" / "ravenmem"
+    rename = re.compile(r"\bos\.(replace|rename)\(|\.rename\(")
+    found = [
+        f"{p.relative_to(src)}:{i}"
+        for p in sorted(src.rglob("*.py"))
+        if p.name != "fsio.py"
+        for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+        if rename.search(line)
+    ]
+    assert found == []

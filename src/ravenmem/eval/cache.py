@@ -29,6 +29,7 @@ import numpy as np
 import ravenmem
 
 from ..embed.base import Embedder
+from ..fsio import atomic_write_json, publish_dir
 from ..ingest.keyframes import KeyframeConfig
 from ..memory import Memory
 from ..types import Frame
@@ -198,6 +199,6 @@ def build_memory(
         "ingest": report.as_dict(),
         "built_at": time.time(),
     }
-    (tmp / MARKER).write_text(json.dumps(info, indent=1, default=str), encoding="utf-8")
-    tmp.rename(final)
+    atomic_write_json(tmp / MARKER, info, indent=1, default=str)
+    publish_dir(tmp, final)
     return ravenmem.open(final, embedder=embedder), info

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..fsio import atomic_write_json
+from ..fsio import atomic_write_json, publish_dir
 from ..ingest.keyframes import KeyframeConfig
 from .config import OutputConfig, RunConfig
 from .datasets import load_dataset
@@ -233,7 +233,7 @@ def _reduced_copy(base: Path, dest: Path, strategy: str, budget: int, max_distan
             info = {"kept": mem.count(), "budget_met": mem.count() <= budget}
     info |= {"strategy": strategy, "budget": budget, "memories_before": n}
     atomic_write_json(tmp / _DONE, info)
-    tmp.rename(dest)
+    publish_dir(tmp, dest)
     return info
 
 

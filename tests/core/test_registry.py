@@ -38,6 +38,29 @@ def test_naming_one_backend_imports_only_that_one():
     assert r.stdout.strip() == "ok", r.stderr
 
 
+def test_every_registry_loads_its_builtins_lazily():
+    """Datasets too: naming one imports its loader's module only (and every name is listed)."""
+    code = textwrap.dedent(
+        """
+        import sys
+        from ravenmem.eval.datasets import DATASETS
+        loaded = lambda: sorted(m.rsplit(".", 1)[1] for m in sys.modules if m.startswith("ravenmem.eval.datasets."))
+        names = DATASETS.names()
+        assert {"raven-qa", "navqa", "findingdory", "tum", "memory", "queries"} <= set(names), names
+        assert loaded() == [], loaded()
+        DATASETS.get("navqa")
+        assert "navqa" in loaded() and not {"ravenqa", "findingdory", "generic"} & set(loaded()), loaded()
+        DATASETS.get("tum")
+        assert "generic" in loaded() and "ravenqa" not in loaded(), loaded()
+        print("ok")
+        """
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONPATH": str(REPO / "src")}
+    )
+    assert r.stdout.strip() == "ok", r.stderr
+
+
 def test_third_party_backend_through_an_entry_point(tmp_path: Path):
     pkg = tmp_path / "site"
     (pkg / "thirdparty_emb.py").parent.mkdir(parents=True)

@@ -170,6 +170,7 @@ def ingest(
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
+    from ravenmem.manifest import MANIFEST
 
     if keyframes is not None:
         cfg = parse_keyframes(keyframes)
@@ -194,7 +195,7 @@ def ingest(
     }
     src = open_source(source, format, **kwargs)
     mapper = _mapper(memory, src, intrinsics) if build_map else None
-    existed = (memory / "memory.json").is_file()
+    existed = (memory / MANIFEST).is_file()
     mem = ravenmem.create(
         memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True, wait=wait
     )

@@ -14,15 +14,22 @@ from typing import Any
 from ...errors import InputError
 from ...registry import Registry
 from ..types import Episode
-from . import findingdory, generic, navqa, ravenqa
 
-DATASETS: Registry[list[Episode]] = Registry("dataset", "ravenmem.datasets")
-DATASETS.register("raven-qa")(ravenqa.load)
-DATASETS.register("ravenqa")(ravenqa.load)
-DATASETS.register("navqa")(navqa.load)
-DATASETS.register("findingdory")(findingdory.load)
-for _fmt in (*generic.SOURCE_FORMATS, "queries"):
-    DATASETS.register(_fmt)(lambda path, _f=_fmt, **kw: generic.load(path, _f, **kw))
+# recording formats a questions file can be paired with (`generic`); `queries:` names its own
+SOURCE_FORMATS = ("tum", "video", "folder", "rosbag", "bag", "mcap", "memory")
+_HERE = "ravenmem.eval.datasets."
+# built-ins load like every registry's: a module is imported when one of its names is asked for
+DATASETS: Registry[list[Episode]] = Registry(
+    "dataset",
+    "ravenmem.datasets",
+    {
+        "raven-qa": _HERE + "ravenqa",
+        "ravenqa": _HERE + "ravenqa",
+        "navqa": _HERE + "navqa",
+        "findingdory": _HERE + "findingdory",
+        **dict.fromkeys((*SOURCE_FORMATS, "queries"), _HERE + "generic"),
+    },
+)
 
 
 def load_dataset(spec: str, queries: str | None = None, **opts: Any) -> list[Episode]:

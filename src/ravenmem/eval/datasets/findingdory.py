@@ -27,6 +27,7 @@ from typing import Any
 from ...errors import InputError, require
 from ...types import Pose
 from ..types import Episode, Question, Truth, horizon_of
+from . import DATASETS
 from .frames import BASE_DAY, VideoSource, natural_key, video_frame_count
 
 FRAMES_PER_MINUTE = 4.168
@@ -157,3 +158,6 @@ def load(path: str, split: str = "validation", **_: Any) -> list[Episode]:
             )
         )
     return episodes
+
+
+DATASETS.register("findingdory")(load)

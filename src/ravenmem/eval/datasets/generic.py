@@ -35,8 +35,7 @@ from typing import Any, cast
 from ...errors import InputError
 from ...types import Pose
 from ..types import EVAL_TYPES, Episode, EvalType, Question, Truth
-
-SOURCE_FORMATS = ("tum", "video", "folder", "rosbag", "bag", "mcap", "memory")
+from . import DATASETS, SOURCE_FORMATS
 
 
 class FrameIndex:
@@ -247,3 +246,14 @@ def load(
             meta={"queries": str(qfile)},
         )
     ]
+
+
+def _loader(fmt: str) -> Any:
+    def load_format(path: str, **kw: Any) -> list[Episode]:
+        return load(path, fmt, **kw)
+
+    return load_format
+
+
+for _fmt in (*SOURCE_FORMATS, "queries"):
+    DATASETS.register(_fmt)(_loader(_fmt))

@@ -41,6 +41,7 @@ from ...errors import InputError
 from ...ingest.poses import read_pose_table
 from ...types import Pose
 from ..types import Episode, EvalType, Question, Truth, horizon_of
+from . import DATASETS
 from .frames import FrameRef, RefSource, natural_key
 
 POS_THRESHOLD = 15.0  # metres, NaVQA's position criterion
@@ -395,3 +396,6 @@ def _episode(root: Path, name: str, key: str, refs: list[FrameRef], qs: list[Que
         trajectory=traj,
         pos_threshold=POS_THRESHOLD,
     )
+
+
+DATASETS.register("navqa")(load)

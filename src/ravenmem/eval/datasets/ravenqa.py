@@ -46,6 +46,7 @@ import numpy as np
 from ...errors import InputError
 from ...types import Frame, Pose
 from ..types import Episode, EvalType, Question, Truth, horizon_of
+from . import DATASETS
 from .frames import (
     BASE_DAY,
     FrameRef,
@@ -306,3 +307,7 @@ def export_episode(out_dir: str | Path, frames: list[Frame], questions: list[dic
     doc = {QUESTION_KEYS[0]: rows, "timestamp_to_filename": t2f, "filename_to_position": f2p}
     (out / "questions.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
     return out
+
+
+DATASETS.register("raven-qa")(load)
+DATASETS.register("ravenqa")(load)

@@ -303,6 +303,8 @@ def test_appending_the_same_recording_again_does_not_inflate_the_counts(tmp_path
         r = run_cli("ingest", str(frames), "-m", str(mem), "--no-ocr", "--keyframes", "all", "--json")
         assert r.returncode == 0, r.stderr
         infos.append(json.loads(run_cli("info", "-m", str(mem), "--json").stdout))
+        # the ingest report's figure is the one `info` gives (the memory at rest)
+        assert json.loads(r.stdout)["compression_vs_raw"] == infos[-1]["compression_vs_raw"]
     assert [len(i["ingests"]) for i in infos] == [1, 2, 3]
     assert {i["frames_seen"] for i in infos} == {3}
     assert {i["raw_video_bytes"] for i in infos} == {3 * 64 * 48 * 3}

@@ -209,6 +209,8 @@ def ingest(
             _print_ingest(rep, total, size, cfg, mapper, memory, json_out)
             gone = " (the new memory was not kept)" if total == 0 and not existed else ""
             raise InputError(f"no frame of {source} was kept: nothing was added to {memory}{gone}")
+    with ravenmem.open(memory) as done:  # sizes at rest (WAL checkpointed, caches saved), as `info` gives
+        size = done.info()
     _print_ingest(rep, total, size, cfg, mapper, memory, json_out)
 
 

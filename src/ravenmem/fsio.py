@@ -110,6 +110,8 @@ def remove_stale_temp_files(
     Only files named like `atomic_open`'s that no process holds locked (a killed writer's lock
     is gone) and that are older than `min_age` seconds (the instant between creating a file and
     locking it) are removed: never another running process's file, never anything else.
+    `min_age=0` (for a caller that holds the writer lock over files only the writer writes):
+    any age, even a timestamp ahead of this machine's clock.
     """
     removed: list[Path] = []
     if fcntl is None:  # pragma: no cover
@@ -124,7 +126,7 @@ def remove_stale_temp_files(
         if not is_temp_file(p) or not p.name.startswith(f".{target}") or not e.is_file(follow_symlinks=False):
             continue
         try:
-            if now - e.stat(follow_symlinks=False).st_mtime < min_age:
+            if min_age > 0 and now - e.stat(follow_symlinks=False).st_mtime < min_age:
                 continue
             with open(p, "rb") as f:
                 try:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .fsio import atomic_write_json, remove_stale_temp_files
+from .manifest import MANIFEST
 from .store.base import Store
 
 log = logging.getLogger(__name__)
@@ -32,6 +33,7 @@ log = logging.getLogger(__name__)
 THUMBS = "thumbs"
 THUMB_NAME = re.compile(r"-?\d+_[0-9a-f]{8}\.jpg")
 _JOURNAL = re.compile(r"pending-thumbs-[0-9a-f]{12}\.json")
+_WRITER_ONLY = (f"{MANIFEST}.", "pending-thumbs-")  # files only the lock holder writes
 
 # (thumbnail path relative to the memory folder, source, frame index, time)
 Entry = tuple[str, str, int, float]
@@ -85,12 +87,15 @@ def recover(folder: Path, store: Store) -> dict[str, int]:
     Only the memory folder itself is listed on every call; `thumbs/` (a million files in a big
     memory) only after a crash, i.e. when a journal was left: a thumbnail's temporary file can
     only exist while its batch's journal does. The caller holds the writer lock, so no other
-    process is writing a thumbnail: `thumbs/` temporary files are removed whatever their age
-    (a writer killed less than a second ago leaves one too).
+    process is writing a thumbnail, a journal or the manifest: their temporary files are removed
+    whatever their age (a writer killed less than a second ago leaves one too, and the same
+    command run again at once must not keep it). Other temporary files (caches that readers
+    write too) only when older than `remove_stale_temp_files`' margin.
     """
     journals = [e for e in sorted(os.listdir(folder)) if _JOURNAL.fullmatch(e)]
     removed = sum(settle(folder, store, folder / j) for j in journals)
-    temps = remove_stale_temp_files(folder)
+    temps = [p for t in _WRITER_ONLY for p in remove_stale_temp_files(folder, min_age=0.0, target=t)]
+    temps += remove_stale_temp_files(folder)
     if journals:
         temps += remove_stale_temp_files(folder / THUMBS, min_age=0.0)
     if removed or temps:

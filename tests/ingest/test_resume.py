@@ -191,7 +191,12 @@ def test_clean_up_removes_only_ravenmem_leftovers(tmp_path: Path, tum_path: Path
     cut = mem / "thumbs" / "000000000000002_abcdef02.jpg"
     journal = mem / "pending-thumbs-00112233aabb.json"
     journal.write_text(json.dumps({"thumbs": [[f"thumbs/{cut.name}", "tum:x@0", 5, 2.5]]}))
-    stale = [mem / ".memory.json.0123456789ab.tmp", mem / "thumbs" / f".{cut.name}.ba9876543210.tmp", cut]
+    stale = [
+        mem / ".memory.json.0123456789ab.tmp",
+        mem / "thumbs" / f".{cut.name}.ba9876543210.tmp",
+        cut,
+        mem / ".pending-thumbs-445566ccddee.json.0123456789ab.tmp",
+    ]
     foreign = [
         mem / "notes.txt",
         mem / ".notes.tmp",  # not a name ravenmem makes
@@ -202,9 +207,13 @@ def test_clean_up_removes_only_ravenmem_leftovers(tmp_path: Path, tum_path: Path
     for p in stale + foreign:
         p.write_bytes(b"x")
         os.utime(p, (old, old))
-    # the thumbnail's temporary file is fresh: the writer was killed a moment ago (the next
-    # writer holds the writer lock, so no other process can be writing a thumbnail)
-    os.utime(stale[1], None)
+    # the temporary files of a thumbnail, the manifest and a journal are fresh: the writer was
+    # killed a moment ago and the same command runs again at once (the next writer holds the
+    # writer lock, so no other process can be writing these); "fresh" whatever this run's start-up
+    # time: written a minute from now
+    soon = time.time() + 60
+    for p in (stale[0], stale[1], stale[3]):
+        os.utime(p, (soon, soon))
     # a temporary file another process is writing right now (it holds the lock atomic_open takes)
     busy = mem / ".index.faiss.00aa11bb22cc.tmp"
     holder = subprocess.Popen(

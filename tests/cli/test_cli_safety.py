@@ -359,3 +359,18 @@ def test_an_unreachable_milvus_server_is_one_line(tmp_path: Path, frames: Path):
     for args in (["info"], ["search", "--time", "0"]):
         line = assert_one_line_error(run_cli(*args, "-m", str(mem)))
         assert "cannot connect" in line
+
+
+@pytest.mark.parametrize(
+    "opts,needle",
+    [
+        (["--stride", "0"], "stride must be an integer >= 1"),
+        (["--fps", "nan"], "fps must be a finite number"),
+        (["--batch-size", "0"], "batch_size must be a whole number >= 1"),
+    ],
+)
+def test_nonsense_ingest_numbers_are_one_line(tmp_path: Path, frames: Path, opts: list[str], needle: str):
+    new = tmp_path / "m.mem"
+    line = assert_one_line_error(run_cli("ingest", str(frames), "-m", str(new), "--no-ocr", *opts))
+    assert needle in line
+    assert not new.exists()

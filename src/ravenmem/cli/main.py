@@ -8,6 +8,7 @@ Other areas (agent, nav, eval) add their commands through a `register(app)` in t
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import math
@@ -176,10 +177,10 @@ def ingest(
         cfg = parse_keyframes(keyframes)
     else:  # `--stride 5` alone means every 5th frame, not the default rules thinned further
         cfg = KeyframeConfig.only() if stride is not None or fps is not None else KeyframeConfig()
-    if stride is not None:
-        cfg.stride = stride
-    if fps is not None:
-        cfg.fps = fps
+    # replace() checks the rules again (a stride of 0 or a NaN rate is a one-line error)
+    cfg = dataclasses.replace(
+        cfg, stride=cfg.stride if stride is None else stride, fps=cfg.fps if fps is None else fps
+    )
     kwargs = {
         k: v
         for k, v in dict(

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
+from ..errors import InputError
 from ..types import Frame, MemoryRecord
 from .base import FrameSink, FrameSource
 from .identity import source_identity
@@ -151,6 +152,8 @@ def ingest(
     writer makes this fail at once, or wait). Frames already stored are skipped (see above).
     """
     cfg = keyframes or KeyframeConfig()
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise InputError(f"batch_size must be a whole number >= 1, got {batch_size!r}")
     mem.acquire_writer(wait)
     identity = source_identity(source)
     report = IngestReport(source=getattr(source, "name", str(source)), source_id=identity)

@@ -6,7 +6,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
-EXTRAS=${RAVENMEM_EXTRAS:-dev,docs,sim,hf,milvus,eval,serve,robot,view}
+EXTRAS=${RAVENMEM_EXTRAS:-dev,docs,sim,hf,milvus,eval,serve,api-docs,robot,view}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 . .venv/bin/activate
 python -m pip install -q --upgrade pip

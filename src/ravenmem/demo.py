@@ -198,6 +198,8 @@ class DemoReport:
         lines.append(
             f"wall time {self.wall_seconds:.0f} s; outputs in {self.out}/ (memories, maps, query pictures, demo.json)"
         )
+        if self.maps:
+            lines.append(f"look around a memory: ravenmem serve --memory {self.maps[0].folder}/memory")
         return "\n".join(lines)
 
     def as_dict(self) -> dict[str, Any]:

@@ -444,3 +444,44 @@ def test_embedder_study_command(tmp_path: Path) -> None:
     assert r.returncode == 2 and "labelled frame(s) not found" in r.stderr
     r = rm("eval", "study", "embedders", "--labels", str(images / "f00.jpg"), "--images", str(images))
     assert r.returncode == 2 and "cannot read the labels JSON" in r.stderr
+
+
+def test_eval_sends_pictures_at_the_size_asked_for(scoring_root: Path, tmp_path: Path) -> None:
+    """The stored size (--thumb-size) and the size sent to the model (--image-max-side) are
+    separate settings of `ravenmem eval` too; the sent size is part of the run's identity."""
+    import base64
+    import io
+
+    from PIL import Image
+
+    from tests.agent.scripted_server import ScriptedModel
+    from tests.eval.test_eval_llm import vlm_reply
+
+    site = plugin_site(tmp_path)
+    common = ["--dataset", f"raven-qa:{scoring_root / 'sim' / 'simple'}", "--embedder", "test-color-eval"]
+    common += ["--cache-dir", str(tmp_path / "cache"), "--method", "raven", "--vlm", "scripted"]
+    with ScriptedModel(default=vlm_reply) as srv:
+        r = rm(
+            "eval",
+            *common,
+            "--vlm-base-url",
+            srv.base_url,
+            "--image-max-side",
+            "16",
+            "--out",
+            str(tmp_path / "r"),
+            site=site,
+        )
+        assert r.returncode == 0, r.stderr
+        sizes = {
+            Image.open(io.BytesIO(base64.b64decode(p["image_url"]["url"].split(",", 1)[1]))).size
+            for body in srv.requests
+            for m in body["messages"]
+            if isinstance(m.get("content"), list)
+            for p in m["content"]
+            if p.get("type") == "image_url"
+        }
+    assert sizes == {(16, 12)}  # the stored 32x24 frames, shrunk to 16 px on the longer side
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["method_opts"]["image_max_side"] == 16
+    bad = rm("eval", *common, "--image-max-side", "4", "--out", str(tmp_path / "bad"), site=site)
+    assert bad.returncode == 2 and bad.stderr.strip() == "error: --image-max-side must be >= 16 px, got 4"

@@ -437,6 +437,50 @@ def test_the_page_and_its_files_are_served(served: Served):
         assert docs.status_code == 200
 
 
+def test_api_docs_load_their_scripts_from_the_service_when_fastapi_offline_is_there(served: Served):
+    """A robot without internet still gets a working /docs: Swagger UI's own files come from the
+    service (fastapi-offline, the api-docs extra); without it FastAPI's CDN page is the fallback."""
+    pytest.importorskip("fastapi_offline", reason="the api-docs extra: pip install 'ravenmem[api-docs]'")
+    with served.client() as c:
+        for page in ("/docs", "/redoc"):
+            html = c.get(page)
+            assert html.status_code == 200
+            assert "cdn" not in html.text.lower() and "/docs-static/" in html.text
+        for asset in ("swagger-ui-bundle.js", "swagger-ui.css", "redoc.standalone.js"):
+            r = c.get(f"/docs-static/{asset}")
+            assert r.status_code == 200 and len(r.content) > 100_000
+        assert c.get("/docs-static/../memory.json").status_code == 404
+
+
+def test_a_body_announced_over_the_limit_is_refused_before_it_is_sent(tmp_path):
+    """On loopback too: the service answers 413 from the Content-Length alone, without waiting
+    for (and reading) the body."""
+    import http.client
+    import socket
+    from urllib.parse import urlsplit
+
+    from tests.server.conftest import make_memory
+
+    for s in serve_memory(make_memory(tmp_path / "m.mem"), max_upload_bytes=200_000):
+        u = urlsplit(s.url)
+        with socket.create_connection((u.hostname, u.port), timeout=10) as sock:
+            sock.sendall(
+                f"POST /ask HTTP/1.1\r\nHost: {u.netloc}\r\nContent-Type: application/json\r\n"
+                "Content-Length: 50000000\r\n\r\n".encode()
+            )
+            reply = http.client.HTTPResponse(sock)
+            reply.begin()  # a timeout here: the service waited for the body
+            assert reply.status == 413
+            assert "over the limit" in json.loads(reply.read())["error"]
+
+
+def test_broken_json_is_named_as_such(served: Served):
+    with served.client() as c:
+        r = c.post("/ask", content=b'{"question": ', headers={"content-type": "application/json"})
+    assert r.status_code == 422
+    assert one_line_error(r).startswith("body: not valid JSON")
+
+
 def test_occupancy_map_north_up(served: Served):
     from ravenmem.nav.grid import MapConfig, OccupancyGrid
 

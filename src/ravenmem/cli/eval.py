@@ -27,6 +27,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ..agent.presets import parse_top_k
 from ..errors import InputError
 from ._console import esc, out_console
 
@@ -102,6 +103,12 @@ RUN_OPTIONS: list[tuple[str, Any, Any, Any]] = [
         _opt("--ocr/--no-ocr", help="read text in keyframes while building memories (slower)"),
     ),
     ("thumb_size", int, 320, _opt("--thumb-size", help="thumbnail longer side (px) in built memories")),
+    (
+        "image_max_side",
+        int | None,
+        None,
+        _opt("--image-max-side", help="longest side in px of images sent to the model (default: as stored)"),
+    ),
     (
         "top_k",
         str | None,
@@ -221,22 +228,6 @@ def _floats(text: str, what: str) -> list[float]:
         raise InputError(f"{what}: expected comma-separated numbers, got {text!r}") from None
 
 
-def parse_top_k(text: str | None) -> int | dict[str, int] | None:
-    """'5' -> 5; 'time=200,text=30,position=1' -> {'time': 200, 'text': 30, 'position': 1}."""
-    if text is None:
-        return None
-    try:
-        if "=" not in text:
-            return int(text)
-        out = {}
-        for part in _split_list(text, "--top-k"):
-            k, _, v = part.partition("=")
-            out[k.strip()] = int(v)
-        return out
-    except ValueError:
-        raise InputError(f"--top-k: expected N or tool=N,... with whole numbers, got {text!r}") from None
-
-
 def _pos_threshold(text: str | None) -> tuple[float | None, dict[str, float] | None]:
     """'2.5' -> (2.5, None); 'real_world=3,sim=1' -> (None, {'real_world': 3.0, 'sim': 1.0})."""
     if not text:
@@ -285,6 +276,7 @@ def build_run_config(**o: Any) -> Any:
             time_mode=o["time_mode"],
             preset=o["preset"],
             temperature=o["temperature"],
+            image_max_side=o["image_max_side"],
         ),
         models=ModelConfig(
             embedder=o["embedder"],

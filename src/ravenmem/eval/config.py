@@ -129,7 +129,9 @@ class MethodConfig:
 
     The option names are the methods' own keyword arguments: `top_k` (one k, or {tool: k}),
     `max_tool_calls`, `frames` (vlm-only), `show_scores`, `time_mode` ("forward" | "centred"),
-    `preset` ("raven-qa" | "navqa" | "findingdory") and `temperature`. The seed is the run's.
+    `preset` ("raven-qa" | "navqa" | "findingdory"), `temperature` and `image_max_side` (the
+    longest side of the pictures sent to the model; the stored size is `MemoryConfig.thumb_size`).
+    The seed is the run's.
     """
 
     names: list[str]
@@ -140,6 +142,7 @@ class MethodConfig:
     time_mode: str | None = None
     preset: str | None = None
     temperature: float | None = None
+    image_max_side: int | None = None
 
     def __post_init__(self) -> None:
         self.names = [n.strip() for n in self.names if n and n.strip()]
@@ -156,6 +159,8 @@ class MethodConfig:
         if self.preset is not None and self.preset not in PRESETS:
             raise InputError(f"--preset: one of {', '.join(PRESETS)}, got {self.preset!r}")
         _positive("--temperature", self.temperature, allow_zero=True)
+        if self.image_max_side is not None and self.image_max_side < 16:
+            raise InputError(f"--image-max-side must be >= 16 px, got {self.image_max_side}")
 
     def options(self) -> dict[str, Any]:
         """The method options that are set (handed to every method; part of the run's identity)."""

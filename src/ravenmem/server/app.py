@@ -30,7 +30,7 @@ from .events import StreamRefused
 from .http_errors import add_error_handlers
 from .images import decode_base64_image, decode_depth, decode_image
 from .search_routes import add_search_routes
-from .security import Guard
+from .security import DOCS_STATIC, Guard
 from .service import NotFound, Service
 
 log = logging.getLogger(__name__)
@@ -87,7 +87,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         finally:
             await run_in_threadpool(service.close)
 
-    app = FastAPI(
+    app = _fastapi(
         title="ravenmem",
         version="0.1.0",
         summary="A robot's long-term visual memory: search it, ask it, add to it.",
@@ -281,6 +281,18 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
 
 
 # ---------------------------------------------------------------------------- helpers
+def _fastapi(**kwargs: Any) -> FastAPI:
+    """FastAPI whose `/docs` (Swagger UI) and `/redoc` load their scripts from this service, out
+    of fastapi-offline's copy (the `api-docs` extra), so they work on a robot without internet;
+    without that package they load them from the CDN FastAPI uses by default."""
+    try:
+        from fastapi_offline import FastAPIOffline
+    except ImportError:
+        return FastAPI(**kwargs)
+    app: FastAPI = FastAPIOffline(static_url=DOCS_STATIC, **kwargs)
+    return app
+
+
 def _document_bearer(app: FastAPI) -> None:
     """Say in the OpenAPI description that every route needs the bearer token (so that /docs
     offers an Authorize button); the Guard middleware is what enforces it."""

@@ -54,6 +54,9 @@ def add_error_handlers(app: FastAPI, folder: Path) -> None:
         if not errs:
             return reply(422, "invalid request")
         e = errs[0]
+        if e.get("type") == "json_invalid":
+            why = (e.get("ctx") or {}).get("error")
+            return reply(422, f"body: not valid JSON ({why})" if why else "body: not valid JSON")
         loc = [str(p) for p in e.get("loc", ())]
         if len(loc) > 1 and loc[0] in ("query", "body", "path", "form", "header"):
             loc = loc[1:]

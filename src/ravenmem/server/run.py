@@ -86,6 +86,8 @@ def serve(
     try:
         exists = (Path(memory) / "memory.json").exists()
         if not exists and create is None:
+            if Path(memory).is_dir() and any(Path(memory).iterdir()):
+                raise InputError(f"{memory} is not a memory (no memory.json in it)")
             raise InputError(f"memory {memory} does not exist (pass --create to start an empty one)")
         if exists:
             mem = ravenmem.open(memory, writable=cfg.writable, wait=wait or False)

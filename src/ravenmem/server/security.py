@@ -24,6 +24,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from ..errors import InputError
 
 PUBLIC = ("/", "/static/", "/docs", "/docs/oauth2-redirect", "/openapi.json", "/redoc", "/favicon.ico")
+DOCS_STATIC = "/docs-static"  # Swagger UI's and ReDoc's own files, when served locally
 LOOPBACK_NAMES = ("localhost", "localhost.")
 MIN_TOKEN = 16
 
@@ -51,7 +52,7 @@ def check_bind(host: str, token: str | None) -> None:
 
 
 def is_public(path: str) -> bool:
-    return path == "/" or path.startswith("/static/") or path in PUBLIC
+    return path == "/" or path.startswith(("/static/", DOCS_STATIC + "/")) or path in PUBLIC
 
 
 class Guard:
@@ -113,12 +114,11 @@ class Guard:
         origin = headers.get("origin")
         if origin is not None and not _same_origin(origin, host):
             return 403, "requests from another origin are refused (no CORS)"
-        if self.token is None or is_public(scope.get("path", "")):
-            return None
-        auth = headers.get("authorization", "")
-        scheme, _, given = auth.partition(" ")
-        if scheme.lower() != "bearer" or not hmac.compare_digest(given.strip().encode(), self.token):
-            return 401, "missing or wrong bearer token (send Authorization: Bearer <token>)"
+        if self.token is not None and not is_public(scope.get("path", "")):
+            auth = headers.get("authorization", "")
+            scheme, _, given = auth.partition(" ")
+            if scheme.lower() != "bearer" or not hmac.compare_digest(given.strip().encode(), self.token):
+                return 401, "missing or wrong bearer token (send Authorization: Bearer <token>)"
         size = headers.get("content-length", "")
         if self.max_body is not None and size.isdigit() and int(size) > self.max_body:
             return 413, f"request body of {int(size)} bytes is over the limit of {self.max_body}"

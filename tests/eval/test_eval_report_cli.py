@@ -63,7 +63,8 @@ def test_random_cannot_pass_and_naming_the_frame_scores_everything(
     text = write_report(tmp_path / "run", tmp_path / "rep" / "report.md").read_text()
     overall = line_of(text, "| embedder-only | test-color-eval | - | 9 | 3 |")
     assert overall.count("100.0 ± 0.0") >= 3  # accuracy, frame accuracy, position accuracy
-    assert "| Frame acc. | Pos. acc. | Frame |" in text and "within 2 m of an accepted position" in text
+    assert "| Frame acc. | Pos. acc. | Frame Qs |" in text and "within 2 m of an accepted position" in text
+    assert "Frame Qs: accuracy over the questions of that type" in text  # not mistaken for Frame acc.
     assert "## Frame accuracy per subset and split (RAVEN-QA)" in text
     assert "| Method | Embedder | VLM | real_world/hard | sim/hard | sim/simple |" in text
     assert "## Position accuracy per subset and split (RAVEN-QA)" in text

@@ -86,7 +86,7 @@ def _overall(groups: list[dict[str, Any]]) -> list[str]:
     pos = any("position_accuracy" in g for g in groups)
     head = ["Method", "Embedder", "VLM", "Q", "Seeds", "Accuracy"]
     head += (["Frame acc."] if frame else []) + (["Pos. acc."] if pos else [])
-    head += [t.capitalize() for t in types] + ["Pos. err (m)", "Time err (min)"]
+    head += [f"{t.capitalize()} Qs" for t in types] + ["Pos. err (m)", "Time err (min)"]
     body = []
     for g in groups:
         line = _ident(g) + [str(g["questions"]), str(len(g["seeds"])), _pct(g["accuracy"])]
@@ -109,6 +109,9 @@ def _overall(groups: list[dict[str, Any]]) -> list[str]:
             f"Pos. acc.: the answer's position within {_metres(thr)} of an accepted position, over every "
             "question with positions (the threshold sweep is below)."
         )
+    if types:
+        names = ", ".join(f"{t.capitalize()} Qs" for t in types)
+        notes.append(f"{names}: accuracy over the questions of that type, by its own criterion.")
     if notes:
         out += [" ".join(notes), ""]
     return out

@@ -165,3 +165,28 @@ def test_the_listening_socket_is_tcp_so_responses_are_not_delayed():
             assert server.proto == socket.IPPROTO_TCP and conn.proto == socket.IPPROTO_TCP
     finally:
         server.close()
+
+
+def test_serve_with_a_vlm_method_and_no_vlm_refuses_to_start(tmp_path):
+    """`--method raven` (or vlm-only, caption) without a model stops the start with one line, as
+    `ravenmem eval` does, rather than serving a default that fails every question."""
+    from tests.eval.eval_helpers import no_vlm_env
+    from tests.server.conftest import make_memory
+
+    make_memory(tmp_path / "m.mem").close()
+    for method in ("raven", "vlm-only", "caption"):
+        r = run_cli(
+            "serve",
+            "--memory",
+            str(tmp_path / "m.mem"),
+            "--port",
+            "0",
+            "--method",
+            method,
+            env=no_vlm_env(tmp_path),
+        )
+        assert r.returncode == 2, r.stderr
+        assert r.stderr.strip().splitlines() == [
+            f"error: --method {method} needs a VLM and none is configured: give --model and --base-url, "
+            "or set RAVENMEM_VLM_MODEL / RAVENMEM_VLM_BASE_URL"
+        ]

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from ..agent.base import METHODS
+from ..agent.base import METHODS, needs_vlm
 from ..agent.config import VLMConfig
 from ..agent.presets import PRESETS
 from ..agent.schema import Answer
@@ -70,6 +70,12 @@ class ServiceConfig:
             raise InputError("upload size, pixel count and timeout must be > 0")
         if self.method is not None:
             METHODS.get(self.method)  # an unknown name is a one-line error now, not on the first question
+            if needs_vlm(self.method) and not (self.vlm is not None and self.vlm.configured):
+                # as `ravenmem eval`: a default method that cannot answer stops the start, not every question
+                raise InputError(
+                    f"--method {self.method} needs a VLM and none is configured: give --model and "
+                    "--base-url, or set RAVENMEM_VLM_MODEL / RAVENMEM_VLM_BASE_URL"
+                )
         if self.camera_frame not in ("body", "optical"):
             raise InputError(f"camera frame must be 'body' or 'optical', got {self.camera_frame!r}")
 
@@ -292,7 +298,6 @@ class Service:
     ) -> Answer:
         """Answer a question as `ravenmem ask` does, with the service's VLM; what the question
         leaves out comes from the service's defaults, then from the preset or the method."""
-        from ..agent.base import needs_vlm
         from ..agent.methods import create_method
         from ..agent.presets import get_preset
 

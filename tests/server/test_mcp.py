@@ -71,6 +71,15 @@ async def exercise(client: Client, image_base: str | None) -> dict[str, Any]:
     a = ans.structured_content
     assert a["found"] and a["position"][:2] == [2.0, 0.0] and a["evidence"][0]["id"] == 3  # type: ignore[index]
     assert any(isinstance(c, types.ImageContent) for c in ans.content)
+    # ask takes what /ask and `ravenmem ask` take: per-tool k and the tool-call budget
+    props = by_name["ask"].input_schema["properties"]
+    assert props["max_tool_calls"]["maximum"] == 20
+    assert {"integer", "object"} == {s["type"] for s in props["top_k"]["anyOf"]}
+    per_tool = {"question": "where is the yellow thing?", "method": "offline", "top_k": {"text": 2}}
+    fine = await client.call_tool("ask", {**per_tool, "max_tool_calls": 2})
+    assert not fine.is_error and fine.structured_content["found"]  # type: ignore[index]
+    bad = await client.call_tool("ask", {**per_tool, "max_tool_calls": 99})
+    assert bad.is_error and "max_tool_calls" in bad.content[0].text  # type: ignore[union-attr]
 
     bad = await client.call_tool("search_text", {"query": "red", "k": 5000})
     assert bad.is_error and "k must be from 1 to 1000" in bad.content[0].text  # type: ignore[union-attr]

@@ -24,7 +24,7 @@ from ..errors import RavenmemError
 from ..tools import MAX_K, TOOLS, Tool, check_k
 from ..types import MemoryRecord
 from .images import decode_base64_image
-from .service import Service
+from .service import MAX_CALLS, Service
 
 log = logging.getLogger(__name__)
 
@@ -70,10 +70,24 @@ def ask_schema(service: Service) -> dict[str, Any]:
                 "description": "the paper's settings for a benchmark (budget, k per tool, temperature)",
             },
             "top_k": {
+                "anyOf": [
+                    {"type": "integer", "minimum": 1, "maximum": MAX_K},
+                    {
+                        "type": "object",
+                        "properties": {
+                            t: {"type": "integer", "minimum": 1, "maximum": MAX_K}
+                            for t in (*(x.key for x in TOOLS.values()), *TOOLS)
+                        },
+                        "additionalProperties": False,
+                    },
+                ],
+                "description": "memories per tool call: N, or per tool {'text': 30, 'time': 200}",
+            },
+            "max_tool_calls": {
                 "type": "integer",
                 "minimum": 1,
-                "maximum": MAX_K,
-                "description": "memories per tool call",
+                "maximum": MAX_CALLS,
+                "description": "tool calls before the model must answer",
             },
         },
         "required": ["question"],
@@ -144,10 +158,16 @@ def _ask(service: Service, args: dict[str, Any], base: str | None) -> types.Call
     question = args.get("question")
     if not isinstance(question, str) or not question.strip() or len(question) > 2000:
         raise RavenmemError("ask: question must be a non-empty string of at most 2000 characters")
-    extra = set(args) - {"question", "method", "preset", "top_k"}
+    extra = set(args) - {"question", "method", "preset", "top_k", "max_tool_calls"}
     if extra:
         raise RavenmemError(f"ask: unknown argument(s) {', '.join(sorted(extra))}")
-    ans = service.ask(question, method=args.get("method"), top_k=args.get("top_k"), preset=args.get("preset"))
+    ans = service.ask(
+        question,
+        method=args.get("method"),
+        top_k=args.get("top_k"),
+        max_tool_calls=args.get("max_tool_calls"),
+        preset=args.get("preset"),
+    )
     data = service.answer_json(ans, _url(base))
     service.publish_answer(data)
     recs = service.mem.get([e["id"] for e in data["evidence"]]) if data["evidence"] else []

@@ -518,3 +518,29 @@ def test_a_map_file_leading_out_of_the_memory_is_not_read(served: Served, tmp_pa
         (served.mem.path / name).symlink_to(outside / name)
     with served.client() as c:
         assert c.get("/map").status_code == 404
+
+
+def test_pictures_outside_the_memory_folder_are_never_served(tmp_path):
+    """A memory built without thumbnails points at the original frames, elsewhere on the disk:
+    the service serves none of them and names no path outside the folder."""
+    import ravenmem
+    from ravenmem.types import Frame, Pose
+    from tests.conftest import ColorEmbedder, solid
+
+    (tmp_path / "frames").mkdir()
+    frames = []
+    for i, colour in enumerate(["red", "green", "blue"]):
+        p = tmp_path / "frames" / f"{i}.png"
+        Image.fromarray(solid(colour)).save(p)
+        frames.append(
+            Frame(image=solid(colour), t=T0 + i, pose=Pose(i, 0, 0, 0), source="s", index=i, path=str(p))
+        )
+    mem = ravenmem.create(tmp_path / "m.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    mem.add_frames(frames)
+    assert mem.get([1])[0].image_path == str(tmp_path / "frames" / "0.png")  # it does point out
+    for s in serve_memory(mem):
+        with s.client() as c:
+            r = c.get("/memories/1/image")
+            assert r.status_code == 404 and "no picture" in one_line_error(r)
+            texts = [c.get(p).text for p in ("/memories/1", "/search/text?q=red&k=3", "/info", "/trajectory")]
+    assert not any(str(tmp_path) in t for t in texts)

@@ -234,8 +234,10 @@ def build(store: Store, n: int, args: argparse.Namespace, work: Workload) -> str
         if hasattr(store, "wait_for_index"):
             store.wait_for_index()
     dt, cpu = time.perf_counter() - t, time.process_time() - cpu
-    return (f"built ({args.build}) in {dt:.1f} s = {n / dt:,.0f} memories/s wall, "
-            f"{cpu:.1f} s CPU (all threads) = {n / cpu:,.0f} memories/CPU-s")  # fmt: skip
+    return (
+        f"built ({args.build}) in {dt:.1f} s = {n / dt:,.0f} memories/s wall, "
+        f"{cpu:.1f} s CPU (all threads) = {n / cpu:,.0f} memories/CPU-s"
+    )
 
 
 def bench(backend: str, n: int, args: argparse.Namespace, root: Path, work: Workload) -> dict[str, float]:
@@ -252,12 +254,16 @@ def bench(backend: str, n: int, args: argparse.Namespace, root: Path, work: Work
     t = time.perf_counter()
     st = store.stats()
     first_stats = time.perf_counter() - t
-    print(f"\n== {backend} store, N={n:,}, dim={args.dim}: index {st.get('index')} codes={st.get('codes')} "
-          f"nlist={st.get('nlist')} nprobe={st.get('nprobe')} rerank={st.get('rerank')}; {how}; "
-          f"reopened in {reopen:.2f} s ({reopen_cpu:.2f} s CPU; +{first_stats:.2f} s for the first stats: columns)")  # fmt: skip
+    print(
+        f"\n== {backend} store, N={n:,}, dim={args.dim}: index {st.get('index')} codes={st.get('codes')} "
+        f"nlist={st.get('nlist')} nprobe={st.get('nprobe')} rerank={st.get('rerank')}; {how}; "
+        f"reopened in {reopen:.2f} s ({reopen_cpu:.2f} s CPU; +{first_stats:.2f} s for the first stats: columns)"
+    )
     if st.get("bytes"):
-        print(f"bytes on disk: {st['bytes']:,} = {st['bytes_per_memory']:,.0f} B/memory; "
-              f"index in RAM {st.get('index_ram_bytes', 0) / 1e9:.2f} GB")  # fmt: skip
+        print(
+            f"bytes on disk: {st['bytes']:,} = {st['bytes_per_memory']:,.0f} B/memory; "
+            f"index in RAM {st.get('index_ram_bytes', 0) / 1e9:.2f} GB"
+        )
     nq = len(work.q)
     queries = list(work.q)
     for q in queries[:5]:  # warm up (pages, the k-d tree)
@@ -276,15 +282,35 @@ def bench(backend: str, n: int, args: argparse.Namespace, root: Path, work: Work
 
     if args.exact_queries:
         ne = min(nq, args.exact_queries)
-        row("vector search, exact scan", "exact", [lambda q=q: store.search_vector(q, K, exact=True) for q in queries[:ne]])  # type: ignore[call-arg]  # fmt: skip
+        row(
+            "vector search, exact scan",
+            "exact",
+            [lambda q=q: store.search_vector(q, K, exact=True) for q in queries[:ne]],
+        )  # type: ignore[call-arg]
     row("vector search (text tool)", "ann", [lambda q=q: store.search_vector(q, K) for q in queries], "none")
     for label, name in (("time window 10%", "w10"), ("time window 1%", "w1"), ("region r=10 m", "r10")):
         filts = work.filters(name)
         calls = [lambda q=q, f=f: store.search_vector(q, K, f) for q, f in zip(queries, filts, strict=True)]
         row(f"vector search, {label}", name, calls, name)  # type: ignore[misc]
+    if args.filter_budgets and hasattr(store, "filter_budget"):  # the 10 % window per budget
+        default, calls = (
+            store.filter_budget,
+            [
+                lambda q=q, f=f: store.search_vector(q, K, f)
+                for q, f in zip(queries, work.filters("w10"), strict=True)
+            ],
+        )
+        for fb in args.filter_budgets:
+            store.filter_budget = fb
+            row(f"  10% window, filter_budget {fb:g}", f"w10_fb{fb:g}", calls, "w10")  # type: ignore[misc]
+        store.filter_budget = default
     row("by_time k=10", "by_time", [lambda t=t: store.by_time(float(t), K) for t in work.times])
     row("nearest k=10 (planar)", "nearest", [lambda p=p: store.nearest(p[0], p[1], None, K) for p in work.xy])
-    row("nearest k=10, radius 2 m", "nearest_r", [lambda p=p: store.nearest(p[0], p[1], None, K, radius=2.0) for p in work.xy])  # fmt: skip
+    row(
+        "nearest k=10, radius 2 m",
+        "nearest_r",
+        [lambda p=p: store.nearest(p[0], p[1], None, K, radius=2.0) for p in work.xy],
+    )
     words = [WORDS[i % len(WORDS)] for i in range(nq)]
     row("search_text (OCR) k=10", "ocr", [lambda w=w: store.search_text(w, K) for w in words])
     # live adds on top of the big store (a robot keeps running), then forget them again
@@ -298,8 +324,10 @@ def bench(backend: str, n: int, args: argparse.Namespace, root: Path, work: Work
     print(f"{'tool':34s} {'p50 ms':>8s} {'p99 ms':>8s} {'CPU p50':>8s}")
     for name, a, b, c, note in rows:
         print(f"{name:34s} {a:8.2f} {b:8.2f} {c:8.2f}  {note}")
-    print(f"live-added memory found by search: {found}; peak RSS: {rss_build:.2f} GB after the build, "
-          f"{peak_rss_gb():.2f} GB at the end")  # fmt: skip
+    print(
+        f"live-added memory found by search: {found}; peak RSS: {rss_build:.2f} GB after the build, "
+        f"{peak_rss_gb():.2f} GB at the end"
+    )
     out["peak_rss_gb"] = peak_rss_gb()
     store.close()
     return out
@@ -316,6 +344,12 @@ def main() -> None:
     ap.add_argument("--build", choices=["bulk", "add"], default="bulk")
     ap.add_argument("--nprobe", type=int, default=32)
     ap.add_argument("--ann-threshold", type=int, default=50_000)
+    ap.add_argument(
+        "--filter-budgets",
+        type=lambda v: [float(x) for x in v.split(",")],
+        default=[],
+        help="local: also time the 10%% window at each filter_budget, e.g. 4,6,8,10,16",
+    )
     ap.add_argument("--codes", default="sq8", help="local IVF codes: sq8, flat or fp16")
     ap.add_argument(
         "--dir", type=Path, default=None, help="where to build and keep the stores, reused when complete"

@@ -204,7 +204,7 @@ class VectorIndex:
         nprobe: int,
         allowed: np.ndarray | None = None,
         exact: bool = False,
-        filter_budget: float = 4.0,
+        filter_budget: float = 8.0,
         contiguous: bool = False,
     ) -> list[tuple[int, float]]:
         """Top-k (id, inner product), restricted exactly to the `allowed` ids when given.

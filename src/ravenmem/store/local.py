@@ -68,7 +68,7 @@ class LocalStore:
         ann_threshold: int = 50_000,
         nprobe: int = 32,
         retrain_growth: float = 2.0,
-        filter_budget: float = 4.0,
+        filter_budget: float = 8.0,
         background: bool = True,
         save_min: int = 10_000,
         save_fraction: float = 0.25,

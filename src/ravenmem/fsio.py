@@ -102,7 +102,7 @@ def is_temp_file(path: Path) -> bool:
 
 
 def remove_stale_temp_files(
-    folder: str | os.PathLike[str], min_age: float = 2.0, target: str = ""
+    folder: str | os.PathLike[str], min_age: float = 2.0, target: str = "", wait: bool = False
 ) -> list[Path]:
     """Delete the temporary files killed writers left in `folder` (not recursive); return them.
     `target` limits it to the temporary files of one file name (e.g. "index.faiss").
@@ -112,21 +112,40 @@ def remove_stale_temp_files(
     locking it) are removed: never another running process's file, never anything else.
     `min_age=0` (for a caller that holds the writer lock over files only the writer writes):
     any age, even a timestamp ahead of this machine's clock.
+
+    `wait=True` is for a writer cleaning up after a crash: the files still too young are
+    checked again once they are `min_age` old (one sleep of at most `min_age`, only when there
+    are such files), so a writer killed an instant before this call leaves nothing behind
+    either. Young files are never probed: taking the lock of a file whose writer is between
+    creating and locking it would make that writer fail.
     """
+    removed, youngest = _sweep(folder, min_age, target)
+    if wait and youngest is not None:
+        time.sleep(min(max(min_age - youngest, 0.0), min_age))
+        removed += _sweep(folder, min_age, target)[0]
+    return removed
+
+
+def _sweep(folder: str | os.PathLike[str], min_age: float, target: str) -> tuple[list[Path], float | None]:
+    """One pass of `remove_stale_temp_files`: the files removed, and the age in seconds of the
+    youngest temporary file left alone for its age (None when there was none)."""
     removed: list[Path] = []
+    youngest: float | None = None
     if fcntl is None:  # pragma: no cover
-        return removed
+        return removed, youngest
     try:
         entries = list(os.scandir(folder))
     except OSError:
-        return removed
+        return removed, youngest
     now = time.time()
     for e in entries:
         p = Path(e.path)
         if not is_temp_file(p) or not p.name.startswith(f".{target}") or not e.is_file(follow_symlinks=False):
             continue
         try:
-            if min_age > 0 and now - e.stat(follow_symlinks=False).st_mtime < min_age:
+            age = now - e.stat(follow_symlinks=False).st_mtime
+            if min_age > 0 and age < min_age:
+                youngest = age if youngest is None else min(youngest, age)
                 continue
             with open(p, "rb") as f:
                 try:
@@ -137,4 +156,4 @@ def remove_stale_temp_files(
                 removed.append(p)
         except OSError:
             continue
-    return removed
+    return removed, youngest

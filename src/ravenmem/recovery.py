@@ -90,12 +90,15 @@ def recover(folder: Path, store: Store) -> dict[str, int]:
     process is writing a thumbnail, a journal or the manifest: their temporary files are removed
     whatever their age (a writer killed less than a second ago leaves one too, and the same
     command run again at once must not keep it). Other temporary files (caches that readers
-    write too) only when older than `remove_stale_temp_files`' margin.
+    write too: the store's index and columns) are left alone while younger than
+    `remove_stale_temp_files`' margin, so they are waited for (at most 2 s, only when there is
+    such a file) and removed then if nobody holds them: a writer restarted right after a kill -9
+    in the middle of a cache save would otherwise keep its temporary file.
     """
     journals = [e for e in sorted(os.listdir(folder)) if _JOURNAL.fullmatch(e)]
     removed = sum(settle(folder, store, folder / j) for j in journals)
     temps = [p for t in _WRITER_ONLY for p in remove_stale_temp_files(folder, min_age=0.0, target=t)]
-    temps += remove_stale_temp_files(folder)
+    temps += remove_stale_temp_files(folder, wait=True)
     if journals:
         temps += remove_stale_temp_files(folder / THUMBS, min_age=0.0)
     if removed or temps:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -64,3 +65,19 @@ def test_renames_happen_only_in_fsio() -> None:
         if rename.search(line)
     ]
     assert found == []
+
+
+def test_waiting_removes_a_leftover_of_an_instant_ago_but_never_a_held_file(tmp_path: Path) -> None:
+    """What the next writer does right after a kill -9: the killed writer's temporary file is
+    younger than the age guard; waiting it out removes it, a live writer's file stays."""
+    dead = tmp_path / ".columns.cache.0123456789ab.tmp"  # killed an instant ago: young, unlocked
+    dead.write_bytes(b"x")
+    with atomic_open(tmp_path / "index.faiss") as f:  # a live writer's: young and locked
+        f.write(b"half")
+        assert remove_stale_temp_files(tmp_path, min_age=0.5, wait=True) == [dead]
+        f.write(b" and the rest")
+    assert (tmp_path / "index.faiss").read_bytes() == b"half and the rest"
+    assert [p for p in tmp_path.iterdir() if is_temp_file(p)] == []
+    start = time.monotonic()
+    assert remove_stale_temp_files(tmp_path, wait=True) == []
+    assert time.monotonic() - start < 1.0  # nothing young: no wait

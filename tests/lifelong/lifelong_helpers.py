@@ -90,16 +90,19 @@ def thumbs_on_disk(path: Path) -> set[str]:
     return {f"thumbs/{p.name}" for p in (path / "thumbs").iterdir() if not is_temp_file(p)}
 
 
-def assert_consistent(path: Path) -> None:
+def assert_consistent(path: Path, why: str = "") -> None:
     """After a writer opened the memory: every thumbnail belongs to a stored memory and every
-    stored memory's thumbnail exists; no journal, no temporary file; SQLite intact."""
+    stored memory's thumbnail exists; no journal, no temporary file; SQLite intact. `why`
+    (e.g. a random test's seed) starts every failure message."""
     recs = records(path)
     referenced = {r.image_path for r in recs}
-    assert thumbs_on_disk(path) == referenced, thumbs_on_disk(path) ^ referenced
-    assert not list(path.glob("pending-thumbs-*.json"))
-    assert not [p for p in [*path.iterdir(), *(path / "thumbs").iterdir()] if is_temp_file(p)]
+    assert thumbs_on_disk(path) == referenced, f"{why}: {thumbs_on_disk(path) ^ referenced}"
+    journals = [p.name for p in path.glob("pending-thumbs-*.json")]
+    assert not journals, f"{why}: journals left {journals}"
+    temps = [p.name for p in [*path.iterdir(), *(path / "thumbs").iterdir()] if is_temp_file(p)]
+    assert not temps, f"{why}: temporary files left {temps}"
     with sqlite3.connect(path / "store.sqlite") as conn:
-        assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok", why
 
 
 def writer_open(path: Path) -> None:

@@ -33,6 +33,7 @@ def test_ask_offline_prints_the_answer_card(cli, mem_path):
     assert (
         "time seen: 2023-11-14T22:14:30" in out and "evidence memories" in out and "tool calls used: 0" in out
     )
+    assert "yaw deg" in out  # the evidence table names its unit, as search does
 
 
 @pytest.mark.parametrize("method", ["raven", "vlm-only", "caption"])

@@ -289,7 +289,7 @@ def _render(a: dict[str, Any]) -> None:
         con.print(f"[red]error:[/] {esc(a['error'])}", highlight=False)
     if a["evidence"]:
         table = Table(title="evidence memories")
-        for col in ("id", "time (UTC)", "x", "y", "z", "yaw", "score", "image"):
+        for col in ("id", "time (UTC)", "x", "y", "z", "yaw deg", "score", "image"):
             table.add_column(col, justify="left" if col in ("time (UTC)", "image") else "right")
         for e in a["evidence"]:
             score = "" if e.get("score") is None else f"{e['score']:.3f}"

@@ -543,4 +543,6 @@ def test_pictures_outside_the_memory_folder_are_never_served(tmp_path):
             r = c.get("/memories/1/image")
             assert r.status_code == 404 and "no picture" in one_line_error(r)
             texts = [c.get(p).text for p in ("/memories/1", "/search/text?q=red&k=3", "/info", "/trajectory")]
+            assert c.get("/memories/1").json()["image"] is None  # no URL that would answer 404
+            assert [h["image"] for h in c.get("/search/text?q=red&k=3").json()["results"]] == [None] * 3
     assert not any(str(tmp_path) in t for t in texts)

@@ -99,8 +99,12 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         _document_bearer(app)
 
     def image_url_for(request: Request) -> Callable[[MemoryRecord], str | None]:
-        base = str(request.base_url).rstrip("/")
-        return lambda rec: f"{base}/memories/{rec.id}/image"
+        return picture_url(str(request.base_url).rstrip("/"))
+
+    def picture_url(base: str) -> Callable[[MemoryRecord], str | None]:
+        """A memory's picture URL, or None when the service would not serve one (no picture
+        inside the memory folder): a URL is named only when it answers."""
+        return lambda rec: f"{base}/memories/{rec.id}/image" if service.image_file(rec) else None
 
     async def blocking(fn: Callable[[], T]) -> T:
         """Run memory work off the event loop, bounded in time (504 when it takes too long)."""
@@ -276,7 +280,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
     app.router.routes.append(
         Route("/mcp", endpoint=StreamableHTTPASGIApp(mcp_manager), include_in_schema=False)
     )
-    service.set_image_url(lambda rec: f"/memories/{rec.id}/image")
+    service.set_image_url(picture_url(""))
     return app
 
 

@@ -10,7 +10,10 @@ Where the store lives (`store`) is confined too:
 - `local`: the embedded store, inside the memory folder (the default);
 - `milvus-lite:NAME.db`: a Milvus Lite file inside the memory folder (relative to it);
 - `milvus://HOST:PORT` or `milvus://http(s)://HOST[:PORT]`: a Milvus server, written by `create`
-  from the user's own `--store` argument and shown by `ravenmem info`.
+  from the user's own `--store` argument and shown by `ravenmem info`. It is opened only when this
+  user gave ravenmem that server: `create` records it in `~/.config/ravenmem/stores.json`
+  (`$XDG_CONFIG_HOME`), and `RAVENMEM_TRUSTED_STORES` (comma-separated URIs) adds more, e.g. for
+  a memory folder a colleague shares. A copied or edited manifest cannot choose a server.
 Anything else (a path elsewhere, a relative path that escapes, another scheme) is refused, so a
 manifest cannot make ravenmem create or open files outside its folder.
 """
@@ -19,13 +22,14 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from .errors import InputError
-from .fsio import atomic_write
+from .fsio import atomic_write, atomic_write_json
 
 MANIFEST = "memory.json"
 FORMAT_VERSION = 1  # the newest manifest format this code reads and writes
@@ -155,6 +159,50 @@ def store_kind(value: str) -> str:
         f"{MANIFEST}: store {value!r} is not 'local', a Milvus Lite file inside the memory folder "
         "or milvus://HOST:PORT; refusing to open it"
     )
+
+
+TRUST_ENV = "RAVENMEM_TRUSTED_STORES"
+
+
+def trust_file() -> Path:
+    """The user's list of Milvus servers given to `create` (`$XDG_CONFIG_HOME/ravenmem/stores.json`)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "ravenmem" / "stores.json"
+
+
+def trusted_stores() -> set[str]:
+    """Server URIs this user gave ravenmem: those `create` recorded, and `RAVENMEM_TRUSTED_STORES`."""
+    out = {u.strip() for u in os.environ.get(TRUST_ENV, "").split(",") if u.strip()}
+    try:
+        data = json.loads(trust_file().read_text(encoding="utf-8"))
+        out |= {u for u in data.get("trusted", []) if isinstance(u, str)}
+    except (OSError, ValueError, AttributeError):
+        pass  # no list yet (or an unreadable one): only the environment's
+    return out
+
+
+def trust_store(uri: str) -> None:
+    """Record a server URI the user gave `create`, so that opening the memory later is allowed."""
+    if uri in trusted_stores():
+        return
+    f = trust_file()
+    try:
+        data = json.loads(f.read_text(encoding="utf-8"))
+        known = [u for u in data.get("trusted", []) if isinstance(u, str)]
+    except (OSError, ValueError, AttributeError):
+        known = []
+    f.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(f, {"trusted": sorted({*known, uri})}, indent=2)
+
+
+def check_trusted(uri: str) -> None:
+    """Refuse a manifest's server URI that this user never gave ravenmem (one line)."""
+    if uri not in trusted_stores():
+        raise InputError(
+            f"{MANIFEST}: store {uri!r} is a Milvus server this user never gave ravenmem (create "
+            f"--store records it in {trust_file()}); a copied or edited memory.json cannot choose a "
+            f"server. If you trust it: export {TRUST_ENV}={uri}"
+        )
 
 
 def store_for_create(value: str | None, folder: Path) -> str:

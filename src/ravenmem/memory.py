@@ -34,7 +34,16 @@ from .imageio import read_image, write_jpeg
 from .lifelong import sidecars
 from .lifelong.groups import GroupView, annotate
 from .lock import LOCK_FILE, WriterLock
-from .manifest import FORMAT_VERSION, MANIFEST, Manifest, confine, store_for_create
+from .manifest import (
+    FORMAT_VERSION,
+    MANIFEST,
+    Manifest,
+    check_trusted,
+    confine,
+    store_for_create,
+    store_kind,
+    trust_store,
+)
 from .store.base import Store, open_store
 from .timeparse import TimeContext, parse_time
 from .tools import MAX_K, check_k
@@ -914,6 +923,8 @@ def create(
         made.undo()
         writer.release()
         raise
+    if store_kind(uri) == "remote":
+        trust_store(uri)  # the user gave this server: opening the memory again is allowed
     mem = Memory(p, manifest, st, emb, external_images=external_images)
     mem._created = made
     mem._writer = writer
@@ -959,6 +970,8 @@ def _open(p: Path, embedder: str | Embedder | None, external_images: bool) -> Me
         what = "does not exist" if not p.exists() else "is not a ravenmem memory (no memory.json)"
         raise InputError(f"memory {p} {what}")
     manifest = Manifest.load(p)
+    if store_kind(manifest.store) == "remote":
+        check_trusted(manifest.store)  # before any connection is made
     emb = None
     if embedder is not None:
         emb = _resolve_embedder(embedder)

@@ -349,16 +349,48 @@ def test_an_unreachable_milvus_server_is_one_line(tmp_path: Path, frames: Path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     uri = f"milvus://127.0.0.1:{port}"
+    home = {"XDG_CONFIG_HOME": str(tmp_path / "home"), "RAVENMEM_TRUSTED_STORES": ""}
     new = tmp_path / "new.mem"
-    line = assert_one_line_error(run_cli("ingest", str(frames), "-m", str(new), "--no-ocr", "--store", uri))
+    line = assert_one_line_error(
+        run_cli("ingest", str(frames), "-m", str(new), "--no-ocr", "--store", uri, env=home)
+    )
     assert f"127.0.0.1:{port}" in line and "cannot connect" in line
-    assert not new.exists()
+    assert not new.exists() and not (tmp_path / "home").exists()  # a failed create trusts nothing
     mem = make_memory(tmp_path / "m.mem", n=2)
     mf = mem / "memory.json"
     mf.write_text(json.dumps(json.loads(mf.read_text()) | {"store": uri}))
+    trusted = home | {"RAVENMEM_TRUSTED_STORES": f"milvus://10.0.0.1:19530,{uri}"}
     for args in (["info"], ["search", "--time", "0"]):
-        line = assert_one_line_error(run_cli(*args, "-m", str(mem)))
+        line = assert_one_line_error(run_cli(*args, "-m", str(mem), env=trusted))
         assert "cannot connect" in line
+
+
+def test_a_manifest_cannot_choose_a_server_the_user_never_gave(tmp_path: Path, frames: Path):
+    """An edited or copied memory.json naming a Milvus server is refused before any connection;
+    the user's own trust (create --store, or RAVENMEM_TRUSTED_STORES) lets it through."""
+    import socket
+
+    with socket.socket() as listener:  # a server that must never be contacted
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        listener.settimeout(0.2)
+        uri = f"milvus://127.0.0.1:{listener.getsockname()[1]}"
+        mem = make_memory(tmp_path / "m.mem", n=2)
+        mf = mem / "memory.json"
+        mf.write_text(json.dumps(json.loads(mf.read_text()) | {"store": uri}))
+        home = {"XDG_CONFIG_HOME": str(tmp_path / "home"), "RAVENMEM_TRUSTED_STORES": "milvus://other:1"}
+        for args in (["info"], ["search", "--time", "0"], ["ingest", str(frames), "--no-ocr"]):
+            line = assert_one_line_error(run_cli(*args, "-m", str(mem), env=home))
+            assert "never gave ravenmem" in line and "RAVENMEM_TRUSTED_STORES" in line
+        with pytest.raises(TimeoutError):
+            listener.accept()  # nobody connected
+    # the list `create` keeps ($XDG_CONFIG_HOME/ravenmem/stores.json): a server there is
+    # accepted (and then fails to connect: nothing listens any more)
+    f = tmp_path / "home" / "ravenmem" / "stores.json"
+    f.parent.mkdir(parents=True)
+    f.write_text(json.dumps({"trusted": [uri]}))
+    line = assert_one_line_error(run_cli("info", "-m", str(mem), env=home))
+    assert "cannot connect" in line
 
 
 @pytest.mark.parametrize(

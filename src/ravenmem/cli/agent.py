@@ -188,8 +188,11 @@ def ask(
 
             answer_sheet(mem, ans.model_dump(mode="json"), sheet)
         data = ans.model_dump(mode="json")
-        for ev, e in zip(data["evidence"], ans.evidence):
-            ev["image_file"] = _picture(mem, e.id)
+        # only pictures inside the memory folder are named (a stored path is never shown as is)
+        files = {r.id: mem.image_file(r) for r in mem.stored([e.id for e in ans.evidence])}
+        for ev in data["evidence"]:
+            f = files.get(ev["id"])
+            ev["image_file"] = str(f) if f else None
         if grid is not None:
             from ravenmem.nav.goals import plan_to_answer
 
@@ -199,19 +202,6 @@ def ask(
     _output(data, json_out)
 
 
-def _picture(mem: Any, memory_id: int) -> str | None:
-    """The evidence picture's file, only when it lies inside the memory folder (a stored path
-    is never shown or followed as it is)."""
-    from ravenmem.errors import InputError
-
-    try:
-        (rec,) = mem.get([int(memory_id)])
-    except (KeyError, ValueError, InputError):
-        return None
-    f = mem.image_file(rec)
-    return str(f) if f else None
-
-
 def _navigation_inputs(
     memory: Path | None, from_: str | None, robot_radius: float | None
 ) -> tuple[Any, tuple[float, float] | None]:
@@ -219,13 +209,11 @@ def _navigation_inputs(
     from ravenmem.errors import InputError
     from ravenmem.nav.grid import OccupancyGrid
 
-    from .nav import _xy
+    from .nav import parse_start
 
     assert memory is not None
     grid = OccupancyGrid.load(memory)  # no map: one line naming how to build one
-    start = _xy(from_, "--from") if from_ is not None else None
-    if from_ is not None and start is None:
-        raise InputError(f"--from: expected 'x,y' in metres, got {from_!r}")
+    start = parse_start(from_)
     if robot_radius is not None and not (math.isfinite(robot_radius) and robot_radius >= 0):
         raise InputError(f"--robot-radius: expected a finite radius >= 0 in metres, got {robot_radius}")
     return grid, start

@@ -21,6 +21,18 @@ def _say(msg: str) -> None:
     sys.stderr.write(msg + "\n")
 
 
+def parse_start(from_: str | None) -> tuple[float, float] | None:
+    """`--from x,y` (map metres) of navigate and ask --navigate; None when not given."""
+    if from_ is None:
+        return None
+    start = _xy(from_, "--from")
+    if start is None:
+        from ravenmem.errors import InputError
+
+        raise InputError(f"--from: expected 'x,y' in metres, got {from_!r}")
+    return start
+
+
 def _xy(text: str, what: str) -> tuple[float, float] | None:
     """'x,y' -> (x, y); None when the text is not two numbers."""
     parts = [p for p in text.replace(" ", "").split(",") if p]
@@ -157,9 +169,7 @@ def navigate(
     from ravenmem.nav.render import draw_map
 
     grid = OccupancyGrid.load(memory)
-    start = _xy(from_, "--from") if from_ is not None else None
-    if from_ is not None and start is None:
-        raise InputError(f"--from: expected 'x,y' in metres, got {from_!r}")
+    start = parse_start(from_)
     if drive and from_ is not None:
         raise InputError("--drive starts where the simulator starts; leave out --from")
     goal_xy = _xy(to, "--to")

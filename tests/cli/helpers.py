@@ -19,13 +19,24 @@ COLOURS = ["red", "green", "blue", "yellow", "white"]
 
 
 def run_cli(
-    *args: str, env: dict[str, str] | None = None, cwd: Path | None = None, timeout: float = 300
+    *args: str,
+    env: dict[str, str] | None = None,
+    cwd: Path | None = None,
+    timeout: float = 300,
+    unset: tuple[str, ...] = (),
+    paths: tuple[Path, ...] = (),
+    python_flags: tuple[str, ...] = (),
 ) -> subprocess.CompletedProcess[str]:
-    """`python -m ravenmem.cli.main ARGS` with this checkout's sources; real exit code and streams."""
-    full = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    """`python -m ravenmem.cli.main ARGS` with this checkout's sources; real exit code and streams.
+
+    The one launcher of the tests: `env` adds variables, `unset` removes inherited ones (e.g. a
+    RAVENMEM_SERVER of the developer's shell), `paths` go on PYTHONPATH after the checkout (a
+    plugin site), `python_flags` go to the interpreter (e.g. `-X importtime`)."""
+    full = {k: v for k, v in os.environ.items() if k not in unset}
+    full["PYTHONPATH"] = os.pathsep.join([str(REPO / "src"), str(REPO), *map(str, paths)])
     full.update(env or {})
     return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
+        [sys.executable, *python_flags, "-m", "ravenmem.cli.main", *args],
         capture_output=True,
         text=True,
         errors="backslashreplace",

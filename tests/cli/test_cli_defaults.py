@@ -4,28 +4,20 @@ printed, diverse search results, and commands that load only the models they nee
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+
+from tests.cli.helpers import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 TUM = REPO.parent / "shared" / "data" / "tum_fr1_rpy"
 
 
 def rm(*args: str, importtime: bool = False) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
-    flags = ["-X", "importtime"] if importtime else []
-    return subprocess.run(
-        [sys.executable, *flags, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
+    return run_cli(*args, timeout=600, python_flags=("-X", "importtime") if importtime else ())
 
 
 def imported(stderr: str) -> set[str]:

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import subprocess
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -24,6 +22,7 @@ from ravenmem.eval.config import (
     RunConfig,
     Thresholds,
 )
+from tests.cli.helpers import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 COLORS = {
@@ -132,15 +131,7 @@ def rm(
     *args: str, site: Path | None = None, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess[str]:
     """The `ravenmem` command in a subprocess (this checkout's code; the plugin site when given)."""
-    paths = [str(REPO / "src"), str(REPO)] + ([str(site)] if site else [])
-    full = dict(os.environ, PYTHONPATH=os.pathsep.join(paths)) | (env or {})
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=full,
-        timeout=600,
-    )
+    return run_cli(*args, env=env, timeout=600, paths=(site,) if site else ())
 
 
 def no_vlm_env(tmp: Path) -> dict[str, str]:

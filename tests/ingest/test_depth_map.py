@@ -7,9 +7,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,23 +14,17 @@ import pytest
 
 pytest.importorskip("vizdoom")
 
+from functools import partial
+
 from ravenmem.nav import load_map  # noqa: E402
 from ravenmem.nav.nav2 import read_pose_stamped  # noqa: E402
+from tests.cli.helpers import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = "vizdoom:freedoom2/MAP01"
 
 
-def rm(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env=env,
-        timeout=600,
-    )
+rm = partial(run_cli, timeout=600)
 
 
 def seg_dist(p: np.ndarray, segs: np.ndarray) -> np.ndarray:

@@ -5,8 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +17,7 @@ from ravenmem.ingest.rosbag import RosbagSource
 from ravenmem.ingest.tum import TumSource
 from ravenmem.ingest.video import VideoSource
 from ravenmem.types import Frame, Pose
+from tests.cli.helpers import run_cli
 
 from .bags import write_bag
 from .test_video import N, write_video
@@ -26,16 +26,7 @@ REPO = Path(__file__).resolve().parents[2]
 EMBEDDER = "offline:tiles=1:res=128"
 
 
-def rm(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env=env,
-        timeout=600,
-    )
+rm = partial(run_cli, timeout=600)
 
 
 def image_folder(path: Path, seed: int, n: int = 6) -> Path:

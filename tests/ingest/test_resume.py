@@ -18,6 +18,7 @@ import subprocess
 import sys
 import time
 from collections import Counter
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from PIL import Image
 from ravenmem.fsio import is_temp_file
 from ravenmem.ingest.keyframes import Keyframer, parse_keyframes
 from ravenmem.ingest.tum import TumSource
+from tests.cli.helpers import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
@@ -40,14 +42,7 @@ def env() -> dict[str, str]:
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src"), str(REPO)]))
 
 
-def rm(*args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=env(),
-        timeout=timeout,
-    )
+rm = partial(run_cli, timeout=600)
 
 
 def start(*args: str) -> subprocess.Popen[str]:

@@ -5,8 +5,7 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
-import subprocess
-import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +14,7 @@ import numpy as np
 import ravenmem
 from ravenmem.fsio import is_temp_file
 from ravenmem.types import Frame, Pose
+from tests.cli.helpers import run_cli
 from tests.conftest import COLORS, ColorEmbedder
 
 REPO = Path(__file__).resolve().parents[2]
@@ -28,14 +28,7 @@ def env() -> dict[str, str]:
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src"), str(REPO)]))
 
 
-def rm(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=env(),
-        timeout=timeout,
-    )
+rm = partial(run_cli, timeout=300)
 
 
 def rm_json(*args: str) -> dict[str, Any]:

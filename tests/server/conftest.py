@@ -30,37 +30,16 @@ import ravenmem
 from ravenmem.server.app import create_app
 from ravenmem.server.run import make_server
 from ravenmem.server.service import Service, ServiceConfig
-from ravenmem.types import Frame, Pose
-from tests.conftest import ColorEmbedder, solid
+from tests.agent.conftest import scene_frames
+from tests.conftest import ColorEmbedder
 
 REPO = Path(__file__).resolve().parents[2]
-T0 = 1_700_000_000.0
 TOKEN = "s3cret-token-for-tests-0123456789"
-# (colour, x, y): a walk along x with a few colours repeated
-SCENE = [
-    ("green", 0.0, 0.0),
-    ("red", 1.0, 0.0),
-    ("yellow", 2.0, 0.0),
-    ("blue", 3.0, 1.0),
-    ("white", 4.0, 1.0),
-    ("cyan", 5.0, 2.0),
-    ("blue", 6.0, 2.0),
-    ("magenta", 7.0, 3.0),
-    ("red", 8.0, 3.0),
-    ("green", 9.0, 3.0),
-    ("blue", 10.0, 4.0),
-    ("black", 11.0, 4.0),
-]
 
 
 def make_memory(path: Path) -> ravenmem.Memory:
     mem = ravenmem.create(path, embedder=ColorEmbedder(), ocr=False, thumb_size=32)
-    mem.add_frames(
-        [
-            Frame(image=solid(c), t=T0 + 10 * i, pose=Pose(x, y, 0.5, 0.1 * i), source="test", index=i)
-            for i, (c, x, y) in enumerate(SCENE)
-        ]
-    )
+    mem.add_frames(scene_frames())  # the agent tests' scene: the same 12 colours and poses
     return mem
 
 

@@ -6,11 +6,10 @@ CLI runs as users run it, in its own process, and opens no memory and loads no m
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
-import sys
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 
 import httpx
@@ -20,20 +19,12 @@ from PIL import Image
 import ravenmem
 from ravenmem.agent.methods import create_method
 from ravenmem.tools import TOOLS, hit_json
+from tests.agent.conftest import T0
+from tests.cli.helpers import run_cli
 from tests.conftest import ColorEmbedder
-from tests.server.conftest import REPO, T0, make_memory, serve_subprocess
+from tests.server.conftest import make_memory, serve_subprocess
 
-
-def rm(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    full = {k: v for k, v in os.environ.items() if k not in ("RAVENMEM_SERVER", "RAVENMEM_TOKEN")}
-    full.update(PYTHONPATH=str(REPO / "src"), **(env or {}))
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=full,
-        timeout=300,
-    )
+rm = partial(run_cli, timeout=300, unset=("RAVENMEM_SERVER", "RAVENMEM_TOKEN"))
 
 
 @pytest.fixture(scope="module")

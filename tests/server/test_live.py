@@ -19,8 +19,9 @@ import ravenmem
 from ravenmem.ingest.keyframes import KeyframeConfig
 from ravenmem.server.live import BusyError, LiveWriter
 from ravenmem.types import Pose
+from tests.agent.conftest import SCENE, T0
 from tests.conftest import ColorEmbedder, solid
-from tests.server.conftest import SCENE, T0, Served, make_memory, serve_subprocess
+from tests.server.conftest import Served, make_memory, serve_subprocess
 
 COLOURS = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0), (0, 255, 255), (255, 0, 255)]
 

@@ -17,7 +17,8 @@ import httpx
 import pytest
 from PIL import Image
 
-from tests.server.conftest import SCENE, T0, TOKEN, Served
+from tests.agent.conftest import SCENE, T0
+from tests.server.conftest import TOKEN, Served
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 DRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"

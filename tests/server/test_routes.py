@@ -13,8 +13,9 @@ from PIL import Image
 
 from ravenmem.agent import VLMConfig
 from ravenmem.tools import MAX_K, TOOLS
+from tests.agent.conftest import SCENE, T0
 from tests.agent.scripted_server import ScriptedModel, answer, tool
-from tests.server.conftest import SCENE, T0, Served, serve_memory
+from tests.server.conftest import Served, serve_memory
 
 HIT_KEYS = {
     "rank",

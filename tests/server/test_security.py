@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
+from functools import partial
 from pathlib import Path
 
 import httpx
 import pytest
 
 from ravenmem.server.security import check_bind, is_loopback
+from tests.cli.helpers import run_cli as _run_cli
 from tests.server.conftest import TOKEN, Served
 
 REPO = Path(__file__).resolve().parents[2]
@@ -109,16 +108,7 @@ def test_check_bind(host, token, ok):
     assert is_loopback(host) == (host in ("127.0.0.1", "localhost", "::1", "127.0.0.5"))
 
 
-def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    full = {k: v for k, v in os.environ.items() if k != "RAVENMEM_TOKEN"}
-    full.update(PYTHONPATH=str(REPO / "src"), **(env or {}))
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=full,
-        timeout=120,
-    )
+run_cli = partial(_run_cli, timeout=120, unset=("RAVENMEM_TOKEN",))
 
 
 def test_serve_refuses_a_public_address_without_a_token(tmp_path):

@@ -6,31 +6,22 @@ run does. The same paths with the instant test embedder run in the default suite
 from __future__ import annotations
 
 import json
-import os
 import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 
 import httpx
 import pytest
 
+from tests.cli.helpers import run_cli
+
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow
 
 
-def rm(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    full = {k: v for k, v in os.environ.items() if k not in ("RAVENMEM_SERVER", "RAVENMEM_TOKEN")}
-    full.update(PYTHONPATH=str(REPO / "src"), **(env or {}))
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=full,
-        timeout=600,
-    )
+rm = partial(run_cli, timeout=600, unset=("RAVENMEM_SERVER", "RAVENMEM_TOKEN"))
 
 
 @pytest.fixture(scope="module")

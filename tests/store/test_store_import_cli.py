@@ -11,6 +11,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -19,21 +20,14 @@ import pytest
 import ravenmem
 from ravenmem.errors import InputError
 from ravenmem.store.files import read_batches
+from tests.cli.helpers import run_cli
 from tests.store.store_helpers import robot_stream
 
 REPO = Path(__file__).resolve().parents[2]
 DIM = 384  # the default (offline) embedder's
 
 
-def rm(*args: str, **kw: object) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
+rm = partial(run_cli, timeout=600)
 
 
 def write_files(

@@ -43,7 +43,7 @@ def desk(tmp_path_factory, embedder) -> Path:
         pytest.skip(f"real TUM data not found at {TUM}")
     path = tmp_path_factory.mktemp("serve") / "desk.mem"
     with ravenmem.create(path, embedder=embedder, ocr=False) as mem:
-        ingest(open_source(str(TUM), "tum"), mem, KeyframeConfig(stride=30), progress=False)
+        ingest(open_source(str(TUM), "tum"), mem, KeyframeConfig.only(stride=30), progress=False)
         assert mem.count() == 24
     return path
 

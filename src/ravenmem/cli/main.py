@@ -478,6 +478,9 @@ def main(argv: list[str] | None = None) -> None:
     typer's public classes: every click error (usage errors included) is a `typer.TyperException`;
     `typer.Exit(code)` comes back as the return value in non-standalone mode.
     """
+    # the hub library's retry warnings would spread one error over many stderr lines; a user
+    # who wants them sets HF_HUB_VERBOSITY (read when huggingface_hub is imported)
+    os.environ.setdefault("HF_HUB_VERBOSITY", "error")
     for stream in (sys.stdout, sys.stderr):  # text from argv may hold lone surrogates
         reconfigure = getattr(stream, "reconfigure", None)
         if reconfigure is not None:

@@ -1,15 +1,26 @@
-"""Shared test fixtures: a tiny deterministic embedder and paths to the real TUM data."""
+"""Shared test fixtures: a tiny deterministic embedder, the real TUM data and one memory of it.
+
+The TUM RGB-D recording (freiburg1_rpy) is read from $RAVENMEM_TUM_DATA, by default the
+workplace's `../shared/data/tum_fr1_rpy` beside the checkout. Tests that need it skip with the
+reason when it is absent, and fail instead when RAVENMEM_REQUIRE_DATA=1 (as `.ci/run` sets it),
+so that a CI run without the data cannot pass by skipping them.
+"""
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-TUM = REPO.parent / "shared" / "data" / "tum_fr1_rpy"
+TUM = Path(os.environ.get("RAVENMEM_TUM_DATA") or REPO.parent / "shared" / "data" / "tum_fr1_rpy")
 
 COLORS = {
     "red": (255, 0, 0),
@@ -60,8 +71,47 @@ def color_embedder() -> ColorEmbedder:
     return ColorEmbedder()
 
 
+def tum_data() -> Path:
+    """The TUM recording's folder; skips the calling test when it is absent (fails instead
+    under RAVENMEM_REQUIRE_DATA=1)."""
+    if not (TUM / "rgb.txt").is_file():
+        reason = (
+            f"real TUM data not found at {TUM} (set RAVENMEM_TUM_DATA to a freiburg1_rpy folder; "
+            "the default is the workplace's ../shared/data/tum_fr1_rpy)"
+        )
+        if os.environ.get("RAVENMEM_REQUIRE_DATA") == "1":
+            pytest.fail(f"RAVENMEM_REQUIRE_DATA=1 but {reason}", pytrace=False)
+        pytest.skip(reason)
+    return TUM
+
+
 @pytest.fixture
 def tum_path() -> Path:
-    if not (TUM / "rgb.txt").exists():
-        pytest.skip(f"real TUM data not found at {TUM} (it lives in the workplace's shared/ folder)")
-    return TUM
+    return tum_data()
+
+
+@dataclass(frozen=True)
+class TumDesk:
+    """A memory of every 30th TUM frame (24 memories; offline embedder, no OCR, thumbnails),
+    built once per session by `ravenmem ingest` as a user runs it, and the ingest's JSON report.
+    Shared: tests open it to read; a test that writes copies it first (shutil.copytree)."""
+
+    path: Path
+    report: dict
+
+
+@pytest.fixture(scope="session")
+def tum_desk(tmp_path_factory: pytest.TempPathFactory) -> TumDesk:
+    data = tum_data()
+    path = tmp_path_factory.mktemp("tum-desk") / "desk.mem"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), str(REPO)])}
+    args = ["ingest", str(data), "--format", "tum", "--memory", str(path), "--stride", "30", "--no-ocr", "--json"]
+    r = subprocess.run(
+        [sys.executable, "-m", "ravenmem.cli.main", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    return TumDesk(path, json.loads(r.stdout))

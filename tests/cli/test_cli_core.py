@@ -19,33 +19,11 @@ rm = partial(run_cli, timeout=600)
 
 
 @pytest.fixture(scope="module")
-def desk(tmp_path_factory, tum_path_module) -> Path:
-    mem = tmp_path_factory.mktemp("cli") / "desk.mem"
-    r = rm(
-        "ingest",
-        str(tum_path_module),
-        "--format",
-        "tum",
-        "--memory",
-        str(mem),
-        "--stride",
-        "30",
-        "--no-ocr",
-        "--json",
-    )
-    assert r.returncode == 0, r.stderr
-    out = json.loads(r.stdout)
+def desk(tum_desk) -> Path:
+    """The session's TUM memory (tests/conftest.py), built by `ravenmem ingest --stride 30 --json`."""
+    out = tum_desk.report
     assert out["frames_seen"] == 723 and out["kept"] == 24 == out["memories_total"]
-    return mem
-
-
-@pytest.fixture(scope="module")
-def tum_path_module():
-    from tests.conftest import TUM
-
-    if not (TUM / "rgb.txt").exists():
-        pytest.skip(f"real TUM data not found at {TUM}")
-    return TUM
+    return tum_desk.path
 
 
 def test_search_modes_json(desk: Path, tmp_path: Path):

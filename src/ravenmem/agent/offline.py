@@ -13,7 +13,8 @@
    run on decoy concepts (animals, vehicles, ...) gives the scores of things that are not
    there. Below it the answer is an honest "not found", never the least bad memory.
 5. Temporal words: good hits in time order are split into episodes; "last" / "first" pick the
-   latest / earliest sighting, "how long" sums the episodes.
+   latest / earliest sighting in every question type ("where did I last see", "when was the
+   last time", "did I see ... recently"), "how long" sums the episodes.
 6. Spatial consensus: good hits are clustered in the plane and the cluster with the most summed
    evidence wins over a single high-scoring outlier; its best memory gives the pose.
 """
@@ -434,14 +435,18 @@ class OfflineReasoner:
             + (f"; using the {order}" if order != "best" else "")
         )
         by_support = sorted(scope, key=lambda c: -c.support)
-        if qtype == "position":
+        if order != "best" and qtype != "duration":
+            # "last" is the latest sighting (and "first" the earliest) whatever the question asks
+            # for: where, when or whether; the strongest hit of that episode would be an older one
+            chrono = sorted(scope, key=lambda c: (c.rec.t, c.rec.id))
+            chosen = chrono[-1] if order == "last" else chrono[0]
+            notes.append(f"the {'latest' if order == 'last' else 'earliest'} good hit is m{chosen.rec.id}")
+            evidence = [chosen] + [c for c in by_support if c is not chosen]
+        elif qtype == "position":
             place = self._consensus(scope, thr)
             notes.append(f"spatial vote: {len(place)} of {len(scope)} hits agree")
             chosen = max(place, key=lambda c: c.support)
             evidence = [chosen] + [c for c in sorted(place, key=lambda c: -c.support) if c is not chosen]
-        elif qtype == "time" and order != "best":
-            chosen = scope[-1] if order == "last" else scope[0]
-            evidence = [chosen] + [c for c in by_support if c is not chosen]
         else:
             chosen = by_support[0]
             evidence = [chosen] + [c for c in sorted(good, key=lambda c: -c.support) if c is not chosen]
@@ -465,7 +470,8 @@ class OfflineReasoner:
         elif qtype == "text" and chosen.rec.ocr_text:
             ans.text = f"Text seen there: {chosen.rec.ocr_text!r} ({when}, {where})."
         else:
-            ans.text = f"{subject[:1].upper() + subject[1:]}: seen {where} at {when}."
+            seen = {"last": "last seen", "first": "first seen"}.get(order, "seen")
+            ans.text = f"{subject[:1].upper() + subject[1:]}: {seen} {where} at {when}."
         if qtype == "text":
             notes.append("the offline reasoner cannot describe images; it reports where and when")
 

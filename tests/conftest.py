@@ -105,7 +105,18 @@ def tum_desk(tmp_path_factory: pytest.TempPathFactory) -> TumDesk:
     data = tum_data()
     path = tmp_path_factory.mktemp("tum-desk") / "desk.mem"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), str(REPO)])}
-    args = ["ingest", str(data), "--format", "tum", "--memory", str(path), "--stride", "30", "--no-ocr", "--json"]
+    args = [
+        "ingest",
+        str(data),
+        "--format",
+        "tum",
+        "--memory",
+        str(path),
+        "--stride",
+        "30",
+        "--no-ocr",
+        "--json",
+    ]
     r = subprocess.run(
         [sys.executable, "-m", "ravenmem.cli.main", *args],
         capture_output=True,

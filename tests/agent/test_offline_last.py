@@ -1,4 +1,4 @@
-""""Last" means the latest sighting in every phrasing, checked on the real TUM recording against
+""" "Last" means the latest sighting in every phrasing, checked on the real TUM recording against
 the hand labels of benchmarks/data/tum_labels.json (the offline embedder, the session's memory
 of every 30th frame)."""
 

@@ -14,10 +14,9 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def tum_mem(tmp_path_factory):
-    from tests.conftest import TUM
+    from tests.conftest import tum_data
 
-    if not (TUM / "rgb.txt").exists():
-        pytest.skip(f"real TUM data not found at {TUM}")
+    TUM = tum_data()
     from ravenmem.ingest.keyframes import KeyframeConfig
     from ravenmem.ingest.pipeline import ingest
     from ravenmem.ingest.tum import TumSource

@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from tests.cli.helpers import run_cli
+from tests.conftest import TUM, tum_data
 
 REPO = Path(__file__).resolve().parents[2]
-TUM = REPO.parent / "shared" / "data" / "tum_fr1_rpy"
 
 
 def rm(*args: str, importtime: bool = False) -> subprocess.CompletedProcess[str]:
@@ -28,8 +28,7 @@ def imported(stderr: str) -> set[str]:
 @pytest.fixture(scope="module")
 def parked(tmp_path_factory) -> Path:
     """The first six TUM frames (0.17 s), all given one pose: one view, as a parked robot sees it."""
-    if not (TUM / "rgb.txt").is_file():
-        pytest.skip(f"real TUM data not found at {TUM}")
+    tum_data()
     d = tmp_path_factory.mktemp("parked")
     listed = [
         ln.split() for ln in (TUM / "rgb.txt").read_text().splitlines() if ln and not ln.startswith("#")
@@ -88,8 +87,7 @@ def test_commands_load_only_what_they_need(every_frame: Path) -> None:
 
 def test_ingest_default_on_real_tum_sparsifies(tmp_path: Path) -> None:
     """723 frames of a hand-held camera turning over a desk (24 s): ~70 distinct views kept, not 720."""
-    if not (TUM / "rgb.txt").exists():
-        pytest.skip(f"real TUM data not found at {TUM}")
+    tum_data()
     r = rm("ingest", str(TUM), "-m", str(tmp_path / "tum.mem"), "--no-ocr", "--thumb-size", "0", "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)

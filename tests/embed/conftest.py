@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tests.conftest import TUM, tum_data
+
 REPO = Path(__file__).resolve().parents[2]
-TUM = REPO / ".." / "shared" / "data" / "tum_fr1_rpy"
 LABELS = REPO / "benchmarks" / "data" / "tum_labels.json"
 
 
 @pytest.fixture(scope="session")
 def tum_labels() -> dict[str, list[str]]:
-    if not (TUM / "rgb").is_dir():
-        pytest.skip(f"TUM fr1_rpy frames not found at {TUM.resolve()}")
+    tum_data()
     return json.loads(LABELS.read_text())["frames"]
 
 

@@ -8,10 +8,10 @@ import pytest
 from ravenmem.errors import InputError
 from ravenmem.eval.datasets import load_dataset
 from ravenmem.eval.runner import Runner, read_rows
+from tests.conftest import tum_data
 from tests.eval.eval_helpers import CountingColorEmbedder, run_cfg, save, solid
 
 REPO = Path(__file__).resolve().parents[2]
-TUM = REPO.parent / "shared" / "data" / "tum_fr1_rpy"
 T0 = 1305031229.5
 
 
@@ -106,9 +106,7 @@ def test_questions_file_errors(tmp_path: Path) -> None:
 
 @pytest.fixture
 def tum_real() -> Path:
-    if not (TUM / "rgb.txt").exists():
-        pytest.skip(f"real TUM data not found at {TUM} (it lives in the workplace's shared/ folder)")
-    return TUM
+    return tum_data()
 
 
 def test_example_tum_queries_against_real_frames(

@@ -37,10 +37,9 @@ def desk(tmp_path_factory, embedder) -> Path:
     from ravenmem.ingest.keyframes import KeyframeConfig
     from ravenmem.ingest.pipeline import ingest
     from ravenmem.ingest.sources import open_source
-    from tests.conftest import TUM
+    from tests.conftest import tum_data
 
-    if not (TUM / "rgb.txt").exists():
-        pytest.skip(f"real TUM data not found at {TUM}")
+    TUM = tum_data()
     path = tmp_path_factory.mktemp("serve") / "desk.mem"
     with ravenmem.create(path, embedder=embedder, ocr=False) as mem:
         ingest(open_source(str(TUM), "tum"), mem, KeyframeConfig.only(stride=30), progress=False)

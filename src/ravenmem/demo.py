@@ -27,6 +27,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import re
 import shutil
 import statistics
 import time
@@ -188,6 +189,11 @@ class DemoReport:
             lines.append(
                 f"{'':<26}random memory, expected SR of the answer position: {100 * run.random_expected:.0f}%"
             )
+            if any(_DECLINED_CELL.match(a.note) for a in run.attempts if not a.found):
+                lines.append(
+                    f"{'':<26}'a < thr b': declined, the best match's support a is under the threshold b "
+                    "that things not there reach (ravenmem ask --offline explains one)"
+                )
         lines.append("")
         tot = ", ".join(
             f"{LABELS[m]} {sum(a.success for a in self.attempts(m))}/{len(self.attempts(m))} = "
@@ -230,6 +236,22 @@ def _err_cell(a: list[Attempt]) -> str:
 def _path_cell(a: list[Attempt]) -> str:
     p = [x.path_m for x in a if math.isfinite(x.path_m)]
     return f"{statistics.mean(p):.1f}" if p else "-"
+
+
+_DECLINED = re.compile(r"declined: best support (-?[\d.]+) under the threshold (-?[\d.]+)")
+
+
+_DECLINED_CELL = re.compile(r"-?[\d.]+ < thr -?[\d.]+$")
+
+
+def _declined(notes: list[str]) -> str:
+    """A table cell for an answer the method declined: the offline reasoner's best support
+    under its threshold ('0.19 < thr 0.35'), else 'not found'."""
+    for n in notes:
+        m = _DECLINED.match(n)
+        if m:
+            return f"{float(m[1]):.2f} < thr {float(m[2]):.2f}"
+    return "not found"
 
 
 def _summary_row(
@@ -365,7 +387,7 @@ def _answerers(
         def ask(q: DemoQuery) -> Answer:
             a = method.ask(q.question)
             pos = (float(a.position[0]), float(a.position[1])) if a.found and a.position else None
-            return (pos is not None, pos, "" if pos is not None else "not found")
+            return (pos is not None, pos, "" if pos is not None else _declined(a.notes))
 
         return ask
 

@@ -376,7 +376,7 @@ class OfflineReasoner:
                 if w is not None and (now or stale is not None):
                     self._answer_now(ans, qtype, subject or "it", w, notes)
         else:
-            self._not_found(ans, subject or "it", qtype, best)
+            self._not_found(ans, subject or "it", qtype, ranked, thr)
         ans.reasoning = "; ".join(notes)
         ans.cost = Cost(
             memories_shown=len(cands),
@@ -543,13 +543,33 @@ class OfflineReasoner:
         else:
             ans.text = f"{name} is now at {where}: last seen there at {when} ({here.verdict})." + before
 
-    def _not_found(self, ans: Answer, subject: str, qtype: str, best: Cand | None) -> None:
+    def _not_found(self, ans: Answer, subject: str, qtype: str, ranked: list[Cand], thr: float) -> None:
+        """Declined: say why (the best match's support under the threshold, and what that threshold
+        is) and show the closest misses, so that a search that does list them is explained."""
         ans.text = f"I don't remember seeing {subject}."
+        if ranked:
+            best = ranked[0]
+            p = best.rec.pose
+            why = (
+                f"the best match, m{best.rec.id} at x={p.x:.2f}, y={p.y:.2f} ({fmt_time(best.rec.t)}), "
+                f"scores {best.score:.3f} ({best.support:.3f} with its neighbours in time), under this "
+                f"memory's threshold {thr:.3f}"
+            )
+            if self.s.min_score is None:
+                why += (
+                    f" ({100 * self.s.decoy_quantile:.0f}% of {len(DECOYS)} things that are not there, "
+                    "such as a shark or a tractor, score under it here: the embedder rates this match "
+                    "no better than them)"
+                )
+            else:
+                why += " (the fixed min_score)"
+            ans.text = f"I don't remember seeing {subject}: {why}."
+            ans.notes.append(f"declined: best support {best.support:.3f} under the threshold {thr:.3f}")
+            # the closest misses, for the curious (a search lists them too); no pose is claimed
+            ans.evidence = [_ev(c) for c in ranked[: self.top_k]]
         if qtype == "binary":
             ans.yes = False
-            ans.text = f"No: I don't remember seeing {subject}."
-        if best is not None:
-            ans.evidence = [_ev(best)]  # the closest miss, for the curious; no pose is claimed
+            ans.text = "No: " + ans.text
 
 
 def _stale_place(w: Whereabouts | None, memory_id: int | None) -> Place | None:

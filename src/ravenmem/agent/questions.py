@@ -39,7 +39,9 @@ def classify_question(question: str) -> QuestionType:
 
 
 # "what was the last time I saw ...": a time question, though it starts with "what"
-_ORDER_TIME = re.compile(r"^(?:what|which) (?:was|is|were) the (?:very )?(?:last|latest|first|earliest|most recent) time\b")
+_ORDER_TIME = re.compile(
+    r"^(?:what|which) (?:was|is|were) the (?:very )?(?:last|latest|first|earliest|most recent) time\b"
+)
 _LAST = re.compile(r"\b(last|latest|most recent(ly)?|recently|lately|again)\b", re.IGNORECASE)
 _FIRST = re.compile(r"\b(first(?! aid)|earliest|initially|originally)\b", re.IGNORECASE)
 # The words that say which sighting is meant, wherever they stand in the question: "the last time

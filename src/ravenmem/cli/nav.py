@@ -198,7 +198,7 @@ def navigate(
                 "text": answer.text,
             }
             if not answer.found or not answer.position:
-                raise InputError(f"{to!r}: not found in memory ({answer.method}); the robot stays put")
+                raise InputError(_declined(to, answer))
             gp = plan_to_answer(mem, answer, start, robot_radius, grid=grid)
     out |= gp.as_dict()
     if not gp.ok:
@@ -235,6 +235,27 @@ def navigate(
         line += f"; drove {d['driven_m']:.1f} m: {d['reason']}, robot at ({d['final'][0]:.2f}, {d['final'][1]:.2f})"
     sys.stdout.write(line + "\n")
     sys.stdout.write(json.dumps(gp.pose_stamped()) + "\n")
+
+
+def _declined(to: str, answer: Any) -> str:
+    """One line for a goal the method would not place: its reason, the closest misses (a search
+    lists the same memories) and how to go to one of them anyway."""
+    line = f"{to!r}: not found in memory ({answer.method})"
+    if answer.text:
+        line += f": {answer.text.rstrip('.')}"
+    misses = answer.evidence[:3]
+    if misses:
+        line += "; closest misses: " + ", ".join(
+            f"m{e.id} (score {e.score:.2f}) at ({e.x:.2f}, {e.y:.2f})"
+            if e.score is not None
+            else f"m{e.id} at ({e.x:.2f}, {e.y:.2f})"
+            for e in misses
+        )
+        line += (
+            f"; to go to one anyway: --to {misses[0].x:.2f},{misses[0].y:.2f}, or --method embedder-only "
+            "(the top hit, no threshold)"
+        )
+    return line + "; the robot stays put"
 
 
 def _drive(memory: Path, grid: Any, goal: Any, max_steps: int) -> dict[str, Any]:

@@ -31,7 +31,13 @@ os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
 
 PROG = "ravenmem"
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, help="ravenmem: a long-term visual memory for robots."
+    add_completion=False,
+    no_args_is_help=True,
+    help="ravenmem: a long-term visual memory for robots.",
+    # click's plain help: flags without a "<bool>" column, text wrapped with a hanging indent
+    # (the rich panels squeezed help into a narrow column); -h as well as --help
+    rich_markup_mode=None,
+    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
 )
 console = out_console()
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
@@ -109,7 +115,10 @@ def _root(
 
 @app.command()
 def ingest(
-    source: Annotated[str, typer.Argument(help="video file, TUM folder, image folder, ROS 1/2 bag or MCAP")],
+    source: Annotated[
+        str,
+        typer.Argument(metavar="SOURCE", help="video file, TUM folder, image folder, ROS 1/2 bag or MCAP"),
+    ],
     memory: MemoryOpt,
     format: Annotated[
         str | None, typer.Option(help="tum | video | folder | rosbag (default: detect)")
@@ -273,7 +282,7 @@ def _mapper(memory: Path, src: Any, intrinsics: str | None) -> Any:
 @app.command()
 def search(
     memory: MemoryOrServerOpt = None,
-    text: Annotated[str | None, typer.Argument(help="text query")] = None,
+    text: Annotated[str | None, typer.Argument(metavar="TEXT", help="text query")] = None,
     image: Annotated[Path | None, typer.Option(help="query image file")] = None,
     like: Annotated[int | None, typer.Option("--like", help="memory id: more views like this memory")] = None,
     time: Annotated[str | None, typer.Option("--time", help="K memories forward from this time")] = None,
@@ -384,13 +393,15 @@ def search(
         return
     table = Table(title=f"{mode} search: {len(rows)} result(s), {tool.order_for(call)}")
     metric = "dist m" if tool.metric == "distance" else "score"
-    cols = ["rank", metric, "time (UTC)", "+s", "x m", "y m", "z m", "yaw deg", "image"]
+    # the id is what --like ID, forget --ids and the --latest notes ("last m19") name
+    cols = ["rank", "id", metric, "time (UTC)", "+s", "x m", "y m", "z m", "yaw deg", "image"]
     for col in cols + (["change"] if latest else []):
         table.add_column(col, justify="right" if col not in ("time (UTC)", "image", "change") else "left")
     for r in rows:
         val = r["distance"] if tool.metric == "distance" else r["score"]
         cells = [
             str(r["rank"]),
+            str(r["id"]),
             "" if val is None else f"{val:.3f}",
             r["time"],
             f"{r['offset_s']:.2f}",
@@ -435,25 +446,97 @@ def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: J
     if json_out:
         print_json(data)
         return
-    for key, val in data.items():
-        if key == "ingests":
-            continue
-        if key in ("t_min", "t_max") and isinstance(val, (int, float)):
-            val = f"{val:.3f} ({fmt_time(val)})"
-        elif key == "extent":
-            val = ", ".join(f"{c} {lo:.2f} .. {hi:.2f} m" for c, (lo, hi) in val.items())
-        elif isinstance(val, float):
-            val = f"{val:,.2f}"
-        console.print(f"{key:>32}: {esc(val)}", highlight=False)
-    for rep in data.get("ingests", []):
-        console.print(
-            f"{'ingest':>32}: "
-            + esc(
-                f"{rep.get('source')} seen {rep.get('frames_seen')} kept {rep.get('kept')} "
-                f"skipped {rep.get('skipped')}"
-            ),
-            highlight=False,
+    for label, value in info_lines(data):
+        console.print(f"{label:>12}  {esc(value)}", highlight=False)
+
+
+def _bytes(n: float) -> str:
+    """1536 -> '1.5 KiB': sizes as a person reads them."""
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if abs(n) < 1024 or unit == "GiB":
+            return f"{n:,.0f} {unit}" if unit == "B" else f"{n:,.1f} {unit}"
+        n /= 1024
+    return f"{n:,.1f} TiB"  # pragma: no cover
+
+
+def _plain(value: Any) -> str:
+    """Any other value of `info` in words: yes/no, 'key: value' lists, numbers with separators."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:,.2f}"
+    if isinstance(value, int):
+        return f"{value:,}"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}: {_plain(v)}" for k, v in value.items()) or "-"
+    if isinstance(value, (list, tuple)):
+        return ", ".join(_plain(v) for v in value) or "-"
+    return "-" if value is None else str(value)
+
+
+def info_lines(data: dict[str, Any]) -> list[tuple[str, str]]:
+    """`ravenmem info` as a person reads it: (label, text) rows; the figures `--json` gives raw.
+    Keys this function does not know (a newer service's) are printed in words after the rest."""
+    d = dict(data)
+    rows: list[tuple[str, str]] = [("memory", str(d.pop("path", "")))]
+    if d.get("name"):
+        rows.append(("name", str(d.pop("name"))))
+    n, seen = d.pop("memories", 0) or 0, d.pop("frames_seen", 0) or 0
+    ratio = d.pop("keyframe_ratio", None)
+    kept = f" (kept from {seen:,} frames seen: 1 in {ratio:.1f})" if seen and ratio else ""
+    rows.append(("memories", f"{n:,}{kept}"))
+    if "consolidated" in d:
+        rows.append(
+            (
+                "consolidated",
+                f"{d.pop('consolidated'):,} merged memories, standing for "
+                f"{d.pop('memories_represented', n):,} in all",
+            )
         )
+    t0, t1, dur = d.pop("t_min", None), d.pop("t_max", None), d.pop("duration_s", None)
+    if isinstance(t0, (int, float)) and isinstance(t1, (int, float)):
+        span = f" ({dur:,.1f} s)" if isinstance(dur, (int, float)) else ""
+        rows.append(("time", f"{fmt_time(t0)} to {fmt_time(t1)}{span}"))
+    ext = d.pop("extent", None)
+    if ext:
+        rows.append(("extent", ", ".join(f"{c} {lo:.2f} .. {hi:.2f} m" for c, (lo, hi) in ext.items())))
+    dim = d.pop("dim", None)
+    rows.append(("embedder", f"{d.pop('embedder', '')}" + (f" ({dim} dimensions)" if dim else "")))
+    rows.append(("store", str(d.pop("store", ""))))
+    if "ocr" in d:
+        rows.append(("OCR", "on" if d.pop("ocr") else "off"))
+    if "thumb_size" in d:
+        size = d.pop("thumb_size")
+        rows.append(("thumbnails", f"{size} px on the longer side" if size else "off"))
+    store_b, thumb_b = d.pop("store_bytes", None), d.pop("thumb_bytes", None)
+    per, per_t = d.pop("bytes_per_memory", None), d.pop("bytes_per_memory_with_thumbs", None)
+    if store_b is not None:
+        text = _bytes(store_b) + (f" ({_bytes(per)} per memory)" if per else "")
+        if thumb_b:
+            text += f"; thumbnails {_bytes(thumb_b)}" + (
+                f" ({_bytes(per_t)} per memory with them)" if per_t else ""
+            )
+        rows.append(("size", text))
+    raw, comp = d.pop("raw_video_bytes", None), d.pop("compression_vs_raw", None)
+    comp_t = d.pop("compression_vs_raw_with_thumbs", None)
+    if comp:
+        with_t = f", {comp_t:,.0f}x with thumbnails" if comp_t else ""
+        rows.append(
+            ("compression", f"{comp:,.0f}x smaller than the raw decoded video ({_bytes(raw or 0)}){with_t}")
+        )
+    for rep in d.pop("ingests", None) or []:
+        skipped = ", ".join(f"{v:,} {k}" for k, v in (rep.get("skipped") or {}).items())
+        took = rep.get("seconds")
+        rows.append(
+            (
+                "ingest",
+                f"{rep.get('source')}: {rep.get('frames_seen', 0):,} frames seen, {rep.get('kept', 0):,} kept"
+                + (f" in {took:,.0f} s" if isinstance(took, (int, float)) else "")
+                + (f"; skipped {skipped}" if skipped else ""),
+            )
+        )
+    rows += [(str(k).replace("_", " "), _plain(v)) for k, v in d.items()]
+    return rows
 
 
 def _register_extensions() -> None:
@@ -507,7 +590,7 @@ def _usage_error(e: typer.TyperException) -> int:
     if type(e).__name__ == "NoArgsIsHelpError" and show is not None:
         show()  # `ravenmem` alone: the help page, as click prints it
         return 2
-    hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+    hint = f" (see '{ctx.command_path if ctx is not None else PROG} --help')"
     print_error(f"{e.format_message()}{hint}")
     return 2
 

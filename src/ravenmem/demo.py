@@ -42,6 +42,7 @@ from PIL import Image
 from .errors import InputError
 from .fsio import atomic_write_json
 from .nav.render import MapLayers, draw_map
+from .progress import Eta
 from .robot.explore import ExploreConfig
 from .robot.mission import explore_into, navigate_to
 from .robot.oracle import oracle_memory
@@ -246,11 +247,11 @@ _DECLINED_CELL = re.compile(r"-?[\d.]+ < thr -?[\d.]+$")
 
 def _declined(notes: list[str]) -> str:
     """A table cell for an answer the method declined: the offline reasoner's best support
-    under its threshold ('0.19 < thr 0.35'), else 'not found'."""
+    under its threshold ('0.189 < thr 0.354'), else 'not found'."""
     for n in notes:
         m = _DECLINED.match(n)
         if m:
-            return f"{float(m[1]):.2f} < thr {float(m[2]):.2f}"
+            return f"{float(m[1]):.3f} < thr {float(m[2]):.3f}"
     return "not found"
 
 
@@ -280,7 +281,8 @@ def run_demo(cfg: DemoConfig | None = None, progress: Callable[[str], None] | No
     t0 = time.perf_counter()
     out = _prepare_out(cfg)
     report = DemoReport([], tuple(cfg.methods), cfg.success_radius, str(out))
-    for spec in cfg.maps:
+    for i, spec in enumerate(cfg.maps):
+        say(f"map {i + 1}/{len(cfg.maps)}: {spec}")
         report.maps.append(_run_map(cfg, spec, out, say))
         report.wall_seconds = time.perf_counter() - t0
         atomic_write_json(out / "demo.json", report.as_dict(), indent=1)
@@ -323,6 +325,7 @@ def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) 
                 sum(q.nearest(r.pose.x, r.pose.y) <= cfg.success_radius for r in recs) / len(recs)
                 for q in queries
             ) / len(queries)
+        say(f"{env.name}, phase II: preparing {len(cfg.methods)} ways to answer {len(queries)} queries")
         answerers = _answerers(cfg, env, grid, mem, rep, objects, kind_of, queries, folder, say)
         layers = MapLayers(
             trajectory=list(rep.trajectory),
@@ -333,9 +336,11 @@ def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) 
         say(
             f"{env.name}, phase II: {len(queries)} queries x {len(answerers)} ways to answer, each driven with A*"
         )
+        eta = Eta(say, "  phase II, answered and driven", len(queries) * len(answerers))
         for method, ask in answerers.items():
             for q in queries:
                 run.attempts.append(_attempt(cfg, env, grid, method, q, ask(q), layers))
+                eta.update(len(run.attempts), f"{LABELS[method]}: {q.phrase}")
             a = run.of(method)
             say(f"  {LABELS[method]}: SR {sum(x.success for x in a)}/{len(a)}")
         if cfg.png:
@@ -451,7 +456,9 @@ def _image_answerer(
             counts[i] = counts.get(i, 0) + 1
     pictures: dict[str, np.ndarray] = {}
     (folder / "queries").mkdir(exist_ok=True)
-    for q in queries:
+    eta = Eta(say, "  image queries, pictures rendered", len(queries))
+    for n, q in enumerate(queries):
+        eta.update(n, q.phrase)
         inst = [o for o in objects if o.kind == q.kind and o.id in counts]
         if not inst:
             continue
@@ -464,7 +471,7 @@ def _image_answerer(
         if pic is not None:
             pictures[q.kind] = pic
             Image.fromarray(pic).save(folder / "queries" / f"{q.kind}.png")
-    say(f"  image queries: {len(pictures)} of {len(queries)} objects pictured")
+    eta.update(len(queries), f"{len(pictures)} of {len(queries)} objects pictured")
     tool = TOOLS["search_image"]
     call = tool.validate({})
 

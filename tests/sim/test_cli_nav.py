@@ -103,8 +103,17 @@ def test_demo_on_the_synthetic_world(tmp_path, colour_embedder) -> None:
         keyframe_dist=1.0,
         keyframe_turn=0.5,
     )
-    rep = run_demo(cfg)
+    lines: list[str] = []
+    rep = run_demo(cfg, progress=lines.append)
     (run,) = rep.maps
+    # every phase says how far it is, of what total, and (once under way) how long is left
+    explore = [ln for ln in lines if ln.startswith("explore, control steps: ")]
+    assert explore and all("/600 (" in ln and "elapsed" in ln for ln in explore), lines
+    assert any(ln.startswith("explore: stopped at control step") for ln in lines), lines
+    driven = [ln for ln in lines if ln.startswith("  phase II, answered and driven: ")]
+    assert driven[0].startswith("  phase II, answered and driven: 1/12 (8%)") and "ETA" in driven[0], lines
+    assert driven[-1].startswith("  phase II, answered and driven: 12/12 (100%)") and "done" in driven[-1]
+    assert any(ln.startswith("  image queries, pictures rendered: 3/3") for ln in lines), lines
     assert run.queries == ["red box", "blue box", "green box"]
     # the colour embedder reads the boxes' colours: text finds them; oracle perception too
     assert rep.sr("text") == 1.0 and rep.sr("oracle") == 1.0

@@ -55,7 +55,7 @@ def test_the_reasoner_says_why_it_declines_and_shows_what_a_search_finds(rooms: 
         assert f"threshold {thr:.3f}" in miss.text
     # the demo's table cell for a declined text query says the same in short
     support = float(re.search(r"declined: best support ([\d.]+)", miss.notes[0])[1])
-    assert _declined(miss.notes) == f"{support:.2f} < thr {thr:.2f}" and _declined([]) == "not found"
+    assert _declined(miss.notes) == f"{support:.3f} < thr {thr:.3f}" and _declined([]) == "not found"
 
 
 def test_navigate_names_the_reason_and_the_closest_misses(rooms: str) -> None:

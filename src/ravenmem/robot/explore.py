@@ -17,6 +17,7 @@ from ..errors import InputError
 from ..nav.frontier import Frontier, find_frontiers
 from ..nav.grid import MapConfig, OccupancyGrid
 from ..nav.planning import plan_path
+from ..progress import Eta, fmt_seconds
 from ..sim.base import Environment, Observation, RobotSpec
 from ..sim.control import ControlConfig, follow_waypoints, turn_in_place, wrap
 from ..types import Frame, Intrinsics
@@ -217,6 +218,8 @@ class Explorer:
 
     def run(self, reset: bool = True) -> ExploreReport:
         t_wall = time.perf_counter()
+        # the step budget is an upper bound: exploration ends early when no frontier is left
+        eta = Eta(self._say, "explore, control steps", self.cfg.steps, upper=True)
         obs = self.env.reset() if reset else self.env.observe()
         self._t_start = obs.t
         self._on_obs(obs)
@@ -276,13 +279,16 @@ class Explorer:
                     stop = "too many planning failures"
             else:
                 failures = 0
-            if self.report.plans % 20 == 0:
-                self._say(
-                    f"explore: step {obs.step}/{self.cfg.steps}, "
-                    f"explored {self.grid.explored_free_area():.0f} m^2, {len(frontiers)} frontiers"
-                )
+            eta.update(
+                min(obs.step, self.cfg.steps - 1),  # the last line is the stop's, below
+                f"explored {self.grid.explored_free_area():.0f} m^2, {len(frontiers)} frontiers",
+            )
         self._flush()
         self._log_coverage(obs)
+        self._say(
+            f"explore: stopped at control step {obs.step} of {self.cfg.steps} ({stop}), explored "
+            f"{self.grid.explored_free_area():.0f} m^2 in {fmt_seconds(time.perf_counter() - t_wall)}"
+        )
         self.report.stop_reason = stop
         self.report.wall_seconds = time.perf_counter() - t_wall
         return self.report

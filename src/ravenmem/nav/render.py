@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -54,6 +55,78 @@ def _nice_length(span: float) -> float:
         if m * base <= target:
             return float(m * base)
     return float(base)
+
+
+_RINGS_PT = (5.0, 13.0, 22.0, 32.0, 44.0)  # label offsets tried, nearest first (points)
+_DIRECTIONS = [(np.cos(a), np.sin(a)) for a in np.radians([-30, 30, 150, 210, 90, 270, 0, 180])]
+
+
+def place_labels(
+    ax: Any, items: list[tuple[str, float, float]], color: str, fontsize: float = 6.0, merge_pt: float = 10.0
+) -> list[Any]:
+    """Name points on `ax` so that no two names overlap: points of one name closer than
+    `merge_pt` share one label; each label takes the first free spot of rings of offsets around
+    its point (nearest ring first, a thin leader line beyond the first), else the spot that
+    overlaps least. Returns the text artists (their boxes are checked by the tests)."""
+    fig = ax.figure
+    fig.canvas.draw()  # a renderer, and data -> display coordinates as they will be saved
+    renderer = fig.canvas.get_renderer()
+    to_px = ax.transData.transform
+    pt = fig.dpi / 72.0
+    groups: list[tuple[str, np.ndarray]] = []
+    for label, x, y in items:
+        p = to_px((x, y))
+        if not any(name == label and np.hypot(*(q - p)) < merge_pt * pt for name, q in groups):
+            groups.append((label, p))
+    placed: list[Any] = []  # Bbox of every label placed so far
+    texts = []
+    for label, p in groups:
+        x, y = ax.transData.inverted().transform(p)
+        best: tuple[float, Any] | None = None
+        for ring in _RINGS_PT:
+            for dx, dy in _DIRECTIONS:
+                t = ax.annotate(
+                    label,
+                    (x, y),
+                    xytext=(ring * dx, ring * dy),
+                    textcoords="offset points",
+                    fontsize=fontsize,
+                    color=color,
+                    ha="left" if dx > 0.1 else "right" if dx < -0.1 else "center",
+                    va="bottom" if dy > 0.1 else "top" if dy < -0.1 else "center",
+                    arrowprops={"arrowstyle": "-", "color": color, "lw": 0.4, "alpha": 0.7}
+                    if ring > _RINGS_PT[0]
+                    else None,
+                    zorder=8,
+                )
+                box = t.get_window_extent(renderer).expanded(1.05, 1.1)
+                overlap = sum(_area(box, b) for b in placed) + _outside(box, ax.bbox)
+                if best is None or overlap < best[0]:
+                    if best is not None:
+                        best[1].remove()
+                    best = (overlap, t)
+                else:
+                    t.remove()
+                if overlap == 0:
+                    break
+            if best is not None and best[0] == 0:
+                break
+        assert best is not None
+        placed.append(best[1].get_window_extent(renderer).expanded(1.05, 1.1))
+        texts.append(best[1])
+    return texts
+
+
+def _area(a: Any, b: Any) -> float:
+    """The area two display boxes share."""
+    w = min(a.x1, b.x1) - max(a.x0, b.x0)
+    h = min(a.y1, b.y1) - max(a.y0, b.y0)
+    return float(w * h) if w > 0 and h > 0 else 0.0
+
+
+def _outside(box: Any, frame: Any) -> float:
+    """How much of a box lies outside the axes (a label cut off by the frame is unreadable)."""
+    return float(box.width * box.height) - _area(box, frame)
 
 
 def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int = 130) -> Path:
@@ -113,10 +186,6 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
     if layers.truths:
         tr = np.asarray([(x, y) for _, x, y in layers.truths])
         ax.scatter(tr[:, 0], tr[:, 1], marker="x", s=28, color="#d62728", linewidths=1.2, zorder=5)
-        for label, x, y in layers.truths:
-            ax.annotate(
-                label, (x, y), xytext=(3, -8), textcoords="offset points", fontsize=6, color="#d62728"
-            )
         handles.append(Line2D([], [], ls="", marker="x", color="#d62728", label="true object (named)"))
     shapes = ("*", "s", "D", "^", "v", "P", "X")
     groups = list(dict.fromkeys(label for label, *_ in layers.answers))
@@ -186,6 +255,8 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
         ax.set_title(layers.title, fontsize=9)
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     fig.tight_layout()
+    if layers.truths:  # last: placing needs the final layout (limits, aspect, margins)
+        place_labels(ax, layers.truths, color="#d62728")
     out = Path(path)
     fig.savefig(out, dpi=dpi)
     plt.close(fig)

@@ -35,6 +35,7 @@ MANIFEST = "memory.json"
 FORMAT_VERSION = 1  # the newest manifest format this code reads and writes
 MAX_MANIFEST_BYTES = 64 << 20  # the ingest history grows ~0.5 KB per run: 64 MB is ~100k runs
 LOCAL = "local"
+MAX_NAME = 200  # characters of a memory's display name
 LITE = "milvus-lite:"
 _REMOTE = re.compile(r"(?:https?://)?[A-Za-z0-9_.\-]+:\d{1,5}/?|https?://[A-Za-z0-9_.\-]+/?")
 
@@ -51,6 +52,7 @@ class Manifest:
     ocr: bool = False
     created: float = 0.0
     ingests: list[dict[str, Any]] = field(default_factory=list)
+    name: str = ""  # a display name the user chose ("" = none: the folder's name is shown)
     format_version: int = FORMAT_VERSION
     extra: dict[str, Any] = field(default_factory=dict)  # unknown keys, written back as they were
 
@@ -74,6 +76,7 @@ class Manifest:
             _bad("created", "a finite number", self.created)
         if not isinstance(self.ingests, list) or not all(isinstance(r, dict) for r in self.ingests):
             _bad("ingests", "a list of objects", self.ingests)
+        check_name(self.name, f"{MANIFEST}: field 'name'")
         if not isinstance(self.store, str):
             _bad("store", "a string", self.store)
         store_kind(self.store)
@@ -270,6 +273,17 @@ def _whole(name: str, v: Any, lo: int, hi: int | None = None) -> None:
     if isinstance(v, bool) or not isinstance(v, int) or v < lo or (hi is not None and v > hi):
         what = f"a whole number from {lo} to {hi}" if hi is not None else f"a whole number >= {lo}"
         _bad(name, what, v)
+
+
+def check_name(name: Any, what: str = "a memory's name") -> str:
+    """A display name: one line of printable text, at most MAX_NAME characters ("" for none)."""
+    if not isinstance(name, str) or len(name) > MAX_NAME or not name.isprintable():
+        shown = repr(name)
+        shown = shown[:57] + "..." if len(shown) > 60 else shown
+        raise InputError(
+            f"{what}: expected one line of printable text, at most {MAX_NAME} characters, got {shown}"
+        )
+    return name
 
 
 def _bad(name: str, expected: str, got: Any) -> None:

@@ -297,6 +297,7 @@ def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) 
     try:
         folder = out / env.name.split(":", 1)[-1].replace("/", "_")
         mem = ravenmem.create(folder / "memory", embedder=cfg.embedder, ocr=False)
+        mem.set_name(f"demo: {env.name.split(':', 1)[-1]}")  # every demo memory's folder is 'memory'
         say(f"{env.name}, phase I: exploring for up to {cfg.steps} steps")
         ecfg = ExploreConfig(
             steps=cfg.steps, keyframe_dist=cfg.keyframe_dist, keyframe_turn=cfg.keyframe_turn

@@ -38,6 +38,7 @@ from .manifest import (
     FORMAT_VERSION,
     MANIFEST,
     Manifest,
+    check_name,
     check_trusted,
     confine,
     store_for_create,
@@ -222,6 +223,20 @@ class Memory:
         self._require_writer()
         with self._lock:
             self.manifest.ingests.append(report)
+            self._save_manifest()
+
+    @property
+    def name(self) -> str:
+        """The display name the user gave this memory (`set_name`), else the folder's name."""
+        return self.manifest.name or self.path.name
+
+    def set_name(self, name: str) -> None:
+        """Give the memory a display name (kept in its manifest; "" clears it). The service's
+        page and `ravenmem info` show it; the folder keeps its own name."""
+        name = check_name(name.strip() if isinstance(name, str) else name)  # before any write
+        self._require_writer()
+        with self._lock:
+            self.manifest.name = name
             self._save_manifest()
 
     # ---------------------------------------------------------------- forgetting
@@ -670,6 +685,7 @@ class Memory:
         seen, raw = _recording_totals(ingests)
         out: dict[str, Any] = {
             "path": str(self.path),
+            "name": self.name,
             "embedder": self.manifest.embedder,
             "dim": self.dim,
             "store": self.manifest.store,

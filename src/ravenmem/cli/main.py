@@ -450,6 +450,31 @@ def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: J
         console.print(f"{label:>12}  {esc(value)}", highlight=False)
 
 
+@app.command("name")
+def name_cmd(
+    memory: MemoryOpt,
+    new: Annotated[
+        str | None, typer.Argument(metavar="[NAME]", help="the new display name ('' clears it)")
+    ] = None,
+    json_out: JsonOpt = False,
+) -> None:
+    """Show or set the memory's display name (what `info` and the service's page show; the
+    folder keeps its own name)."""
+    import ravenmem
+
+    if new is None:
+        with ravenmem.open(memory) as mem:
+            name, own = mem.name, bool(mem.manifest.name)
+    else:
+        with ravenmem.open(memory, writable=True) as mem:
+            mem.set_name(new)
+            name, own = mem.name, bool(mem.manifest.name)
+    if json_out:
+        print_json({"memory": str(memory), "name": name, "set": own})
+    else:
+        console.print(esc(name) + ("" if own else " (the folder's name: none set)"), highlight=False)
+
+
 def _bytes(n: float) -> str:
     """1536 -> '1.5 KiB': sizes as a person reads them."""
     for unit in ("B", "KiB", "MiB", "GiB"):
@@ -478,9 +503,10 @@ def info_lines(data: dict[str, Any]) -> list[tuple[str, str]]:
     """`ravenmem info` as a person reads it: (label, text) rows; the figures `--json` gives raw.
     Keys this function does not know (a newer service's) are printed in words after the rest."""
     d = dict(data)
-    rows: list[tuple[str, str]] = [("memory", str(d.pop("path", "")))]
-    if d.get("name"):
-        rows.append(("name", str(d.pop("name"))))
+    path, name = str(d.pop("path", "")), str(d.pop("name", "") or "")
+    rows: list[tuple[str, str]] = [("memory", path)]
+    if name and name != Path(path).name:
+        rows.append(("name", name))
     n, seen = d.pop("memories", 0) or 0, d.pop("frames_seen", 0) or 0
     ratio = d.pop("keyframe_ratio", None)
     kept = f" (kept from {seen:,} frames seen: 1 in {ratio:.1f})" if seen and ratio else ""

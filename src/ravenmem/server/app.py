@@ -276,6 +276,12 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         html = (STATIC / "index.html").read_text(encoding="utf-8")
         return Response(html, media_type="text/html; charset=utf-8", headers={"Cache-Control": "no-store"})
 
+    @app.get("/favicon.ico", include_in_schema=False)
+    async def favicon() -> Response:
+        """The page's icon (an SVG: every browser the page supports shows one)."""
+        svg = (STATIC / "favicon.svg").read_bytes()
+        return Response(svg, media_type="image/svg+xml", headers={"Cache-Control": "public, max-age=86400"})
+
     app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
     app.router.routes.append(
         Route("/mcp", endpoint=StreamableHTTPASGIApp(mcp_manager), include_in_schema=False)

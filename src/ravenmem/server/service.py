@@ -265,7 +265,14 @@ class Service:
         Image.fromarray(rgb).save(buf, "PNG", optimize=True)
         xmin, xmax, ymin, ymax = grid.extent()
         h, w = grid.shape
-        meta = {"resolution": grid.resolution, "shape": [h, w], "extent": [xmin, ymin, xmax, ymax]}
+        meta = {
+            "resolution": grid.resolution,
+            "shape": [h, w],
+            "extent": [xmin, ymin, xmax, ymax],
+            # which map this is: how it was made, and of which world when exploration made it
+            "kind": grid.kind,
+            "env": grid.meta.get("env") if isinstance(grid.meta.get("env"), str) else None,
+        }
         with self._traj_lock:
             self._map = (stamp, (buf.getvalue(), meta))
         return self._map[1]
@@ -281,6 +288,7 @@ class Service:
             "presets": sorted(PRESETS),
             "vlm": bool(self.cfg.vlm is not None and self.cfg.vlm.configured),
             "methods": METHODS.names(),
+            "needs_vlm": [m for m in METHODS.names() if needs_vlm(m)],  # the page shows them disabled
         }
         if self._links:
             data["links"] = [link.describe() for link in self._links]

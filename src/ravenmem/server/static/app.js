@@ -1,4 +1,6 @@
-// The ravenmem page: a map of where the robot went, search, ask, and live updates.
+// The ravenmem page: a map of where the robot went, search, ask, and live updates, for an operator:
+// a time scrubber (the memories up to a time), a click on the map lists the memories nearest that
+// spot (the position tool), and new frames appear in a panel as the robot adds them.
 // Plain JS, no build step, nothing fetched from outside this service. With a token the service
 // needs `Authorization: Bearer`: the page takes it from the URL fragment (#token=...) or the
 // token box, keeps it in sessionStorage, and sends it on every call (pictures included, which
@@ -14,7 +16,11 @@ const state = {
   view: null,          // {cx, cy, scale} world centre and pixels per metre
   map: null,           // the occupancy map: {extent: [xmin, ymin, xmax, ymax], img}
   t0: null,
+  until: null,         // the scrubber's time (Unix s): memories after it are not shown; null = all
+  probe: null,         // the last map click {x, y} that ran the position tool
 };
+const MAX_FRAMES = 12;  // live frames kept in their panel
+const VLM_REASON = "needs a VLM: start the service with --model and --base-url (or RAVENMEM_VLM_*)";
 const $ = (id) => document.getElementById(id);
 const SVG = "http://www.w3.org/2000/svg";
 
@@ -72,9 +78,20 @@ function fit() {
   state.view = { cx: (minx + maxx) / 2, cy: (miny + maxy) / 2, scale: 0.85 * Math.min(width, height) / span };
 }
 
+function visible() {
+  // the memories up to the scrubber's time (all of them when it is at the end)
+  return state.until === null ? state.points : state.points.filter((p) => p[1] <= state.until);
+}
+
 function size() {
   const wrap = $("map-wrap");
   return { width: wrap.clientWidth, height: wrap.clientHeight };
+}
+
+function fromScreen(sx, sy) {
+  const { width, height } = size();
+  const v = state.view;
+  return [v.cx + (sx - width / 2) / v.scale, v.cy - (sy - height / 2) / v.scale];
 }
 
 function toScreen(x, y) {
@@ -101,7 +118,14 @@ function draw() {
     ctx.globalAlpha = 1;
   }
   drawGrid(ctx, width, height);
-  const pts = state.points;
+  const pts = visible();
+  if (pts.length < state.points.length) {  // what comes later, faint, so the scrubbed view keeps its context
+    ctx.strokeStyle = "#e0e0e0"; ctx.lineWidth = 1; ctx.beginPath();
+    state.points.slice(pts.length).forEach((p, i) => {
+      const [sx, sy] = toScreen(p[2], p[3]); if (i) ctx.lineTo(sx, sy); else ctx.moveTo(sx, sy);
+    });
+    ctx.stroke();
+  }
   if (pts.length) {
     ctx.strokeStyle = "#9e9e9e"; ctx.lineWidth = 1.5; ctx.beginPath();
     pts.forEach((p, i) => { const [sx, sy] = toScreen(p[2], p[3]); if (i) ctx.lineTo(sx, sy); else ctx.moveTo(sx, sy); });
@@ -144,7 +168,7 @@ function drawMarks() {
   svg.replaceChildren();
   const byId = new Map(state.points.map((p) => [p[0], p]));
   for (const id of state.live.slice(-5)) {
-    const p = byId.get(id); if (!p) continue;
+    const p = byId.get(id); if (!p || (state.until !== null && p[1] > state.until)) continue;
     const [sx, sy] = toScreen(p[2], p[3]);
     const g = el("g", { class: "live-mark", "data-id": id }, svg);
     el("circle", { cx: sx, cy: sy, r: 7 }, g);
@@ -155,6 +179,24 @@ function drawMarks() {
     el("circle", { cx: sx, cy: sy, r: 8 }, g);
     el("text", { x: sx, y: sy }, g).textContent = h.rank;
   });
+  if (state.until !== null) {  // where the robot was at the scrubber's time, and its heading
+    const pts = visible();
+    const p = pts[pts.length - 1];
+    if (p) {
+      const [sx, sy] = toScreen(p[2], p[3]);
+      const g = el("g", { class: "now-mark", "data-id": p[0] }, svg);
+      const yaw = p[4] || 0, r = 9;
+      const tip = [sx + r * Math.cos(yaw), sy - r * Math.sin(yaw)];
+      const l = [sx + r * Math.cos(yaw + 2.5), sy - r * Math.sin(yaw + 2.5)];
+      const rr = [sx + r * Math.cos(yaw - 2.5), sy - r * Math.sin(yaw - 2.5)];
+      el("path", { d: `M${tip} L${l} L${rr} Z` }, g);
+    }
+  }
+  if (state.probe) {
+    const [sx, sy] = toScreen(state.probe.x, state.probe.y);
+    const g = el("g", { class: "probe-mark" }, svg);
+    el("circle", { cx: sx, cy: sy, r: 12 }, g);
+  }
   if (state.answer) {
     const a = state.answer;
     const [sx, sy] = toScreen(a.x, a.y);
@@ -168,9 +210,19 @@ function drawMarks() {
 
 function setupMapInput() {
   const wrap = $("map-wrap");
-  let drag = null;
-  wrap.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; });
-  window.addEventListener("mouseup", () => { drag = null; });
+  let drag = null, down = null, clickTimer = null;
+  wrap.addEventListener("mousedown", (e) => { drag = [e.clientX, e.clientY]; down = [e.clientX, e.clientY]; });
+  window.addEventListener("mouseup", (e) => {
+    drag = null;
+    // a click (not a drag) on the map: the memories nearest that spot, unless it was a double-click
+    if (down && Math.hypot(e.clientX - down[0], e.clientY - down[1]) < 4 && wrap.contains(e.target)) {
+      const box = wrap.getBoundingClientRect();
+      const [x, y] = fromScreen(e.clientX - box.left, e.clientY - box.top);
+      clearTimeout(clickTimer);  // the second click of a double-click only fits the view
+      if (e.detail < 2) clickTimer = setTimeout(() => searchNear(x, y), 250);
+    }
+    down = null;
+  });
   window.addEventListener("mousemove", (e) => {
     if (!drag || !state.view) return;
     state.view.cx -= (e.clientX - drag[0]) / state.view.scale;
@@ -182,7 +234,7 @@ function setupMapInput() {
     e.preventDefault();
     if (state.view) { state.view.scale *= e.deltaY < 0 ? 1.2 : 1 / 1.2; draw(); }
   }, { passive: false });
-  wrap.addEventListener("dblclick", () => { fit(); draw(); });
+  wrap.addEventListener("dblclick", () => { clearTimeout(clickTimer); fit(); draw(); });
   window.addEventListener("resize", draw);
 }
 
@@ -213,23 +265,55 @@ function card(row, label) {
 }
 
 // ------------------------------------------------------------------ search and ask
+function untilParams(params) {
+  // searches look only at what the robot had seen by the scrubber's time
+  if (state.until !== null) params.set("before", String(state.until));
+  return params;
+}
+
+function showHits(rows, title) {
+  state.hits = rows;
+  $("hits-title").hidden = false;
+  $("hits-title").textContent = title;
+  $("hits").replaceChildren(...rows.map((h) => {
+    const how = h.distance !== null && h.distance !== undefined ? ` ${h.distance.toFixed(2)} m away`
+      : h.score === null || h.score === undefined ? "" : ` score ${h.score.toFixed(3)}`;
+    return card(h, `#${h.rank}${how}${h.ocr_match ? " (text)" : ""}`);
+  }));
+}
+
 async function search(ev) {
   ev.preventDefault();
   const q = $("q").value.trim();
   if (!q) return;
   say("searching...");
   try {
-    const params = new URLSearchParams({ query: q, k: $("k").value || "8" });
+    const params = untilParams(new URLSearchParams({ query: q, k: $("k").value || "8" }));
     const data = await api("/search/text?" + params);
-    state.hits = data.results;
-    const box = $("hits");
-    box.replaceChildren(...data.results.map((h) => {
-      const score = h.score === null ? "" : ` score ${h.score.toFixed(3)}`;
-      return card(h, `#${h.rank}${score}${h.ocr_match ? " (text)" : ""}`);
-    }));
+    state.probe = null;
+    showHits(data.results, `"${q}": ${data.results.length} hit(s), best first` + untilNote());
     say(`${data.results.length} hit(s) for "${q}"`);
     fit(); draw();
+    $("ask-form").scrollIntoView({ block: "nearest" });  // the next step: ask about it
+    if (!$("question").value) $("question").value = `Where did I see ${q}?`;
   } catch (e) { say(e.message, true); }
+}
+
+async function searchNear(x, y) {
+  say("searching near the spot...");
+  try {
+    const params = untilParams(new URLSearchParams({ x: x.toFixed(3), y: y.toFixed(3), k: $("k").value || "8" }));
+    const data = await api("/search/position?" + params);
+    state.probe = { x, y };
+    showHits(data.results, `nearest x ${x.toFixed(2)} y ${y.toFixed(2)}: ${data.results.length} memories` + untilNote());
+    say(`${data.results.length} memories near x ${x.toFixed(2)} y ${y.toFixed(2)}`);
+    draw();
+    $("hits-title").scrollIntoView({ block: "nearest" });
+  } catch (e) { say(e.message, true); }
+}
+
+function untilNote() {
+  return state.until === null ? "" : ` (up to ${new Date(state.until * 1000).toISOString()})`;
 }
 
 async function ask(ev) {
@@ -245,6 +329,7 @@ async function ask(ev) {
     });
     showAnswer(data);
     say(`answered by ${data.method} in ${data.cost.wall_s.toFixed(2)} s`);
+    $("answer").scrollIntoView({ block: "nearest" });
   } catch (e) { say(e.message, true); }
 }
 
@@ -284,12 +369,45 @@ function onEvent(kind, data) {
     state.live.push(m.id);
     $("count").textContent = String(Number($("count").textContent || 0) + 1);
     logLine(`memory ${m.id} at x ${m.x.toFixed(2)} y ${m.y.toFixed(2)}`);
+    addFrame(m);
+    setScrubber();
     draw();
   } else if (kind === "skipped") {
     logLine(`frame skipped: ${data.skipped}`);
   } else if (kind === "answer") {
     logLine(`answered: ${data.answer.question} -> ${data.answer.text}`);
   }
+}
+
+function addFrame(m) {
+  // the newest frames the robot added, newest first
+  $("frames-empty").hidden = true;
+  const box = $("frames");
+  box.prepend(card(m, `live ${m.id}`));
+  while (box.children.length > MAX_FRAMES) box.lastChild.remove();
+}
+
+// ------------------------------------------------------------------ the time scrubber
+function span() {
+  const p = state.points;
+  return p.length ? [p[0][1], p[p.length - 1][1]] : [0, 0];
+}
+
+function setScrubber() {
+  // keep the slider's time when it is not at the end; at the end it follows new memories
+  const [t0, t1] = span(), s = $("until");
+  if (state.until !== null && t1 > t0) s.value = String(Math.round(1000 * (state.until - t0) / (t1 - t0)));
+  const shown = visible().length, all = state.points.length;
+  const to = state.until === null ? t1 : state.until;
+  $("until-label").textContent = all ? (state.until === null ? `all ${all} memories, to ` : `${shown} of ${all} memories, up to `) +
+    new Date(to * 1000).toISOString() + (state.t0 !== null ? ` (+${(to - state.t0).toFixed(1)} s)` : "") : "no memories yet";
+}
+
+function onScrub() {
+  const [t0, t1] = span(), v = Number($("until").value);
+  state.until = v >= 1000 ? null : t0 + (t1 - t0) * v / 1000;
+  setScrubber();
+  draw();
 }
 
 async function listen() {
@@ -328,16 +446,27 @@ async function listen() {
 // ------------------------------------------------------------------ start
 async function load() {
   const info = await api("/info");
-  $("memory-name").textContent = info.path;
+  $("memory-name").textContent = info.name || info.path;
+  $("memory-name").title = `folder ${info.path}; ravenmem name --memory ... NAME sets the name`;
+  document.title = `${info.name || info.path} - ravenmem`;
   $("count").textContent = String(info.memories);
   state.t0 = info.t_min !== undefined ? info.t_min : null;
+  // methods that need a VLM are shown, disabled with the reason, when the service has none
+  const needs = new Set(info.ask.needs_vlm || []), noVlm = !info.ask.vlm;
   const methods = $("method");
   methods.replaceChildren(...info.ask.methods.map((m) => {
-    const o = document.createElement("option"); o.value = m; o.textContent = m;
+    const o = document.createElement("option"); o.value = m;
+    o.disabled = noVlm && needs.has(m);
+    o.textContent = o.disabled ? `${m} (needs a VLM)` : m;
+    o.title = o.disabled ? `${m} ${VLM_REASON}` : "";
     o.selected = m === info.ask.default_method; return o;
   }));
+  const off = info.ask.methods.filter((m) => noVlm && needs.has(m));
+  $("method-note").hidden = !off.length;
+  $("method-note").textContent = off.length ? `${off.join(", ")}: ${VLM_REASON}.` : "";
   const traj = await api("/trajectory");
   state.points = traj.points;
+  setScrubber();
   fit(); draw();
   loadMap();
 }
@@ -349,7 +478,9 @@ async function loadMap() {
     img.onload = draw;
     img.src = await imageSrc(m.image);
     state.map = { extent: m.extent, img };
-  } catch (e) { state.map = null; }  // 404: this memory has no map
+    $("map-id").hidden = false;
+    $("map-id").textContent = `map: ${m.env ? m.env + ", " : ""}${m.kind || "occupancy"}, ${m.resolution} m cells`;
+  } catch (e) { state.map = null; $("map-id").hidden = true; }  // 404: this memory has no map
 }
 
 function takeToken() {
@@ -366,6 +497,7 @@ async function main() {
   setupMapInput();
   $("search-form").addEventListener("submit", search);
   $("ask-form").addEventListener("submit", ask);
+  $("until").addEventListener("input", onScrub);
   $("token-box").addEventListener("submit", (ev) => {
     ev.preventDefault();
     state.token = $("token").value.trim();

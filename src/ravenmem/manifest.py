@@ -98,6 +98,8 @@ class Manifest:
     def to_json(self) -> dict[str, Any]:
         out = dict(self.extra)
         out.update({f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"})
+        if not self.name:  # written only once set: a memory without one keeps the manifest it had
+            out.pop("name")
         return out
 
     @classmethod

@@ -37,6 +37,11 @@ def _require_browser() -> None:
 
 @pytest.fixture
 def browser(tmp_path) -> Iterator[object]:
+    yield from chromium(tmp_path / "chromium-profile")
+
+
+def chromium(profile: Path) -> Iterator[object]:
+    """Headless Chromium through chromedriver, its profile in `profile`; quit at the end."""
     _require_browser()
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service as DriverService
@@ -52,7 +57,7 @@ def browser(tmp_path) -> Iterator[object]:
         "--disable-component-update",
         "--disable-sync",
         "--no-first-run",
-        f"--user-data-dir={tmp_path / 'chromium-profile'}",
+        f"--user-data-dir={profile}",
         "--window-size=1400,900",
     ):
         opts.add_argument(arg)

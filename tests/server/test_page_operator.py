@@ -10,11 +10,14 @@ import httpx
 import pytest
 
 from tests.agent.conftest import SCENE, T0
-from tests.server import test_page
 from tests.server.conftest import Served, make_memory, serve_memory
-from tests.server.test_page import by_css, loaded_images, png, screenshot, wait_for
+from tests.server.test_page import by_css, chromium, loaded_images, png, screenshot, wait_for
 
-browser = test_page.browser  # the same headless Chromium fixture
+
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    """One headless Chromium for the module (each test loads the page afresh)."""
+    yield from chromium(tmp_path_factory.mktemp("chromium-profile"))
 
 
 def open_page(d, served: Served, width: int = 1280, height: int = 760) -> None:

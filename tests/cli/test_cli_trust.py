@@ -77,7 +77,7 @@ def test_user_text_is_printed_literally_not_as_markup(mem: Path, tmp_path: Path)
     assert r.returncode == 0, r.stderr
     assert "[red]room.mem/thumbs/" in r.stdout
     r = run_cli("info", "-m", str(odd))
-    assert r.returncode == 0 and f"path: {odd}" in r.stdout
+    assert r.returncode == 0 and f"memory  {odd}" in r.stdout
 
 
 @pytest.mark.parametrize(
@@ -127,7 +127,7 @@ def test_image_files_that_cannot_be_decoded(mem: Path, tmp_path: Path):
 def test_info_prints_the_spatial_extent(mem: Path):
     r = run_cli("info", "-m", str(mem))
     assert r.returncode == 0, r.stderr
-    assert "extent: x 0.00 .. 4.00 m, y 0.00 .. 8.00 m, z 0.50 .. 0.50 m" in r.stdout
+    assert "extent  x 0.00 .. 4.00 m, y 0.00 .. 8.00 m, z 0.50 .. 0.50 m" in r.stdout
     data = json.loads(run_cli("info", "-m", str(mem), "--json").stdout)
     assert data["extent"] == {"x": [0.0, 4.0], "y": [0.0, 8.0], "z": [0.5, 0.5]}
     assert data["t_min"] == T0 and data["store"] == "local"

@@ -21,8 +21,19 @@ SRC = Path(__file__).resolve().parents[2] / "src" / "ravenmem"
 
 # What each package may import from ravenmem (anything else is a sideways or upward arrow).
 ALLOWED = {
-    "sim": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "sim"},
-    "nav": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "memory", "tools", "nav"},
+    "sim": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "progress", "sim"},
+    "nav": {
+        "types",
+        "errors",
+        "registry",
+        "fsio",
+        "timeparse",
+        "imageio",
+        "progress",
+        "memory",
+        "tools",
+        "nav",
+    },
     "robot": {
         "types",
         "errors",
@@ -30,6 +41,7 @@ ALLOWED = {
         "fsio",
         "timeparse",
         "imageio",
+        "progress",
         "memory",
         "tools",
         "store",

@@ -107,7 +107,7 @@ def test_info_and_ask_through_the_service(scene: Path, service: str):
         assert remote[key] == here[key], key
     assert remote["path"] == "scene.mem" and remote["live"] is None  # --read-only
     shown = rm("info", "--server", service)
-    assert "memories: 12" in shown.stdout
+    assert "memories  12" in shown.stdout and "ask  default method offline" in shown.stdout
     r = rm("ask", "where is the cyan box?", "--server", service, "--offline", "--json")
     assert r.returncode == 0, r.stderr
     a = json.loads(r.stdout)

@@ -437,10 +437,16 @@ class OfflineReasoner:
         by_support = sorted(scope, key=lambda c: -c.support)
         if order != "best" and qtype != "duration":
             # "last" is the latest sighting (and "first" the earliest) whatever the question asks
-            # for: where, when or whether; the strongest hit of that episode would be an older one
-            chrono = sorted(scope, key=lambda c: (c.rec.t, c.rec.id))
+            # for: where, when or whether. The strongest hit of that episode would be an older
+            # one; the latest hit of all could be a lone glimpse elsewhere, so the place is the
+            # episode's spatial vote and the answer that place's latest (earliest) sighting
+            place = self._consensus(scope, thr)
+            chrono = sorted(place, key=lambda c: (c.rec.t, c.rec.id))
             chosen = chrono[-1] if order == "last" else chrono[0]
-            notes.append(f"the {'latest' if order == 'last' else 'earliest'} good hit is m{chosen.rec.id}")
+            notes.append(
+                f"spatial vote: {len(place)} of {len(scope)} hits agree; the "
+                f"{'latest' if order == 'last' else 'earliest'} good hit there is m{chosen.rec.id}"
+            )
             evidence = [chosen] + [c for c in by_support if c is not chosen]
         elif qtype == "position":
             place = self._consensus(scope, thr)

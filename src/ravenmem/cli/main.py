@@ -561,6 +561,20 @@ def info_lines(data: dict[str, Any]) -> list[tuple[str, str]]:
                 + (f"; skipped {skipped}" if skipped else ""),
             )
         )
+    ask = d.pop("ask", None)
+    if isinstance(ask, dict):  # a service's: how it answers questions
+        text = f"default method {ask.get('default_method')}"
+        if ask.get("default_preset"):
+            text += f", preset {ask['default_preset']}"
+        needs = ", ".join(ask.get("needs_vlm") or [])
+        text += (
+            "; a VLM is configured"
+            if ask.get("vlm")
+            else f"; no VLM ({needs} need one)"
+            if needs
+            else "; no VLM"
+        )
+        rows.append(("ask", text))
     rows += [(str(k).replace("_", " "), _plain(v)) for k, v in d.items()]
     return rows
 

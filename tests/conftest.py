@@ -8,6 +8,7 @@ so that a CI run without the data cannot pass by skipping them.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import subprocess
@@ -93,7 +94,8 @@ def tum_path() -> Path:
 @dataclass(frozen=True)
 class TumDesk:
     """A memory of every 30th TUM frame (24 memories; offline embedder, no OCR, thumbnails),
-    built once per session by `ravenmem ingest` as a user runs it, and the ingest's JSON report.
+    built once per run by `ravenmem ingest` as a user runs it (once for all pytest-xdist
+    workers), and the ingest's JSON report.
     Shared: tests open it to read; a test that writes copies it first (shutil.copytree)."""
 
     path: Path
@@ -103,26 +105,25 @@ class TumDesk:
 @pytest.fixture(scope="session")
 def tum_desk(tmp_path_factory: pytest.TempPathFactory) -> TumDesk:
     data = tum_data()
-    path = tmp_path_factory.mktemp("tum-desk") / "desk.mem"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), str(REPO)])}
-    args = [
-        "ingest",
-        str(data),
-        "--format",
-        "tum",
-        "--memory",
-        str(path),
-        "--stride",
-        "30",
-        "--no-ocr",
-        "--json",
-    ]
-    r = subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
-    assert r.returncode == 0, r.stderr[-2000:]
-    return TumDesk(path, json.loads(r.stdout))
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # parallel workers of one run build it once, together
+        root = root.parent
+    folder = root / "tum-desk"
+    folder.mkdir(exist_ok=True)
+    with open(folder / "build.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # the other workers wait for the first one's build
+        report = folder / "report.json"
+        if not report.is_file():
+            path = folder / "desk.mem"
+            env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), str(REPO)])}
+            args = ["ingest", str(data), "--format", "tum", "--memory", str(path), "--stride", "30"]
+            r = subprocess.run(
+                [sys.executable, "-m", "ravenmem.cli.main", *args, "--no-ocr", "--json"],
+                capture_output=True,
+                text=True,
+                env=env,
+                timeout=600,
+            )
+            assert r.returncode == 0, r.stderr[-2000:]
+            report.write_text(r.stdout)
+    return TumDesk(folder / "desk.mem", json.loads(report.read_text()))

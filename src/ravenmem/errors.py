@@ -21,7 +21,7 @@ class EmptyMemoryError(RavenmemError):
 
 
 class MemoryBusyError(RavenmemError):
-    """Another process (or another Memory object) holds the memory's writer lock (ravenmem.lock)."""
+    """Another process (or another Memory object) holds the memory's writer lock (ravenmem.memory.lock)."""
 
 
 class StoreUnavailableError(RavenmemError):

@@ -11,7 +11,7 @@ method it calls and the order of its results are written in one place only.
     hits = tool.run(mem, args, k=5)
 
 `k` is not an argument of the models: the agent's k is a setting of the run (the paper fixes it
-per dataset), while the CLI, HTTP and MCP take it from the caller and check it with `check_k`.
+per dataset), while the CLI, HTTP and MCP take it from the caller and check it with `ravenmem.memory.check_k`.
 """
 
 from __future__ import annotations
@@ -19,19 +19,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from .errors import InputError
+from .memory.protocol import MemoryLike, check_k
 from .timeparse import fmt_time
 from .types import Hit, MemoryRecord
 
-if TYPE_CHECKING:
-    from .agent.base import MemoryLike
-
-MAX_K = 1000  # results per call: beyond this a caller wants an export, not a search
 TimeArg = float | str
 Order = Literal["best first", "chronological", "nearest first"]
 LATEST_ORDER = "newest place first (its latest sighting, then later views without the thing)"
@@ -178,7 +175,7 @@ class Tool:
         `memory_id` is given); `time_mode` picks the time tool's window; `text_search`
         replaces the memory's text search (the caption baseline searches captions);
         `diverse=False` lets the text and image tools return several hits of one moment and
-        place (ravenmem.diversity).
+        place (ravenmem.memory.diversity).
         """
         a = self.validate(args)
         return self._run(
@@ -237,15 +234,6 @@ def _plain(prop: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def check_k(k: object) -> int:
-    """k: a whole number from 1 to MAX_K (a bool or a numeric string is refused, not guessed)."""
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-        raise InputError(f"k must be a whole number from 1 to {MAX_K}, got {k!r}")
-    if not 1 <= int(k) <= MAX_K:
-        raise InputError(f"k must be from 1 to {MAX_K}, got {k}")
-    return int(k)
-
-
 def _text(
     mem: MemoryLike, a: ToolArgs, k: int, text_search: Runner | None = None, diverse: bool = True, **_: Any
 ) -> list[Hit]:
@@ -268,7 +256,7 @@ def _image(
 
 
 def _or_latest(search: Runner) -> Runner:
-    """The text or image tool, or with `latest=true` its latest mode (`ravenmem.changes`):
+    """The text or image tool, or with `latest=true` its latest mode (`ravenmem.memory.changes`):
     per place the last sighting and the later views without the thing, as `ChangeHit`s."""
 
     def run(mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, **kw: Any) -> list[Hit]:
@@ -370,7 +358,7 @@ def hit_json(
     (`offset_s`); yaw is radians (`yaw`) and degrees (`yaw_deg`); `image` is whatever the
     front end uses to reach the picture (a file path for the CLI, a URL for the service).
     Hits of the latest mode add `change`: the place, its verdict and the evidence
-    (`ravenmem.changes.Place.as_dict`, with `role` "sighting" or "revisit").
+    (`ravenmem.memory.changes.Place.as_dict`, with `role` "sighting" or "revisit").
     A hit that stands for several memories merged by `ravenmem consolidate` also has `count`
     (how many) and `first_t`/`last_t`/`first_time`/`last_time` (when they were seen).
     """

@@ -22,8 +22,8 @@ from ravenmem.agent import (
     create_method,
 )
 from ravenmem.agent.base import needs_vlm
-from ravenmem.agent.captions import CAPTION_FILE
 from ravenmem.errors import InputError
+from ravenmem.memory.folder import CAPTIONS
 from ravenmem.types import Frame, Pose
 from tests.agent.conftest import T0, VLM_ENV, config_for, scene_frames
 from tests.agent.scripted_server import answer, tool
@@ -156,7 +156,7 @@ def test_vlm_methods_need_a_vlm(mem, monkeypatch, tmp_path, name):
 def test_caption_segments_are_incremental_and_crash_safe(mem, server):
     server.default = describe_segment
     n = caption_memories(mem, config_for(server), encoder=ColorWords(), batch=2, segment_frames=3)
-    assert n == 4 and len(server.requests) == 4 and (mem.path / CAPTION_FILE).exists()
+    assert n == 4 and len(server.requests) == 4 and (mem.path / CAPTIONS).exists()
     assert [server.images(i) for i in range(4)] == [3, 3, 3, 3]  # one request per segment of 3 keyframes
     assert "3 consecutive views" in server.texts(0)
     idx = CaptionIndex(mem, ColorWords(), segment_frames=3)

@@ -7,8 +7,9 @@ import pytest
 
 import ravenmem
 from ravenmem.agent import EmbedderOnly, OfflineReasoner, OfflineSettings
-from ravenmem.agent.offline import CALIBRATION_FILE, Cand, ocr_overlap, rewrite
+from ravenmem.agent.offline import Cand, ocr_overlap, rewrite
 from ravenmem.agent.questions import classify_question, subject_phrase, temporal_order
+from ravenmem.memory.folder import OFFLINE_CALIBRATION
 from ravenmem.types import Frame, MemoryRecord, Pose
 from tests.conftest import COLORS, ColorEmbedder
 
@@ -107,7 +108,7 @@ def test_honest_not_found_and_binary(world):
 def test_decoy_threshold_is_cached_in_the_memory_folder(world):
     r = OfflineReasoner(world)
     thr = r.threshold()
-    assert (world.path / CALIBRATION_FILE).exists()
+    assert (world.path / OFFLINE_CALIBRATION).exists()
     r2 = OfflineReasoner(world)
     assert r2._load_calibration() is not None and r2.threshold() == pytest.approx(thr)
     assert OfflineReasoner(world, settings=OfflineSettings(min_score=0.5)).threshold() == 0.5

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import ravenmem
-from ravenmem import diversity
+from ravenmem.memory import diversity
 from ravenmem.tools import get_tool
 from ravenmem.types import Frame, Hit, MemoryRecord, Pose
 from tests.conftest import ColorEmbedder

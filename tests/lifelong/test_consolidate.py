@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import ravenmem
-from ravenmem.lifelong.consolidate import plan
+from ravenmem.memory.lifelong.consolidate import plan
 from ravenmem.timeparse import fmt_time
 from tests.cli.helpers import assert_one_line_error
 from tests.conftest import ColorEmbedder

@@ -8,7 +8,8 @@ navqa = create_method("raven", mem, preset="navqa", vlm=...)   # the paper's per
 
 from __future__ import annotations
 
-from .base import METHODS, MemoryLike, Method
+from ..memory.protocol import MemoryLike
+from .base import METHODS, Method
 from .baselines import EmbedderOnly, RandomBaseline, VLMOnly
 from .captions import CaptionAgent, CaptionIndex, caption_memories
 from .client import VLMClient, VLMError

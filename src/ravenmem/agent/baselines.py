@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..memory.protocol import MemoryLike
 from ..timeparse import fmt_time
 from ..types import Hit, MemoryRecord
-from .base import MemoryLike
 from .client import VLMClient
 from .config import VLMConfig
 from .loop import Agent, _Run

@@ -23,15 +23,15 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..memory.folder import CAPTIONS
+from ..memory.protocol import MemoryLike, TimeLike
 from ..types import Hit, MemoryRecord
-from .base import MemoryLike, TimeLike
 from .client import VLMClient
 from .config import VLMConfig
 from .images import data_url, record_jpeg
 from .loop import Agent
 from .tools import ToolRunner
 
-CAPTION_FILE = "captions.sqlite"
 SEGMENT_FRAMES = 3  # consecutive keyframes per caption (ReMEmbR captions a few seconds of video)
 CAPTION_PROMPT = (
     "These are {n} consecutive views from a robot's camera, in time order. Describe them in one to "
@@ -81,7 +81,7 @@ class CaptionIndex:
         self.encoder: TextEncoder = encoder or MiniLMEncoder()
         self.encoder_name = str(getattr(self.encoder, "name", type(self.encoder).__name__))
         self.segment_frames = segment_frames
-        self.path = Path(mem.path) / CAPTION_FILE
+        self.path = Path(mem.path) / CAPTIONS
         self._db = sqlite3.connect(self.path, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute(

@@ -27,7 +27,7 @@ from pydantic import ValidationError
 from ..errors import InputError
 from ..fsio import atomic_write
 from ..imageio import read_image
-from .base import MemoryLike
+from ..memory.protocol import MemoryLike
 from .client import NO_MODEL, ChatReply, ToolsRejectedError, VLMClient, VLMError
 from .config import VLMConfig
 from .images import data_url, jpeg_of_array

@@ -13,7 +13,8 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import InputError
-from .base import METHODS, MemoryLike, Method, needs_vlm, vlm_method
+from ..memory.protocol import MemoryLike
+from .base import METHODS, Method, needs_vlm, vlm_method
 from .client import NO_MODEL
 from .config import VLMConfig
 from .presets import Preset, apply_preset

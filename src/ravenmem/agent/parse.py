@@ -17,9 +17,9 @@ from typing import Annotated, Any
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
 
 from ..errors import RavenmemError
+from ..memory.protocol import MemoryLike
 from ..timeparse import parse_duration
 from ..types import MemoryRecord
-from .base import MemoryLike
 from .questions import classify_question
 from .schema import Answer, Evidence, QuestionType
 from .tools import Shown, WorkingMemory

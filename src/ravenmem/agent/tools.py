@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from ..changes import ChangeHit
 from ..errors import InputError, RavenmemError
+from ..memory.places import ChangeHit
+from ..memory.protocol import MemoryLike, check_k
 from ..timeparse import fmt_time
-from ..tools import TOOLS, TimeMode, check_k, get_tool
+from ..tools import TOOLS, TimeMode, get_tool
 from ..types import Hit, MemoryRecord
-from .base import MemoryLike
 from .images import data_url, record_jpeg
 from .schema import Answer, PlaceChange
 

@@ -320,8 +320,9 @@ def caption(
     re-running captions only new segments."""
     import ravenmem
     from ravenmem.agent import VLMConfig, caption_memories
-    from ravenmem.agent.captions import CAPTION_FILE, SEGMENT_FRAMES
+    from ravenmem.agent.captions import SEGMENT_FRAMES
     from ravenmem.agent.methods import require_model
+    from ravenmem.memory.folder import CAPTIONS
 
     vlm = VLMConfig.resolve(
         config_path=config,
@@ -340,7 +341,7 @@ def caption(
         "captioned_now": n,
         "memories": total,
         "segment_frames": seg,
-        "file": str(Path(memory) / CAPTION_FILE),
+        "file": str(Path(memory) / CAPTIONS),
     }
     if json_out:
         sys.stdout.write(json.dumps(out, indent=2) + "\n")

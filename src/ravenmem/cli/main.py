@@ -171,7 +171,7 @@ def ingest(
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
-    from ravenmem.manifest import MANIFEST
+    from ravenmem.memory.folder import MANIFEST
 
     if keyframes is not None:
         cfg = parse_keyframes(keyframes)
@@ -307,8 +307,9 @@ def search(
     """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
     import ravenmem
     from ravenmem.imageio import read_image
+    from ravenmem.memory.protocol import check_k
     from ravenmem.server.client import ServerClient, resolve_server
-    from ravenmem.tools import check_k, get_tool, hit_json
+    from ravenmem.tools import get_tool, hit_json
 
     given = {"text": text, "image": image if image is not None else like, "time": time, "position": position}
     modes = [m for m, v in given.items() if v is not None]

@@ -24,7 +24,7 @@ from starlette.exceptions import HTTPException
 from starlette.routing import Route
 
 from ..errors import InputError
-from ..tools import MAX_K
+from ..memory.protocol import MAX_K
 from ..types import MemoryRecord, Pose
 from .events import StreamRefused
 from .http_errors import add_error_handlers

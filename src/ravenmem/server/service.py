@@ -26,9 +26,11 @@ from ..agent.presets import PRESETS
 from ..agent.schema import Answer
 from ..errors import EmptyMemoryError, InputError
 from ..ingest.keyframes import KeyframeConfig
-from ..manifest import confine
 from ..memory import Memory
-from ..tools import TOOLS, Tool, ToolArgs, check_k, hit_json
+from ..memory.folder import MAP_GRID, MAP_META
+from ..memory.manifest import confine
+from ..memory.protocol import check_k
+from ..tools import TOOLS, Tool, ToolArgs, hit_json
 from ..types import Hit, Intrinsics, MemoryRecord
 from .events import EventBus
 from .live import AddResult, LiveWriter
@@ -242,7 +244,7 @@ class Service:
         """The memory's occupancy map (`map.json` + `map.npz`, written by exploration) as a PNG,
         north up, and the rectangle it covers in metres; None when the memory has no map.
         Rendered again only when the map file changes."""
-        files = [confine(self.mem.path, name) for name in ("map.json", "map.npz")]
+        files = [confine(self.mem.path, name) for name in (MAP_META, MAP_GRID)]
         if any(f is None or not f.is_file() for f in files):  # absent, or a link leading out
             return None
         try:

@@ -25,7 +25,7 @@ from .loop import Agent, _Run
 from .parse import evidence_of
 from .questions import classify_question
 from .schema import Answer, Cost
-from .tools import Shown, describe, record_image
+from .tool_calls import Shown, describe, record_image
 
 DEFAULT_FRAMES = 32
 

@@ -30,7 +30,7 @@ from .client import VLMClient
 from .config import VLMConfig
 from .images import data_url, record_jpeg
 from .loop import Agent
-from .tools import ToolRunner
+from .tool_calls import ToolRunner
 
 SEGMENT_FRAMES = 3  # consecutive keyframes per caption (ReMEmbR captions a few seconds of video)
 CAPTION_PROMPT = (

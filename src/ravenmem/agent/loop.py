@@ -36,7 +36,7 @@ from .presets import Preset, get_preset, merge_top_k
 from .prompts import budget_spent, reask, system_prompt
 from .questions import classify_question
 from .schema import Answer, Cost
-from .tools import (
+from .tool_calls import (
     DEFAULT_K,
     ToolRunner,
     WorkingMemory,

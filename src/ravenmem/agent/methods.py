@@ -18,7 +18,7 @@ from .base import METHODS, Method, needs_vlm, vlm_method
 from .client import NO_MODEL
 from .config import VLMConfig
 from .presets import Preset, apply_preset
-from .tools import per_tool_k
+from .tool_calls import per_tool_k
 
 AGENT_OPTS = (
     "vlm",

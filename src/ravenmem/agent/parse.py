@@ -22,7 +22,7 @@ from ..timeparse import parse_duration
 from ..types import MemoryRecord
 from .questions import classify_question
 from .schema import Answer, Evidence, QuestionType
-from .tools import Shown, WorkingMemory
+from .tool_calls import Shown, WorkingMemory
 
 MAX_REPLY_CHARS = 200_000  # a JSON answer is a few hundred characters; a longer reply is malformed
 MAX_DECODE_ATTEMPTS = 32

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, NotFoundError
 from ..memory.folder import CAPTIONS
 from ..memory.protocol import MemoryLike, TimeLike
 from ..types import Hit, MemoryRecord
@@ -194,7 +194,7 @@ class CaptionIndex:
                 break
             try:
                 (rec,) = self.mem.get([int(reps[i])])
-            except KeyError:  # its memory was forgotten since it was captioned: skip it
+            except NotFoundError:  # its memory was forgotten since it was captioned: skip it
                 continue
             hits.append(Hit(memory=rec, score=float(scores[i])))
         return hits

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..embed.base import Embedder, create_embedder
-from ..errors import EmbedderMismatchError, EmptyMemoryError, InputError
+from ..errors import EmbedderMismatchError, EmptyMemoryError, InputError, MemoryNotFoundError, NotFoundError
 from ..imageio import read_image
 from ..store.base import Store, open_store
 from ..timeparse import TimeContext, parse_time
@@ -177,7 +177,13 @@ class Core:
         )
 
     def get(self, ids: Sequence[int]) -> list[MemoryRecord]:
-        return self.store.get(list(ids))
+        """The records of `ids`, in the order given; `NotFoundError` names the ids not stored."""
+        try:
+            return self.store.get(list(ids))
+        except KeyError:
+            have = {r.id for r in self.stored(ids)}
+            missing = [str(i) for i in ids if i not in have]
+            raise NotFoundError(f"no such memory: {', '.join(missing[:10])}") from None
 
     def stored(self, ids: Sequence[int], with_embeddings: bool = False) -> list[MemoryRecord]:
         """The records of `ids` that are still stored, in the order given. A reader that opened
@@ -263,7 +269,7 @@ def read_folder(p: Path, embedder: str | Embedder | None) -> tuple[Manifest, Sto
     asked for (checked against the manifest)."""
     if not is_memory(p):
         what = "does not exist" if not p.exists() else f"is not a ravenmem memory (no {MANIFEST})"
-        raise InputError(f"memory {p} {what}")
+        raise MemoryNotFoundError(f"memory {p} {what}")
     manifest = Manifest.load(p)
     if store_kind(manifest.store) == "remote":
         check_trusted(manifest.store)  # before any connection is made

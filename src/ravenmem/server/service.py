@@ -111,10 +111,6 @@ def check_calls(calls: object) -> int | None:
 LIVE_MAP_SAVE_EVERY = 30  # live depth frames between saves of the map (the page and /map read it)
 
 
-class NotFound(InputError):
-    """A memory id that the memory does not hold (HTTP 404)."""
-
-
 class Service:
     """A memory served to many clients; see the module docstring."""
 
@@ -196,10 +192,7 @@ class Service:
         return [hit_json(h, i + 1, t0, image_url) for i, h in enumerate(hits)]
 
     def record(self, memory_id: int) -> MemoryRecord:
-        try:
-            return self.mem.get([memory_id])[0]
-        except KeyError:
-            raise NotFound(f"memory {memory_id}: no such memory") from None
+        return self.mem.get([memory_id])[0]  # NotFoundError: HTTP 404
 
     def record_json(self, rec: MemoryRecord, image_url: ImageUrl) -> dict[str, Any]:
         """One memory in the hit shape, without the fields that only a search gives."""
@@ -328,12 +321,7 @@ class Service:
         """The answer as `ravenmem ask --json` gives it, evidence images as URLs (no paths)."""
         data = ans.model_dump(mode="json")
         ids = [ev["id"] for ev in data["evidence"]]
-        recs = {}
-        if ids:
-            try:
-                recs = {r.id: r for r in self.mem.get(ids)}
-            except KeyError:
-                recs = {}
+        recs = {r.id: r for r in self.mem.stored(ids)}  # evidence forgotten since: no picture
         for ev in data["evidence"]:
             ev.pop("image_path", None)
             rec = recs.get(ev["id"])

@@ -80,3 +80,11 @@ def test_import_ravenmem_offers_the_public_api_only() -> None:
     code = "import json; from ravenmem import *; print(json.dumps(sorted(k for k in dir() if k[0] != '_')))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert json.loads(out) == sorted([*ravenmem.__all__, "json"])
+
+
+def test_a_bad_pose_is_an_input_error_naming_it() -> None:
+    with pytest.raises(InputError, match="pose has a non-finite value") as e:
+        Pose(float("nan"), 0.0)
+    assert "\n" not in str(e.value)
+    with pytest.raises(InputError, match="quaternion has zero or non-finite norm"):
+        Pose.from_quaternion(0, 0, 0, 0, 0, 0, 0)

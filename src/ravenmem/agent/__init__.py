@@ -16,7 +16,7 @@ from .client import VLMClient, VLMError
 from .config import VLMConfig
 from .loop import Agent
 from .methods import create_method
-from .offline import OfflineReasoner, OfflineSettings
+from .offline import OfflineReasoner, OfflineReasonerConfig
 from .presets import PRESETS, Preset, get_preset, parse_top_k
 from .schema import Answer, Cost, Evidence, QuestionType
 
@@ -32,7 +32,7 @@ __all__ = [
     "MemoryLike",
     "Method",
     "OfflineReasoner",
-    "OfflineSettings",
+    "OfflineReasonerConfig",
     "PRESETS",
     "Preset",
     "QuestionType",

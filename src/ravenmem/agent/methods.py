@@ -57,7 +57,7 @@ def _raven(spec: str, memory: MemoryLike, **opts: Any) -> Method:
 def _offline(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .offline import OfflineReasoner
 
-    return OfflineReasoner(memory, **_pick(opts, ("top_k", "settings")))
+    return OfflineReasoner(memory, **_pick(opts, ("top_k", "config")))
 
 
 @METHODS.register("embedder-only")

@@ -137,7 +137,7 @@ _START = re.compile(r"\b(?:at|in) the (?:start|beginning)\b|\bat first\b|\bto be
 
 
 @dataclass
-class OfflineSettings:
+class OfflineReasonerConfig:
     """Defaults were chosen on the TUM fr1_rpy question set of benchmarks/bench_reasoner.py."""
 
     pool: int = 200  # memories scored per rewritten query
@@ -207,10 +207,12 @@ class OfflineReasoner:
 
     name = "offline"
 
-    def __init__(self, memory: MemoryLike, top_k: int = 5, settings: OfflineSettings | None = None) -> None:
+    def __init__(
+        self, memory: MemoryLike, top_k: int = 5, config: OfflineReasonerConfig | None = None
+    ) -> None:
         self.memory = memory
         self.top_k = top_k
-        self.s = settings or OfflineSettings()
+        self.s = config or OfflineReasonerConfig()
         self._decoy_support: dict[str, float] | None = None
 
     # ------------------------------------------------------------------ scoring

@@ -35,13 +35,14 @@ from .lifelong.consolidate import Consolidation
 from .lifelong.forget import Forgetting
 from .lock import WriterLock
 from .manifest import Manifest
+from .protocol import MemoryLike
 from .query import Query
 from .search import Search
 
 __all__ = ["Memory"]
 
 
-class Memory(Search, Changes, Forgetting, Consolidation, Info):
+class Memory(Search, Changes, Forgetting, Consolidation, Info, MemoryLike):
     """A visual memory: add frames, then search by text, image, time or position.
 
     Use `ravenmem.create(path)` for a new memory and `ravenmem.open(path)` for an existing one.
@@ -49,6 +50,9 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info):
     `external_images=True` lets `image_file`/`load_image` follow absolute image paths (memories
     built with `thumb_size=0` store the original frames' paths); off by default, because a
     memory folder from elsewhere could name any file on this machine.
+
+    It declares `MemoryLike` (what the rest of ravenmem may rely on), so the type checker holds
+    the searches' signatures to the protocol's.
     """
 
     def __init__(

@@ -40,7 +40,8 @@ def check_k(k: object) -> int:
 class MemoryLike(Protocol):
     """Everything the methods use of a memory: the four searches, records, images and clock.
 
-    `ravenmem.Memory` offers all of it (its methods say what each does); `image_file` must
+    `ravenmem.Memory` offers all of it (its methods say what each does) and declares this
+    protocol, so the type checker holds its methods to these signatures; `image_file` must
     return only files inside `path` (the agent checks again before it sends a picture)."""
 
     path: Path

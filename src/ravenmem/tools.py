@@ -25,6 +25,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from .errors import InputError
+from .memory.diversity import SAME_VIEW
 from .memory.protocol import MemoryLike, check_k
 from .timeparse import fmt_time
 from .types import Hit, MemoryRecord
@@ -82,7 +83,17 @@ class _Latest(_Near):
     )
 
 
-class TextArgs(_Latest):
+class _Diverse(_Latest):
+    diverse: bool = Field(
+        True,
+        description=f"true (the default): one result per moment and place (a view within "
+        f"{SAME_VIEW.seconds:g} s, {SAME_VIEW.metres:g} m and {SAME_VIEW.degrees:g} degrees of a better one is left "
+        "out), so the results show different views; false: the k best matches, near-duplicates "
+        "included (exactly k when the memory holds k)",
+    )
+
+
+class TextArgs(_Diverse):
     query: str = Field(
         ...,
         min_length=1,
@@ -98,7 +109,7 @@ class TextArgs(_Latest):
         return v
 
 
-class ImageArgs(_Latest):
+class ImageArgs(_Diverse):
     memory_id: int | None = Field(
         None,
         ge=0,
@@ -167,20 +178,16 @@ class Tool:
         image: np.ndarray | None = None,
         time_mode: TimeMode = "forward",
         text_search: Runner | None = None,
-        diverse: bool = True,
     ) -> list[Hit]:
         """Run the tool on a memory; results in the tool's `order`.
 
         `image` is the picture attached to a question (the image tool uses it when no
         `memory_id` is given); `time_mode` picks the time tool's window; `text_search`
-        replaces the memory's text search (the caption baseline searches captions);
-        `diverse=False` lets the text and image tools return several hits of one moment and
-        place (ravenmem.memory.diversity).
+        replaces the memory's text search (the caption baseline searches captions). The text
+        and image tools' `diverse` argument (ravenmem.memory.diversity) is one of `args`.
         """
         a = self.validate(args)
-        return self._run(
-            mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search, diverse=diverse
-        )
+        return self._run(mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search)
 
     def order_for(self, args: ToolArgs) -> str:
         """The order of this call's results: the latest mode lists places newest first."""
@@ -234,24 +241,20 @@ def _plain(prop: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _text(
-    mem: MemoryLike, a: ToolArgs, k: int, text_search: Runner | None = None, diverse: bool = True, **_: Any
-) -> list[Hit]:
+def _text(mem: MemoryLike, a: ToolArgs, k: int, text_search: Runner | None = None, **_: Any) -> list[Hit]:
     assert isinstance(a, TextArgs)
     if text_search is not None:
         return text_search(a.query, k=k, after=a.after, before=a.before, near=a.disc())
-    return mem.search_text(a.query, k=k, after=a.after, before=a.before, near=a.disc(), diverse=diverse)
+    return mem.search_text(a.query, k=k, after=a.after, before=a.before, near=a.disc(), diverse=a.diverse)
 
 
-def _image(
-    mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, diverse: bool = True, **_: Any
-) -> list[Hit]:
+def _image(mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, **_: Any) -> list[Hit]:
     assert isinstance(a, ImageArgs)
     if a.memory_id is None and image is None:
         raise InputError("search_image: give memory_id (no image is attached to this question)")
     query = None if a.memory_id is not None else image
     return mem.search_image(
-        query, k=k, after=a.after, before=a.before, near=a.disc(), memory_id=a.memory_id, diverse=diverse
+        query, k=k, after=a.after, before=a.before, near=a.disc(), memory_id=a.memory_id, diverse=a.diverse
     )
 
 

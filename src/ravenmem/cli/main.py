@@ -22,7 +22,10 @@ from rich.table import Table
 
 from ..errors import InputError, RavenmemError
 from ..timeparse import fmt_time
+from ..tools import TextArgs
 from ._console import esc, out_console, print_error, print_warning
+
+DIVERSE_HELP = TextArgs.model_fields["diverse"].description  # the tools table says what it does
 
 os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # model-loading bars are noise in a CLI
 os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
@@ -284,13 +287,9 @@ def search(
     near: Annotated[str | None, typer.Option(help="only memories within x,y,r (metres)")] = None,
     radius: Annotated[float | None, typer.Option(help="with --position: max distance (m)")] = None,
     server: ServerOpt = None,
-    all_hits: Annotated[
-        bool,
-        typer.Option(
-            "--all-hits",
-            help="text/image: allow several hits of one moment and place (within 2 s, 0.5 m, 30 deg)",
-        ),
-    ] = False,
+    diverse: Annotated[
+        bool, typer.Option("--diverse/--no-diverse", help=f"text/image: {DIVERSE_HELP}")
+    ] = True,
     latest: Annotated[
         bool,
         typer.Option(
@@ -327,6 +326,10 @@ def search(
         raise InputError(f"--latest applies to text and image searches only, not to --{mode}")
     if latest:
         args["latest"] = True
+    if mode in ("text", "image"):
+        args["diverse"] = diverse
+    elif not diverse:
+        raise InputError(f"--no-diverse applies to text and image searches only, not to --{mode}")
     query_image = None
     if mode == "text":
         args["query"] = text
@@ -348,10 +351,6 @@ def search(
     }.get(mode, str(given[mode]))
     url = resolve_server(server, memory)
     if url:
-        if all_hits:
-            raise InputError(
-                "--all-hits applies to a local memory (--memory); the service returns diverse hits"
-            )
         with ServerClient(url) as remote:
             rows = remote.search(tool, call, k, image)["results"]
             if sheet is not None:
@@ -366,7 +365,7 @@ def search(
     else:
         assert memory is not None
         with ravenmem.open(memory) as mem:
-            hits = tool.run(mem, call, k, image=query_image, diverse=not all_hits)
+            hits = tool.run(mem, call, k, image=query_image)
             t0 = mem.time_span()[0]
 
             def image_file(rec: Any) -> str | None:

@@ -10,7 +10,6 @@ the diverse answer has the 5 different views (one of the burst), the other the 8
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -29,7 +28,7 @@ from ravenmem.tools import TOOLS, TextArgs
 from ravenmem.types import Frame, Pose
 from tests.cli.helpers import REPO, assert_one_line_error, run_cli
 from tests.conftest import ColorEmbedder, solid
-from tests.server.conftest import serve_subprocess
+from tests.server.conftest import running_service
 
 T0 = 1_700_000_000.0
 rm = partial(run_cli, unset=("RAVENMEM_SERVER", "RAVENMEM_TOKEN"))
@@ -54,14 +53,7 @@ def burst(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def service(burst: Path) -> Iterator[str]:
-    proc, url = serve_subprocess(burst, "--read-only")
-    yield url
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    yield from running_service(burst, "--read-only")
 
 
 def times(rows: list[dict[str, Any]]) -> list[float]:

@@ -14,6 +14,7 @@ import math
 import threading
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from ..imageio import read_image
 from ..store.base import Store, open_store
 from ..timeparse import TimeContext, parse_time
 from ..types import Filter, Hit, MemoryRecord, Region
-from .folder import MANIFEST, is_memory
+from .folder import MANIFEST, Created, is_memory
 from .groups import Group, GroupView, annotate
 from .lock import WriterLock
 from .manifest import Manifest, check_trusted, confine, store_kind
@@ -44,6 +45,7 @@ class Core:
         embedder: Embedder | None,
         external_images: bool = False,
         lock: WriterLock | None = None,
+        created: Created | None = None,
     ) -> None:
         self.path = path
         self.manifest = manifest
@@ -55,6 +57,8 @@ class Core:
         self._closed = False
         self._groups = GroupView(path)  # consolidated memories: count and span (memory.lifelong)
         self._writer = Writer(path, self._lock, self._changed, lock)
+        self._created = created  # what `create` made in this process (`undo_create_on_error`)
+        self._ocr: Any = None  # the OCR reader, loaded at the first frame that needs it
 
     # ---------------------------------------------------------------- parts
     @property

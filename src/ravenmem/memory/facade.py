@@ -23,18 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from ..embed.base import Embedder
 from ..errors import InputError
 from ..imageio import write_jpeg
-from ..store.base import Store
 from ..types import Frame, MemoryRecord, Pose
 from .changes import Changes
-from .folder import Created, thumb_name
+from .folder import thumb_name
 from .info import Info
 from .lifelong.consolidate import Consolidation
 from .lifelong.forget import Forgetting
-from .lock import WriterLock
-from .manifest import Manifest
 from .protocol import MemoryLike
 from .query import Query
 from .search import Search
@@ -54,20 +50,6 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, MemoryLike):
     It declares `MemoryLike` (what the rest of ravenmem may rely on), so the type checker holds
     the searches' signatures to the protocol's.
     """
-
-    def __init__(
-        self,
-        path: Path,
-        manifest: Manifest,
-        store: Store,
-        embedder: Embedder | None,
-        external_images: bool = False,
-        lock: WriterLock | None = None,
-        created: Created | None = None,
-    ) -> None:
-        super().__init__(path, manifest, store, embedder, external_images, lock)
-        self._ocr: Any = None
-        self._created = created  # what `create` made in this process (undo_create_on_error)
 
     # ---------------------------------------------------------------- writing
     def add(self, image: np.ndarray, pose: Pose, t: float, source: str = "live", frame_index: int = 0) -> int:

@@ -177,26 +177,13 @@ class Whereabouts:
         thing = {"status": self.status, "status_note": self.status_note}
         for p in self.places[:k]:
             info = {**p.as_dict(), **thing}
-            last = p.sightings[-1]
-            out.append(
-                ChangeHit(
-                    memory=last.memory,
-                    score=last.score,
-                    count=last.count,
-                    span=last.span,
-                    change={**info, "role": "sighting"},
-                )
-            )
+            shown = [(p.sightings[-1], "sighting")]
             if p.verdict in ("moved", "gone"):
-                shown = p.revisits[:1] + (p.revisits[-1:] if len(p.revisits) > 1 else [])
-                for h in shown[:revisits]:
-                    out.append(
-                        ChangeHit(
-                            memory=h.memory,
-                            score=h.score,
-                            count=h.count,
-                            span=h.span,
-                            change={**info, "role": "revisit"},
-                        )
-                    )
+                views = p.revisits[:1] + (p.revisits[-1:] if len(p.revisits) > 1 else [])
+                shown += [(h, "revisit") for h in views[:revisits]]
+            for h, role in shown:
+                change = {**info, "role": role}
+                out.append(
+                    ChangeHit(memory=h.memory, score=h.score, count=h.count, span=h.span, change=change)
+                )
         return out

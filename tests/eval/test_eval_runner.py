@@ -248,10 +248,12 @@ def test_unknown_methods_and_options_the_agent_lacks(raven_root: Path, tmp_path:
             with pytest.raises(InputError, match=f"this version's raven method does not take {option}"):
                 check_methods(c)
     check_methods(cfg(raven_root, tmp_path, methods=["offline"], method_opts={"show_scores": False}))
-    with pytest.raises(InputError, match="--time-mode: one of forward, centred"):
+    with pytest.raises(InputError, match="--time-mode: one of forward, centred, nearest"):
         cfg(raven_root, tmp_path, method_opts={"time_mode": "backward"})
-    with pytest.raises(InputError, match="--preset: one of raven-qa, navqa, findingdory"):
+    with pytest.raises(InputError, match="--preset: one of raven-qa-human, raven-qa-robot, raven-qa-robot-open, navqa"):
         cfg(raven_root, tmp_path, method_opts={"preset": "paper"})
+    with pytest.raises(InputError, match="--preset raven-qa: the paper's table has one per kind of video"):
+        cfg(raven_root, tmp_path, method_opts={"preset": "raven-qa"})
     with pytest.raises(InputError, match="--top-k"):
         cfg(raven_root, tmp_path, method_opts={"top_k": 0})
     with pytest.raises(InputError, match="expected NAME:PATH"):

@@ -33,7 +33,7 @@ TimeoutOpt = Annotated[
 RetriesOpt = Annotated[int | None, typer.Option("--max-retries", help="retries on 429/5xx/timeouts")]
 SegmentOpt = Annotated[
     int | None,
-    typer.Option("--segment-frames", help="caption: consecutive keyframes per caption (default 3)"),
+    typer.Option("--segment-frames", help="caption: keyframes per caption (default: the keyframes of each 3 s)"),
 ]
 ImageSideOpt = Annotated[
     int | None,
@@ -320,7 +320,7 @@ def caption(
     re-running captions only new segments."""
     import ravenmem
     from ravenmem.agent import VLMConfig, caption_memories
-    from ravenmem.agent.captions import CAPTION_FILE, SEGMENT_FRAMES
+    from ravenmem.agent.captions import CAPTION_FILE
     from ravenmem.agent.methods import require_model
 
     vlm = VLMConfig.resolve(
@@ -332,7 +332,7 @@ def caption(
         max_retries=max_retries,
     )
     require_model("caption", vlm)
-    seg = SEGMENT_FRAMES if segment_frames is None else segment_frames
+    seg = segment_frames  # None: segments of 3 s
     with ravenmem.open(memory) as mem:
         n = caption_memories(mem, vlm, segment_frames=seg, image_max_side=image_max_side or 0)
         total = mem.count()

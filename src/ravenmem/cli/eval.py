@@ -401,8 +401,9 @@ def scores_cmd(out: StudyOut, cfg: Any = None) -> None:
 @study_app.command("time-mode")
 @run_options
 def time_mode_cmd(out: StudyOut, cfg: Any = None) -> None:
-    """Accuracy with the time tool looking forward from the asked time, and centred on it."""
-    _option_study("time-mode", cfg, ["forward", "centred"], out)
+    """The ordering study: accuracy with the time tool looking forward from the asked time,
+    centred on it, and listing the memories nearest to it first (the paper's three orderings)."""
+    _option_study("time-mode", cfg, ["forward", "centred", "nearest"], out)
 
 
 @study_app.command("tool-calls")

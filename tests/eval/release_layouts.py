@@ -61,7 +61,16 @@ def _data_csv(path: Path, rows: list[list[str]]) -> None:
 
 def _csv_rows(seq: str, offset_h: int) -> list[list[str]]:
     return [
-        [qid, seq, text, ",".join(clock(NAV_T0 + s, offset_h) for s in stamps), qtype, "", parsable, "spatial"]
+        [
+            qid,
+            seq,
+            text,
+            ",".join(clock(NAV_T0 + s, offset_h) for s in stamps),
+            qtype,
+            "",
+            parsable,
+            "spatial",
+        ]
         for qid, qtype, text, _, stamps, parsable, _ in NAV_QUESTIONS
     ]
 
@@ -89,9 +98,24 @@ def write_raven_navqa(repo: Path, missing_seq: str = "3") -> Path:
     human_qa.json with its "You started moving at" texts) and coda_data/0 at the root; data.csv
     also names `missing_seq`, whose frames are not there."""
     data = repo / "data_vlm"
-    rows = _csv_rows("0", -5) + [[f"{missing_seq}_SHORT_{k}", missing_seq, "Where?", "11:00:00", "position", "", "[position]", "spatial"] for k in range(2)]
+    rows = _csv_rows("0", -5) + [
+        [
+            f"{missing_seq}_SHORT_{k}",
+            missing_seq,
+            "Where?",
+            "11:00:00",
+            "position",
+            "",
+            "[position]",
+            "spatial",
+        ]
+        for k in range(2)
+    ]
     _data_csv(data / "navqa" / "data.csv", rows)
-    _write_json(data / "navqa" / "0" / "qa_unfilled.json", {"version": 0.1, "data": [_clip(q[0], q[3]) for q in NAV_QUESTIONS]})
+    _write_json(
+        data / "navqa" / "0" / "qa_unfilled.json",
+        {"version": 0.1, "data": [_clip(q[0], q[3]) for q in NAV_QUESTIONS]},
+    )
     items = []
     for qid, qtype, text, window, stamps, parsable, _ in NAV_QUESTIONS:
         item = _clip(qid, window)
@@ -118,7 +142,10 @@ def write_remembr_navqa(repo: Path) -> Path:
     clips in remembr/data/navqa/0/qa_unfilled.json; frames in remembr/coda_data/0."""
     pkg = repo / "remembr"
     _data_csv(pkg / "data" / "navqa" / "data.csv", _csv_rows("0", -8))
-    _write_json(pkg / "data" / "navqa" / "0" / "qa_unfilled.json", {"version": 0.1, "data": [_clip(q[0], q[3]) for q in NAV_QUESTIONS]})
+    _write_json(
+        pkg / "data" / "navqa" / "0" / "qa_unfilled.json",
+        {"version": 0.1, "data": [_clip(q[0], q[3]) for q in NAV_QUESTIONS]},
+    )
     write_coda(pkg / "coda_data" / "0")
     return repo
 
@@ -162,7 +189,12 @@ def write_release_video(vdir: Path, stamps: str = "filename", offset_m: float = 
         colour = next((c for c, j in QA_TARGETS.items() if j == i), "grey")
         save(vdir / "frames" / f"frame_{i + 1:03d}.jpg", solid(colour))
     rows = [
-        [f"Where did you see the {c} sign?", [[3.0 * j + offset_m, 0.0, 0.0], f"frame_{j + 1:03d}.jpg"], "dominant", None]
+        [
+            f"Where did you see the {c} sign?",
+            [[3.0 * j + offset_m, 0.0, 0.0], f"frame_{j + 1:03d}.jpg"],
+            "dominant",
+            None,
+        ]
         for c, j in QA_TARGETS.items()
     ]
     every = {f"00:10:{i:02d}": f"frame_{i + 1:03d}.jpg" for i in range(QA_N)}
@@ -194,7 +226,11 @@ def write_findingdory_goals(root: Path) -> Path:
     """A FindingDory folder whose rows need the release's normalisations and a multi-goal answer."""
     write_video(root / "videos" / "validation" / "ep_id_3.mp4", ["red"] * 4 + ["green"] * 5 + ["blue"] * 3)
     rows = [
-        ("The robot's goal is: Navigate to the red box, then to the blue box.", "[[0, 1], [9, 10, 11]]", "Multi-Goal Tasks"),
+        (
+            "The robot's goal is: Navigate to the red box, then to the blue box.",
+            "[[0, 1], [9, 10, 11]]",
+            "Multi-Goal Tasks",
+        ),
         ("The robot's goal is: Navigate to what you saw at 6:01.", "[[4]]", "Single-Goal Temporal Tasks"),
         ("The robot's goal is: Navigate to the purple sofa.", "[[-1]]", "Single-Goal Spatial Tasks"),
     ]

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from ravenmem.agent.schema import Answer, Evidence
+from ravenmem.agent.schema import Answer
 from ravenmem.errors import InputError
 from ravenmem.eval.config import Thresholds
 from ravenmem.eval.datasets import load_dataset
@@ -38,7 +38,13 @@ EMB = ["--embedder", "test-color-eval", "--thumb-size", "32", "--workers", "1"]
 
 def ep_of(times: list[float], files: list[str] | None = None) -> Episode:
     return Episode(
-        id="ep", dataset="t", key="k", frames=lambda: [], questions=[], frame_times=times, frame_files=files or []
+        id="ep",
+        dataset="t",
+        key="k",
+        frames=lambda: [],
+        questions=[],
+        frame_times=times,
+        frame_files=files or [],
     )
 
 
@@ -105,7 +111,9 @@ def test_navqa_remembr_clips_are_episodes_in_utc_minus_8(tmp_path: Path) -> None
     for path in (repo, repo / "remembr", repo / "remembr" / "data"):
         eps = load_dataset(f"navqa:{path}")
         assert len(eps) == len(NAV_QUESTIONS), path
-    windows = {x.id: (e.frame_times[0] - NAV_T0, e.frame_times[-1] - NAV_T0) for e in eps for x in e.questions}
+    windows = {
+        x.id: (e.frame_times[0] - NAV_T0, e.frame_times[-1] - NAV_T0) for e in eps for x in e.questions
+    }
     assert windows == {qid: (float(w[0]), float(w[1])) for qid, _, _, w, *_ in NAV_QUESTIONS}
     q = {x.id: x for e in eps for x in e.questions}
     assert q["SHORT_pos"].truth.positions == [[28.0, 0.0, 0.0]] and q["SHORT_no"].truth.yes is False
@@ -128,7 +136,9 @@ def test_findingdory_normalisations_and_every_goal_scored(tmp_path: Path) -> Non
     )
     (ep,) = load_dataset(f"findingdory:{write_findingdory_goals(tmp_path / 'fd')}")
     multi, at, none = ep.questions
-    assert multi.text == "Navigate to the red box, then to the blue box." and multi.instructions == INSTRUCTIONS
+    assert (
+        multi.text == "Navigate to the red box, then to the blue box." and multi.instructions == INSTRUCTIONS
+    )
     assert at.text == "Navigate to what you saw at 06:01:00."
     assert parse_goal_times("I think so. Goal times: 06:00:43 6:09") == [21643.0, 22140.0]
 
@@ -146,7 +156,12 @@ def test_findingdory_normalisations_and_every_goal_scored(tmp_path: Path) -> Non
 # ------------------------------------------------------------------------------------ RAVEN-QA
 def test_raven_qa_release_subsets_splits_and_stamps(tmp_path: Path) -> None:
     eps = {e.id: e for e in load_dataset(f"raven-qa:{write_raven_qa_release(tmp_path / 'data')}")}
-    assert sorted(eps) == ["habitat_sim/ep_1", "irs/simple/indoor/vid_a", "irs_hard/hard/vid_b", "real_world/walk_1"]
+    assert sorted(eps) == [
+        "habitat_sim/ep_1",
+        "irs/simple/indoor/vid_a",
+        "irs_hard/hard/vid_b",
+        "real_world/walk_1",
+    ]
     assert {(q.subset, q.split) for e in eps.values() for q in e.questions} == {
         ("irs", "simple"),
         ("irs_hard", "hard"),
@@ -156,8 +171,14 @@ def test_raven_qa_release_subsets_splits_and_stamps(tmp_path: Path) -> None:
     irs = eps["irs/simple/indoor/vid_a"]  # its frames are stamped by file name in timestamp_to_position
     assert irs.frame_times[0] == BASE_DAY + 600 and irs.frame_times[11] == BASE_DAY + 611
     assert "timestamp_to_filename" in irs.meta["time_rule"]
-    assert [q.truth.times for q in irs.questions] == [[BASE_DAY + 603], [BASE_DAY + 608]]  # the release's answer times
-    assert [q.truth.times for q in eps["real_world/walk_1"].questions] == [[], []]  # its answer frames have no stamp
+    assert [q.truth.times for q in irs.questions] == [
+        [BASE_DAY + 603],
+        [BASE_DAY + 608],
+    ]  # the release's answer times
+    assert [q.truth.times for q in eps["real_world/walk_1"].questions] == [
+        [],
+        [],
+    ]  # its answer frames have no stamp
 
 
 def test_release_scoring_rule_beside_the_papers() -> None:
@@ -177,8 +198,18 @@ def test_release_scoring_rule_beside_the_papers() -> None:
     rel = score_row(row, Thresholds(position_m={"real_world": 2.0}, scoring="release"))
     assert rel["rule"] == "release" and rel["correct"] is True  # within 2 s (whole seconds) of the stamp
     assert rel["pos_correct"] is True and rel["pos_error_m"] == 1.5  # x, y only, under 2 m
-    unstamped = build_row(ep, Question(id="u", text="Where?", type="frame", truth=Truth(files=["f2.jpg"])), "m", 0, ans, Thresholds(scoring="release"), dataset="raven-qa:/d")
-    assert unstamped["score"]["correct"] is None and "leaves the question out" in unstamped["score"]["skipped"]
+    unstamped = build_row(
+        ep,
+        Question(id="u", text="Where?", type="frame", truth=Truth(files=["f2.jpg"])),
+        "m",
+        0,
+        ans,
+        Thresholds(scoring="release"),
+        dataset="raven-qa:/d",
+    )
+    assert (
+        unstamped["score"]["correct"] is None and "leaves the question out" in unstamped["score"]["skipped"]
+    )
     other = build_row(ep, q, "m", 0, ans, Thresholds(scoring="release"), dataset="navqa:/d")
     assert other["score"]["rule"] == "paper"  # NaVQA's and FindingDory's scorers are the paper's rule
 
@@ -199,24 +230,42 @@ def test_cli_navqa_raven_repository_scores_records_and_replays(tmp_path: Path) -
     site = plugin_site(tmp_path)
     run = tmp_path / "run"
     with ScriptedModel(default=navqa_policy) as srv:
-        args = ["--dataset", f"navqa:{repo}", "--method", "raven", "--vlm", "scripted", "--vlm-base-url", srv.base_url]
+        args = [
+            "--dataset",
+            f"navqa:{repo}",
+            "--method",
+            "raven",
+            "--vlm",
+            "scripted",
+            "--vlm-base-url",
+            srv.base_url,
+        ]
         g = _group(_summary(rm("eval", *args, *EMB, "--out", str(run), "--json", site=site)))
         asked = len(srv.requests)
     by_type = g["by"]["type"]
     assert by_type["binary"]["accuracy"]["mean"] == 1.0  # the correct "No"
     assert by_type["position"]["accuracy"]["mean"] == 1.0 and by_type["duration"]["accuracy"]["mean"] == 1.0
-    assert g["truth_errors"] == [["LONG_late", "truth time 10:55:02 (UTC-5) is 8 s before it starts (recording 10:55:10-10:55:29)"]]
+    assert g["truth_errors"] == [
+        ["LONG_late", "truth time 10:55:02 (UTC-5) is 8 s before it starts (recording 10:55:10-10:55:29)"]
+    ]
     r = rm("eval", "report", str(run), "--out", str(tmp_path / "a" / "report.md"), site=site)
     assert r.returncode == 0, r.stderr
     report = (tmp_path / "a" / "report.md").read_text()
     assert "Clock times: NaVQA data.csv clock times: UTC-5" in report
     assert "sequence(s) 3 have no frames" in report and "their 2 question(s) are left out" in report
-    assert "1 question(s) have a truth outside their recording and are not scored (truth errors): LONG_late" in report
+    assert (
+        "1 question(s) have a truth outside their recording and are not scored (truth errors): LONG_late"
+        in report
+    )
     assert "## Per horizon: NaVQA's table" in report and "Pos. acc. ≤ 15 m" in report
     # the manifest and every model exchange are in the run folder
     man = json.loads((run / "manifest.json").read_text())
     assert man["dataset"]["sha256"] and man["dataset"]["questions"] == len(NAV_QUESTIONS)
-    assert man["model"] == "scripted" and man["scoring"]["rule"] == "paper" and man["time_zones"][0].startswith("NaVQA data.csv clock times: UTC-5")
+    assert (
+        man["model"] == "scripted"
+        and man["scoring"]["rule"] == "paper"
+        and man["time_zones"][0].startswith("NaVQA data.csv clock times: UTC-5")
+    )
     assert man["ravenmem"] and "git_revision" in man and man["settings"]["methods"]["names"] == ["raven"]
     io = [json.loads(x) for x in (run / "model_io.jsonl").read_text().splitlines()]
     assert len(io) == asked and all(e["response"]["choices"] for e in io)
@@ -224,16 +273,27 @@ def test_cli_navqa_raven_repository_scores_records_and_replays(tmp_path: Path) -
     assert {e["context"] for e in io} == keys  # each reply labelled with the answer it served
     # replayed with no model anywhere: the same numbers, the same report
     env = no_vlm_env(tmp_path)
-    again = _summary(rm("eval", "--replay", str(run), "--out", str(tmp_path / "re"), "--json", site=site, env=env))
+    again = _summary(
+        rm("eval", "--replay", str(run), "--out", str(tmp_path / "re"), "--json", site=site, env=env)
+    )
     first = json.loads((run / "summary.json").read_text())
     assert again["groups"] == first["groups"]
-    assert rm("eval", "report", str(tmp_path / "re"), "--out", str(tmp_path / "b" / "report.md"), site=site).returncode == 0
+    assert (
+        rm(
+            "eval", "report", str(tmp_path / "re"), "--out", str(tmp_path / "b" / "report.md"), site=site
+        ).returncode
+        == 0
+    )
     assert (tmp_path / "b" / "report.md").read_text() == report
     r = rm("eval", "--replay", str(run), "--top-k", "9", site=site, env=env)
-    assert r.returncode == 2 and "--top-k (None -> 9) changed; those answers need new model replies" in r.stderr
+    assert (
+        r.returncode == 2 and "--top-k (None -> 9) changed; those answers need new model replies" in r.stderr
+    )
     r = rm("eval", "--replay", str(run), "--embedder", "offline", site=site, env=env)
     assert r.returncode == 2 and "--embedder (test-color-eval -> offline) changed" in r.stderr
-    stricter = _group(_summary(rm("eval", "--replay", str(run), "--pos-threshold", "0.5", "--json", site=site, env=env)))
+    stricter = _group(
+        _summary(rm("eval", "--replay", str(run), "--pos-threshold", "0.5", "--json", site=site, env=env))
+    )
     assert stricter["by"]["type"]["position"]["accuracy"]["mean"] < 1.0  # re-scored, no model asked
 
 
@@ -246,7 +306,11 @@ def test_cli_remembr_clips_and_a_wrong_zone(tmp_path: Path) -> None:
     assert len({r["episode"] for r in rows}) == len(NAV_QUESTIONS)  # a memory per clip
     sizes = {r["qid"]: r["memory"]["memories"] for r in rows}
     assert sizes == {qid: w[1] - w[0] + 1 for qid, _, _, w, *_ in NAV_QUESTIONS}
-    g = _group(_summary(rm("eval", *args, "--tz", "America/Chicago", "--out", str(tmp_path / "cst"), "--json", site=site)))
+    g = _group(
+        _summary(
+            rm("eval", *args, "--tz", "America/Chicago", "--out", str(tmp_path / "cst"), "--json", site=site)
+        )
+    )
     errs = dict(g["truth_errors"])
     assert "SHORT_pos" in errs and errs["SHORT_pos"].endswith("UTC-8 would fit")
     assert g["by"]["type"]["position"]["accuracy"]["mean"] is None  # no silent position scored instead
@@ -257,7 +321,16 @@ def test_cli_findingdory_multi_goal_answers(tmp_path: Path) -> None:
     root = write_findingdory_goals(tmp_path / "fd")
     site = plugin_site(tmp_path)
     with ScriptedModel(default=findingdory_policy) as srv:
-        args = ["--dataset", f"findingdory:{root}", "--method", "raven", "--vlm", "scripted", "--vlm-base-url", srv.base_url]
+        args = [
+            "--dataset",
+            f"findingdory:{root}",
+            "--method",
+            "raven",
+            "--vlm",
+            "scripted",
+            "--vlm-base-url",
+            srv.base_url,
+        ]
         g = _group(_summary(rm("eval", *args, *EMB, "--out", str(tmp_path / "run"), "--json", site=site)))
         asked = [json.dumps(b["messages"][1]) for b in srv.requests]
     assert g["accuracy"]["mean"] == 1.0 and g["accuracy"]["questions"] == 3  # the two-goal answer included
@@ -275,14 +348,34 @@ def test_cli_raven_qa_release_layout_thresholds_and_scoring(tmp_path: Path) -> N
     by = g["by"]["subset_split"]
     assert set(by) == {"irs/simple", "irs_hard/hard"}
     # the answers are 1.5 m from the frames named: right under 2 m, wrong under 1 m
-    assert by["irs/simple"]["position_accuracy"]["mean"] == 0.0 and by["irs_hard/hard"]["position_accuracy"]["mean"] == 1.0
+    assert (
+        by["irs/simple"]["position_accuracy"]["mean"] == 0.0
+        and by["irs_hard/hard"]["position_accuracy"]["mean"] == 1.0
+    )
     subsets = g["by"]["subset"]
-    assert subsets["habitat_sim"]["position_accuracy"]["mean"] == 0.0 and subsets["real_world"]["position_accuracy"]["mean"] == 1.0
+    assert (
+        subsets["habitat_sim"]["position_accuracy"]["mean"] == 0.0
+        and subsets["real_world"]["position_accuracy"]["mean"] == 1.0
+    )
     assert g["frame_accuracy"]["mean"] == 1.0  # the paper's target retrieval: the named frame
     r = rm("eval", *args, "--pos-threshold", "irs=1,simple=2", "--out", str(tmp_path / "bad"), site=site)
     assert r.returncode == 2 and "--pos-threshold: no subset named simple in this dataset" in r.stderr
-    r = rm("eval", "report", str(tmp_path / "run"), "--scoring", "release", "--out", str(tmp_path / "rel.md"), site=site)
+    r = rm(
+        "eval",
+        "report",
+        str(tmp_path / "run"),
+        "--scoring",
+        "release",
+        "--out",
+        str(tmp_path / "rel.md"),
+        site=site,
+    )
     assert r.returncode == 0, r.stderr
     text = (tmp_path / "rel.md").read_text()
-    assert "Scoring rule: release" in text and "release rule (RAVEN-QA rows): the answer's time within 2 s" in text
-    assert "2 question(s) not scored: the release gives no timestamp for this answer's frames" in text  # real_world
+    assert (
+        "Scoring rule: release" in text
+        and "release rule (RAVEN-QA rows): the answer's time within 2 s" in text
+    )
+    assert (
+        "2 question(s) not scored: the release gives no timestamp for this answer's frames" in text
+    )  # real_world

@@ -222,7 +222,8 @@ def test_navqa_per_horizon_and_findingdory_relaxed_reports(tmp_path: Path) -> No
     assert "## Per horizon: NaVQA's table" in text
     head = line_of(text, "| Method | Embedder | VLM | Horizon |")
     assert (
-        "| Descriptive acc. | Pos. err (m) | Pos. acc. ≤ 15 m | Temporal err (min) | Temporal acc. ≤ 0.5 min |" in head
+        "| Descriptive acc. | Pos. err (m) | Pos. acc. ≤ 15 m | Temporal err (min) | Temporal acc. ≤ 0.5 min |"
+        in head
     )
     short = dict(zip(cells(head), cells(line_of(text, "| embedder-only | test-color-eval | - | short |"))))
     assert short["Pos. acc. ≤ 15 m"].startswith("100.0 [") and short["Pos. acc. ≤ 15 m"].endswith("(n=1)")
@@ -345,6 +346,17 @@ def test_eval_command_run_report_study_and_errors(scoring_root: Path, tmp_path: 
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "--method raven needs a VLM and none is configured" in r.stderr
     assert not (tmp_path / "novlm" / "answers.jsonl").exists()
+    r = rm("eval", "--help", env={"COLUMNS": "250"})
+    for flag in (
+        "--dataset",
+        "--pos-threshold",
+        "--scoring",
+        "--caption-encoder",
+        "--replay",
+        "--time-mode",
+        "--tz",
+    ):
+        assert flag in r.stdout, flag  # the typed config's options, on the command
     for args, msg in (
         (["--dataset", "nosuch:/x", "--method", "offline"], "unknown dataset 'nosuch'"),
         ([*common, "--method", "oracle"], "--method: unknown oracle"),

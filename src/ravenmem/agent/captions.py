@@ -96,7 +96,9 @@ class SentenceEncoder:
 def text_encoder(spec: TextEncoder | str | None) -> TextEncoder:
     """The captions' text encoder: a callable as given, `None` / "minilm" for the bundled
     MiniLM (offline), else a sentence-transformers model by name or folder."""
-    if spec is None or (isinstance(spec, str) and spec.strip().lower() in ("", "minilm", MiniLMEncoder.name.lower())):
+    if spec is None or (
+        isinstance(spec, str) and spec.strip().lower() in ("", "minilm", MiniLMEncoder.name.lower())
+    ):
         return MiniLMEncoder()
     if isinstance(spec, str):
         return SentenceEncoder(spec)
@@ -337,12 +339,18 @@ class CaptionAgent(Agent):
         **kw: Any,
     ) -> None:
         super().__init__(memory, vlm=vlm, show_scores=show_scores, **kw)
-        seg = {"segment_frames": segment_frames, "segment_s": segment_s}
-        self.index = CaptionIndex(memory, encoder, **seg)
+        self.index = CaptionIndex(memory, encoder, segment_frames, segment_s)
         if auto_caption and self.index.todo():
-            caption_memories(memory, captioner or self.client, encoder=self.index.encoder, **seg)
+            enc = self.index.encoder
+            caption_memories(
+                memory,
+                captioner or self.client,
+                encoder=enc,
+                segment_frames=segment_frames,
+                segment_s=segment_s,
+            )
             self.index.close()
-            self.index = CaptionIndex(memory, self.index.encoder, **seg)
+            self.index = CaptionIndex(memory, enc, segment_frames, segment_s)
         if len(self.index) == 0:
             raise InputError(
                 f"{memory.path} has no captions: run `ravenmem caption --memory {memory.path}` first"

@@ -98,7 +98,9 @@ PRESETS: dict[str, Preset] = {
         ),
     )
 }
-RENAMED = {"raven-qa": "raven-qa-human (irs, irs_hard), raven-qa-robot (habitat_sim, real_world) or raven-qa-robot-open"}
+RENAMED = {
+    "raven-qa": "raven-qa-human (irs, irs_hard), raven-qa-robot (habitat_sim, real_world) or raven-qa-robot-open"
+}
 
 
 def get_preset(name: str | Preset | None) -> Preset | None:

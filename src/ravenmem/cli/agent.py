@@ -33,7 +33,9 @@ TimeoutOpt = Annotated[
 RetriesOpt = Annotated[int | None, typer.Option("--max-retries", help="retries on 429/5xx/timeouts")]
 SegmentOpt = Annotated[
     int | None,
-    typer.Option("--segment-frames", help="caption: keyframes per caption (default: the keyframes of each 3 s)"),
+    typer.Option(
+        "--segment-frames", help="caption: keyframes per caption (default: the keyframes of each 3 s)"
+    ),
 ]
 ImageSideOpt = Annotated[
     int | None,

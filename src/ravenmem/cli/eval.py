@@ -72,7 +72,9 @@ def option_fields(sections: tuple[str, ...] = RUN_SECTIONS) -> list[tuple[str, s
     out = [(option_name(f), sec, f) for sec in sections for f in options_of(_section(sec))]
     names = [n for n, _, _ in out]
     if len(set(names)) != len(names):
-        raise TypeError(f"two options share a parameter name: {sorted(n for n in names if names.count(n) > 1)}")
+        raise TypeError(
+            f"two options share a parameter name: {sorted(n for n in names if names.count(n) > 1)}"
+        )
     return out
 
 
@@ -93,7 +95,8 @@ def with_options(*sections: str) -> Callable[[F], F]:
                 inspect.Parameter.KEYWORD_ONLY,
                 default=None,
                 annotation=Annotated[
-                    _cli_type(_section(sec), f), typer.Option(*f.metadata["flag"].split(), help=f.metadata["help"])
+                    _cli_type(_section(sec), f),
+                    typer.Option(*f.metadata["flag"].split(), help=f.metadata["help"]),
                 ],
             )
             for name, sec, f in opts

@@ -136,7 +136,12 @@ class Thresholds:
         "--time-threshold", "minutes (default 0.5)", 30.0, cli=float, parse=_minutes, name="time_threshold"
     )
     duration_s: float = option(
-        "--duration-threshold", "minutes (default 0.5)", 30.0, cli=float, parse=_minutes, name="duration_threshold"
+        "--duration-threshold",
+        "minutes (default 0.5)",
+        30.0,
+        cli=float,
+        parse=_minutes,
+        name="duration_threshold",
     )
     frame_s: float | None = option(
         "--frame-tolerance", "seconds either side of an accepted frame", name="frame_tolerance"
@@ -200,7 +205,9 @@ class DatasetConfig:
         "NAME:PATH, NAME = raven-qa | navqa | findingdory | tum | video | folder | rosbag | memory | queries",
         name="dataset",
     )
-    queries: str | None = option("--queries", "our questions.json for tum:/video:/folder:/rosbag:/memory: datasets")
+    queries: str | None = option(
+        "--queries", "our questions.json for tum:/video:/folder:/rosbag:/memory: datasets"
+    )
     rate: float | None = option("--rate", "raven-qa: frames per second where no timestamps are given")
     tz: str | None = option(
         "--tz", "navqa: time zone of data.csv (default: the release's, UTC-5 RAVEN, UTC-8 ReMEmbR)"
@@ -251,7 +258,10 @@ class MethodConfig:
         name="method",
     )
     top_k: int | dict[str, int] | None = option(
-        "--top-k", "memories per tool call: N, or per tool 'time=200,text=30,position=1'", cli=str, parse=parse_top_k
+        "--top-k",
+        "memories per tool call: N, or per tool 'time=200,text=30,position=1'",
+        cli=str,
+        parse=parse_top_k,
     )
     max_tool_calls: int | None = option("--max-tool-calls", "tool calls before the model must answer")
     frames: int | None = option(
@@ -287,7 +297,9 @@ class MethodConfig:
             raise InputError(f"--time-mode: one of {', '.join(TIME_MODES)}, got {self.time_mode!r}")
         if self.preset is not None and self.preset not in PRESETS:
             if self.preset in RENAMED:
-                raise InputError(f"--preset {self.preset}: the paper's table has one per kind of video: {RENAMED[self.preset]}")
+                raise InputError(
+                    f"--preset {self.preset}: the paper's table has one per kind of video: {RENAMED[self.preset]}"
+                )
             raise InputError(f"--preset: one of {', '.join(PRESETS)}, got {self.preset!r}")
         _positive("--temperature", self.temperature, allow_zero=True)
         if self.image_max_side is not None and self.image_max_side < 16:

@@ -16,8 +16,8 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from ..agent.client import VLMClient, VLMError
-from .recording import RecordingClient
 from ..agent.config import VLMConfig
+from .recording import RecordingClient
 
 SYSTEM = (
     "You grade answers of a robot that answers questions about what it saw. Decide whether the "
@@ -59,7 +59,9 @@ class Judge:
     def name(self) -> str:
         return str(self.config.model)
 
-    def grade(self, question: str, references: list[str], candidate: str, context: str = "") -> dict[str, Any]:
+    def grade(
+        self, question: str, references: list[str], candidate: str, context: str = ""
+    ) -> dict[str, Any]:
         """{'correct': bool | None, 'reason': str, 'model': str}; None when the judge's reply is unusable."""
         if not candidate.strip():
             return {"correct": False, "reason": "empty answer", "model": self.name}

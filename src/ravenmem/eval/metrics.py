@@ -52,7 +52,13 @@ BOOTSTRAP_SEED = 20
 RELEASE_TIME_S = 2.0  # the RAVEN-QA release scorer: |predicted - true| < 2 s, in whole seconds
 NO_STAMP = "the release gives no timestamp for this answer's frames (its scorer leaves the question out)"
 # NaVQA's tables group question types: descriptive (binary + text), positional, temporal (time + duration)
-KINDS = {"binary": "descriptive", "text": "descriptive", "position": "positional", "time": "temporal", "duration": "temporal"}
+KINDS = {
+    "binary": "descriptive",
+    "text": "descriptive",
+    "position": "positional",
+    "time": "temporal",
+    "duration": "temporal",
+}
 
 
 def goal_times(q: Question, ep: Episode) -> list[list[float]]:
@@ -220,7 +226,10 @@ def _release_time_part(row: dict[str, Any]) -> dict[str, Any]:
     if pt is None:
         return {"frame_correct": False}
     err = min(abs(math.floor(pt) - math.floor(x)) for x in t["times"])
-    return {"frame_correct": err < RELEASE_TIME_S and not row["answer"].get("failed"), "frame_error_s": float(err)}
+    return {
+        "frame_correct": err < RELEASE_TIME_S and not row["answer"].get("failed"),
+        "frame_error_s": float(err),
+    }
 
 
 def _frame_part(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
@@ -502,7 +511,11 @@ def summarize(
         reasons: dict[str, set[str]] = defaultdict(set)
         for r in rs:
             why = r["score"].get("skipped")
-            if r["score"].get("correct") is None and why not in (None, NOT_JUDGED) and not r["score"].get("truth_error"):
+            if (
+                r["score"].get("correct") is None
+                and why not in (None, NOT_JUDGED)
+                and not r["score"].get("truth_error")
+            ):
                 reasons[str(why)].add(str(r["qid"]))
         g["skipped"] = {why: len(q) for why, q in sorted(reasons.items())}
         g["unscorable"] = sum(g["skipped"].values())

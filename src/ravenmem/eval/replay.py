@@ -75,7 +75,9 @@ def replay_run(
     root = Path(run_dir)
     where = f"--replay {root}"
     if not (root / MANIFEST).exists() or not (root / "answers.jsonl").exists():
-        raise InputError(f"{where}: no manifest.json and answers.jsonl there (not a run folder this version recorded)")
+        raise InputError(
+            f"{where}: no manifest.json and answers.jsonl there (not a run folder this version recorded)"
+        )
     man = read_json(root / MANIFEST)
     base = RunConfig.from_dict(man.get("settings") or {})
     given = dict(values or {})
@@ -93,10 +95,14 @@ def replay_run(
     recorded = {r["method"] for r in rows}
     missing = [m for m in cfg.methods.names if m not in recorded]
     if missing:
-        raise InputError(f"{where}: --method {', '.join(missing)}: the run holds no answers of it (it has {', '.join(sorted(recorded))})")
+        raise InputError(
+            f"{where}: --method {', '.join(missing)}: the run holds no answers of it (it has {', '.join(sorted(recorded))})"
+        )
     seeds = {int(r["seed"]) for r in rows}
     if not set(range(cfg.seeds)) <= seeds:
-        raise InputError(f"{where}: --seeds {cfg.seeds}: the run holds seeds {', '.join(map(str, sorted(seeds)))}")
+        raise InputError(
+            f"{where}: --seeds {cfg.seeds}: the run holds seeds {', '.join(map(str, sorted(seeds)))}"
+        )
     keep = [
         r
         for r in rows
@@ -108,7 +114,9 @@ def replay_run(
         raise InputError(f"{where}: no recorded answer matches --episodes {cfg.dataset.episodes!r}")
     replied = ModelLog(root / MODEL_IO).contexts()
     unrecorded = [
-        r["key"] for r in keep if _needs_vlm(r["method"]) and not r["answer"].get("failed") and r["key"] not in replied
+        r["key"]
+        for r in keep
+        if _needs_vlm(r["method"]) and not r["answer"].get("failed") and r["key"] not in replied
     ]
     if unrecorded:
         raise InputError(
@@ -126,7 +134,12 @@ def replay_run(
 
 
 def _write(
-    out: Path, root: Path, rows: list[dict[str, Any]], cfg: RunConfig, man: dict[str, Any], summary: dict[str, Any]
+    out: Path,
+    root: Path,
+    rows: list[dict[str, Any]],
+    cfg: RunConfig,
+    man: dict[str, Any],
+    summary: dict[str, Any],
 ) -> None:
     """A run folder of its own for the replayed numbers (never the recorded run's)."""
     if out.resolve() == root.resolve():
@@ -137,7 +150,10 @@ def _write(
     text = "".join(json.dumps(r, default=_json_default) + "\n" for r in rows)
     atomic_write(out / "answers.jsonl", text.encode("utf-8"))
     atomic_write_json(out / "config.json", cfg.to_json(), indent=2, default=str)
-    doc = man | {"replayed_from": str(root.resolve()), "scoring": {"rule": cfg.thresholds.scoring, "thresholds": cfg.thresholds.to_dict()}}
+    doc = man | {
+        "replayed_from": str(root.resolve()),
+        "scoring": {"rule": cfg.thresholds.scoring, "thresholds": cfg.thresholds.to_dict()},
+    }
     atomic_write_json(out / MANIFEST, doc, indent=2, default=str)
     if (root / MODEL_IO).exists():
         shutil.copyfile(root / MODEL_IO, out / MODEL_IO)

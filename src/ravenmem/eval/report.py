@@ -391,10 +391,16 @@ def markdown(
             "over questions in brackets; n = questions scored; errors mean ± std over answered "
             f"questions. Position threshold(s): {_metres(used)}; time {thr['time_s'] / 60:g} min, "
             f"duration {thr['duration_s'] / 60:g} min. Scoring rule: {thr.get('scoring', 'paper')}"
-            + (" (the benchmark release's own scorer where it differs: RAVEN-QA)" if thr.get("scoring") == "release" else " (the papers' criteria)")
+            + (
+                " (the benchmark release's own scorer where it differs: RAVEN-QA)"
+                if thr.get("scoring") == "release"
+                else " (the papers' criteria)"
+            )
             + ".",
             "",
-            "Clock times: " + "; ".join(sorted({str(r.get("zone") or "UTC (recording clock)") for r in rows})) + ".",
+            "Clock times: "
+            + "; ".join(sorted({str(r.get("zone") or "UTC (recording clock)") for r in rows}))
+            + ".",
             "",
         ]
         lines += _overall(groups) + _cost(groups) + _breakdowns(groups) + _horizon_types(groups, thr)

@@ -461,7 +461,9 @@ class Runner:
         wall = time.perf_counter() - start
         verdict = None
         if q.type == "text" and self.judge is not None and not ans.failed:
-            verdict = self.judge.grade(q.text, q.truth.text, ans.text, context=f"judge|{row_key(ep, q, method, seed)}")
+            verdict = self.judge.grade(
+                q.text, q.truth.text, ans.text, context=f"judge|{row_key(ep, q, method, seed)}"
+            )
         return build_row(
             ep,
             q,

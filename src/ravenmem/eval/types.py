@@ -58,7 +58,9 @@ class Truth:
     def to_dict(self) -> dict[str, Any]:
         """Every field that holds a value: a "no" (`yes=False`), a 0 s duration and 0 m tolerances
         included; only unset (None) fields and empty lists are left out."""
-        return {k: v for k, v in asdict(self).items() if v is not None and not (isinstance(v, list) and not v)}
+        return {
+            k: v for k, v in asdict(self).items() if v is not None and not (isinstance(v, list) and not v)
+        }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Truth:

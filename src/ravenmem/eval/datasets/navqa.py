@@ -174,7 +174,9 @@ def parse_zone(text: str) -> tzinfo:
     try:
         return ZoneInfo(text.strip())
     except (ZoneInfoNotFoundError, ValueError) as e:
-        raise InputError(f"--tz: unknown time zone {text!r} (give e.g. UTC-5 or America/Chicago) ({e})") from e
+        raise InputError(
+            f"--tz: unknown time zone {text!r} (give e.g. UTC-5 or America/Chicago) ({e})"
+        ) from e
 
 
 def zone_label(zone: tzinfo) -> str:
@@ -372,7 +374,9 @@ def check_inside(times: list[float], t0: float, t1: float, zone: tzinfo, read_as
         off = zone.utcoffset(datetime.fromtimestamp(t, zone))
         offset_h = off.total_seconds() / 3600.0 if off is not None else 0.0
         fits = fitting_offsets(times, t0, t1, offset_h)
-        msg += "; " + (f"{', '.join(f'UTC{o:+d}' for o in fits)} would fit" if fits else "no whole-hour offset fits")
+        msg += "; " + (
+            f"{', '.join(f'UTC{o:+d}' for o in fits)} would fit" if fits else "no whole-hour offset fits"
+        )
     return msg
 
 
@@ -635,7 +639,18 @@ def _clips_from_human_qa(ctx: _Ctx, hq: Path) -> list[_Clip]:
         row = (ctx.by_uuid.get(qid) or [{}])[0]
         text = row.get("question") or str(item.get("question", "")).split("\n")[-1].strip()
         out.append(
-            _Clip(qid, t0, t1, item.get("length_category"), text, qtype, truth, row.get("category", ""), list(truth.times), False)
+            _Clip(
+                qid,
+                t0,
+                t1,
+                item.get("length_category"),
+                text,
+                qtype,
+                truth,
+                row.get("category", ""),
+                list(truth.times),
+                False,
+            )
         )
     return out
 
@@ -652,10 +667,25 @@ def _clips_from_unfilled(ctx: _Ctx, path: Path, frames: SeqFrames) -> list[_Clip
             rwhere = f"{ctx.csv_path} line {row['line']}"
             qtype = row["type"].lower()
             _check_type(qtype, rwhere)
-            zone = ctx.need_zone(str(ctx.csv_path)) if row.get("stamp") and qtype in TIMED else (ctx.zone or timezone.utc)
+            zone = (
+                ctx.need_zone(str(ctx.csv_path))
+                if row.get("stamp") and qtype in TIMED
+                else (ctx.zone or timezone.utc)
+            )
             got = _truth_from_csv(row, frames, zone, rwhere)
             out.append(
-                _Clip(qid, t0, t1, item.get("length_category"), row["question"], qtype, got.truth, row.get("category", ""), got.stamps, True)
+                _Clip(
+                    qid,
+                    t0,
+                    t1,
+                    item.get("length_category"),
+                    row["question"],
+                    qtype,
+                    got.truth,
+                    row.get("category", ""),
+                    got.stamps,
+                    True,
+                )
             )
     return out
 
@@ -702,10 +732,25 @@ def _sequence_episode(ctx: _Ctx, seq: str, frames: SeqFrames, rows: list[dict[st
         where = f"{ctx.csv_path} line {row['line']}"
         qtype = row["type"].lower()
         _check_type(qtype, where)
-        zone = ctx.need_zone(str(ctx.csv_path)) if row.get("stamp") and qtype in TIMED else (ctx.zone or timezone.utc)
+        zone = (
+            ctx.need_zone(str(ctx.csv_path))
+            if row.get("stamp") and qtype in TIMED
+            else (ctx.zone or timezone.utc)
+        )
         got = _truth_from_csv(row, frames, zone, where)
         text = _context(row["question"], last) if ctx.context and last is not None else row["question"]
-        c = _Clip(row["uuid"], t0, t1, None, row["question"], qtype, got.truth, row.get("category", ""), got.stamps, True)
+        c = _Clip(
+            row["uuid"],
+            t0,
+            t1,
+            None,
+            row["question"],
+            qtype,
+            got.truth,
+            row.get("category", ""),
+            got.stamps,
+            True,
+        )
         qs.append(_question(ctx, c, row["uuid"], text, t0, t1))
     return _episode(ctx.root, f"navqa/{seq}", f"{seq}:all", frames.refs, qs)
 

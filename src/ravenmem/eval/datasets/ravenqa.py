@@ -306,7 +306,7 @@ def _query_image(ref: Any, vdir: Path, where: str) -> Path:
 def _mapping(data: dict[str, Any], key: str, qpath: Path) -> dict[str, Any]:
     val = data.get(key) or {}
     if not isinstance(val, dict):
-        raise InputError(f"{qpath}: {key!r} must be an object of \"HH:MM:SS\": value")
+        raise InputError(f'{qpath}: {key!r} must be an object of "HH:MM:SS": value')
     return val
 
 
@@ -340,7 +340,11 @@ def _release_times(files: list[str], positions: list[list[float]], stamps: Stamp
     if not out:
         for p in positions:
             hit = next(
-                (s for x, y, s in stamps.positions if abs(x - p[0]) < POSITION_MATCH_M and abs(y - p[1]) < POSITION_MATCH_M),
+                (
+                    s
+                    for x, y, s in stamps.positions
+                    if abs(x - p[0]) < POSITION_MATCH_M and abs(y - p[1]) < POSITION_MATCH_M
+                ),
                 None,
             )
             if hit is not None:
@@ -352,7 +356,9 @@ def load(path: str, rate: float = 1.0, **_: Any) -> list[Episode]:
     """All videos under a RAVEN-QA folder (see the module docstring for the layout)."""
     if rate <= 0:
         raise InputError(f"rate must be > 0 frames per second, got {rate}")
-    return [load_video(subset, vdir, rate=rate, split=split) for subset, split, vdir in find_videos(Path(path))]
+    return [
+        load_video(subset, vdir, rate=rate, split=split) for subset, split, vdir in find_videos(Path(path))
+    ]
 
 
 def export_episode(out_dir: str | Path, frames: list[Frame], questions: list[dict[str, Any]]) -> Path:

@@ -54,7 +54,9 @@ def ask(
     ] = None,
     preset: Annotated[
         str | None,
-        typer.Option(help="raven-qa | navqa | findingdory: the paper's budget, top-k, temperature, seed"),
+        typer.Option(
+            help="raven-qa-human | raven-qa-robot | raven-qa-robot-open | navqa | findingdory: the paper's settings"
+        ),
     ] = None,
     base_url: BaseUrlOpt = None,
     model: ModelOpt = None,

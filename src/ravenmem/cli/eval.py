@@ -264,9 +264,11 @@ def judge_cmd(
     """Judge the text answers of a finished run that were not judged yet."""
     from ..agent.config import VLMConfig
     from ..eval.judge import Judge
+    from ..eval.recording import MODEL_IO, ModelLog, RecordingClient
     from ..eval.runner import rejudge
 
-    n = rejudge(run_dir, Judge(VLMConfig.resolve(model=judge, base_url=judge_base_url)))
+    jc = VLMConfig.resolve(model=judge, base_url=judge_base_url)
+    n = rejudge(run_dir, Judge(jc, client=RecordingClient(jc, ModelLog(Path(run_dir) / MODEL_IO))))
     console.print(esc(f"judged {n} text answer(s) in {run_dir}"))
 
 

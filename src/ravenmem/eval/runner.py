@@ -587,7 +587,10 @@ def rejudge(run_dir: str | Path, judge: Any, thresholds: Thresholds | None = Non
         if (r.get("judge") or {}).get("correct") is not None:
             continue
         r["judge"] = judge.grade(
-            r["question"]["text"], r["truth"].get("text", []), r["answer"].get("text", "")
+            r["question"]["text"],
+            r["truth"].get("text", []),
+            r["answer"].get("text", ""),
+            context=f"judge|{r['key']}",
         )
         r["score"] = score_row(r, thr)
         n += 1

@@ -60,6 +60,8 @@ def test_a_no_and_a_zero_survive_the_row() -> None:
     still = Question(id="d", text="How long did you stand still?", type="duration", truth=Truth(duration=0.0))
     assert build_row(ep, still, "m", 0, Answer(duration=5.0), Thresholds())["score"]["correct"] is True
     assert build_row(ep, still, "m", 0, Answer(duration=90.0), Thresholds())["score"]["correct"] is False
+    # an answer's heading stays in radians, as Answer.yaw (and ROS) has it
+    assert build_row(ep, no, "m", 0, Answer(yes=False, yaw=3.14), Thresholds())["pred"]["yaw"] == 3.14
 
 
 def test_bootstrap_interval_is_fixed_by_the_rows() -> None:
@@ -220,6 +222,11 @@ def _summary(r: Any) -> dict[str, Any]:
     return json.loads(r.stdout)
 
 
+def raven_on(dataset: str, url: str) -> list[str]:
+    """The options that run the raven agent on a dataset against the scripted model at `url`."""
+    return ["--dataset", dataset, "--method", "raven", "--vlm", "scripted", "--vlm-base-url", url]
+
+
 def _group(summary: dict[str, Any]) -> dict[str, Any]:
     (g,) = summary["groups"]
     return g
@@ -230,16 +237,7 @@ def test_cli_navqa_raven_repository_scores_records_and_replays(tmp_path: Path) -
     site = plugin_site(tmp_path)
     run = tmp_path / "run"
     with ScriptedModel(default=navqa_policy) as srv:
-        args = [
-            "--dataset",
-            f"navqa:{repo}",
-            "--method",
-            "raven",
-            "--vlm",
-            "scripted",
-            "--vlm-base-url",
-            srv.base_url,
-        ]
+        args = raven_on(f"navqa:{repo}", srv.base_url)
         g = _group(_summary(rm("eval", *args, *EMB, "--out", str(run), "--json", site=site)))
         asked = len(srv.requests)
     by_type = g["by"]["type"]
@@ -321,16 +319,7 @@ def test_cli_findingdory_multi_goal_answers(tmp_path: Path) -> None:
     root = write_findingdory_goals(tmp_path / "fd")
     site = plugin_site(tmp_path)
     with ScriptedModel(default=findingdory_policy) as srv:
-        args = [
-            "--dataset",
-            f"findingdory:{root}",
-            "--method",
-            "raven",
-            "--vlm",
-            "scripted",
-            "--vlm-base-url",
-            srv.base_url,
-        ]
+        args = raven_on(f"findingdory:{root}", srv.base_url)
         g = _group(_summary(rm("eval", *args, *EMB, "--out", str(tmp_path / "run"), "--json", site=site)))
         asked = [json.dumps(b["messages"][1]) for b in srv.requests]
     assert g["accuracy"]["mean"] == 1.0 and g["accuracy"]["questions"] == 3  # the two-goal answer included

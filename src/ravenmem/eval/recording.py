@@ -32,6 +32,15 @@ MODEL_IO = "model_io.jsonl"
 SETUP = "setup"  # the context of requests made while building a method (the caption baseline's captions)
 
 
+def append_json_line(path: Path, obj: Any, default: Any = str) -> None:
+    """Append one JSON line to a file, flushed and fsynced (a crash loses at most that line)."""
+    line = json.dumps(obj, default=default) + "\n"
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(line)
+        f.flush()
+        os.fsync(f.fileno())
+
+
 class ModelLog:
     """model_io.jsonl: one JSON line per model exchange, appended and flushed as it happens."""
 
@@ -40,11 +49,8 @@ class ModelLog:
         self._lock = threading.Lock()
 
     def write(self, entry: dict[str, Any]) -> None:
-        line = json.dumps(entry, default=str) + "\n"
-        with self._lock, open(self.path, "a", encoding="utf-8") as f:
-            f.write(line)
-            f.flush()
-            os.fsync(f.fileno())
+        with self._lock:
+            append_json_line(self.path, entry)
 
     def contexts(self) -> set[str]:
         """The row keys (and setup contexts) that have at least one recorded reply."""

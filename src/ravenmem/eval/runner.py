@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import queue
 import sys
 import threading
@@ -40,7 +39,7 @@ from .cache import CachingEmbedder, build_memory
 from .config import IDENTITY, RunConfig, Thresholds
 from .datasets import load_dataset
 from .metrics import prediction, score_row, summarize, truth_row
-from .recording import MANIFEST, MODEL_IO, SETUP, ModelLog, RecordingClient, manifest
+from .recording import MANIFEST, MODEL_IO, SETUP, ModelLog, RecordingClient, append_json_line, manifest
 from .types import Episode, Question, horizon_of
 
 # Options of the contract between the evaluator and the VLM agent: checked against the agent's
@@ -141,11 +140,8 @@ class AnswerLog:
         return list(out.values())
 
     def append(self, row: dict[str, Any]) -> None:
-        line = json.dumps(row, default=_json_default) + "\n"
-        with self._lock, open(self.path, "a", encoding="utf-8") as f:
-            f.write(line)
-            f.flush()
-            os.fsync(f.fileno())
+        with self._lock:
+            append_json_line(self.path, row, _json_default)
 
 
 def _json_default(o: Any) -> Any:

@@ -655,38 +655,38 @@ def _clips_from_human_qa(ctx: _Ctx, hq: Path) -> list[_Clip]:
     return out
 
 
+def _clip_from_row(
+    ctx: _Ctx, row: dict[str, str], frames: SeqFrames, window: tuple[float, float], length: str | None
+) -> _Clip:
+    """A data.csv question over a window of the sequence, its truth read in the episode's zone."""
+    where = f"{ctx.csv_path} line {row['line']}"
+    qtype = row["type"].lower()
+    _check_type(qtype, where)
+    timed = row.get("stamp") and qtype in TIMED
+    zone = ctx.need_zone(str(ctx.csv_path)) if timed else (ctx.zone or timezone.utc)
+    got = _truth_from_csv(row, frames, zone, where)
+    return _Clip(
+        row["uuid"],
+        *window,
+        length,
+        row["question"],
+        qtype,
+        got.truth,
+        row.get("category", ""),
+        got.stamps,
+        True,
+    )
+
+
 def _clips_from_unfilled(ctx: _Ctx, path: Path, frames: SeqFrames) -> list[_Clip]:
     out = []
     for n, item in enumerate(_read_items(path, "qa_unfilled.json")):
-        where = f"{path} item {n}"
         try:
             qid, t0, t1 = str(item["id"]), float(item["start_time"]), float(item["end_time"])
         except (KeyError, TypeError, ValueError) as e:
-            raise InputError(f"{where}: missing or bad field {e}") from e
+            raise InputError(f"{path} item {n}: missing or bad field {e}") from e
         for row in ctx.by_uuid.get(qid, []):  # a clip may carry several questions
-            rwhere = f"{ctx.csv_path} line {row['line']}"
-            qtype = row["type"].lower()
-            _check_type(qtype, rwhere)
-            zone = (
-                ctx.need_zone(str(ctx.csv_path))
-                if row.get("stamp") and qtype in TIMED
-                else (ctx.zone or timezone.utc)
-            )
-            got = _truth_from_csv(row, frames, zone, rwhere)
-            out.append(
-                _Clip(
-                    qid,
-                    t0,
-                    t1,
-                    item.get("length_category"),
-                    row["question"],
-                    qtype,
-                    got.truth,
-                    row.get("category", ""),
-                    got.stamps,
-                    True,
-                )
-            )
+            out.append(_clip_from_row(ctx, row, frames, (t0, t1), item.get("length_category")))
     return out
 
 
@@ -727,31 +727,10 @@ def _clip_episodes(ctx: _Ctx, seq: str, frames: SeqFrames, clips: list[_Clip]) -
 def _sequence_episode(ctx: _Ctx, seq: str, frames: SeqFrames, rows: list[dict[str, str]]) -> Episode:
     qs = []
     last = frames.refs[-1].pose
-    t0, t1 = frames.span
     for row in rows:
-        where = f"{ctx.csv_path} line {row['line']}"
-        qtype = row["type"].lower()
-        _check_type(qtype, where)
-        zone = (
-            ctx.need_zone(str(ctx.csv_path))
-            if row.get("stamp") and qtype in TIMED
-            else (ctx.zone or timezone.utc)
-        )
-        got = _truth_from_csv(row, frames, zone, where)
-        text = _context(row["question"], last) if ctx.context and last is not None else row["question"]
-        c = _Clip(
-            row["uuid"],
-            t0,
-            t1,
-            None,
-            row["question"],
-            qtype,
-            got.truth,
-            row.get("category", ""),
-            got.stamps,
-            True,
-        )
-        qs.append(_question(ctx, c, row["uuid"], text, t0, t1))
+        c = _clip_from_row(ctx, row, frames, frames.span, None)
+        text = _context(c.text, last) if ctx.context and last is not None else c.text
+        qs.append(_question(ctx, c, c.qid, text, *frames.span))
     return _episode(ctx.root, f"navqa/{seq}", f"{seq}:all", frames.refs, qs)
 
 

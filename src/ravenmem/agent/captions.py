@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, require
+from ..errors import InputError
 from ..types import Hit, MemoryRecord
 from .base import MemoryLike, TimeLike
 from .client import VLMClient
@@ -36,8 +36,7 @@ from .loop import Agent
 from .tools import ToolRunner
 
 CAPTION_FILE = "captions.sqlite"
-SEGMENT_S = 3.0  # seconds of recording per caption (ReMEmbR's and the paper's NaVQA setting)
-SEGMENT_FRAMES = 3  # keyframes per caption when a count is asked for instead (`segment_frames`)
+SEGMENT_FRAMES = 3  # consecutive keyframes per caption (ReMEmbR captions a few seconds of video)
 CAPTION_PROMPT = (
     "These are {n} consecutive views from a robot's camera over a few seconds, in time order. "
     "Describe in detail what the robot sees: each object you can make out, with its colour, size "
@@ -45,6 +44,7 @@ CAPTION_PROMPT = (
     "stairs, furniture, signs); any people and what they are doing; and any text you can read. "
     "Be specific and stick to what is visible. Reply with the description only."
 )
+SEGMENT_S = 3.0  # seconds of recording per caption, by default (ReMEmbR's and the paper's NaVQA setting)
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
 Row = tuple[
     int, list[int], int, float, float, float, str, str
@@ -84,6 +84,8 @@ class SentenceEncoder:
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
         with self._lock:
             if self._model is None:
+                from ..errors import require
+
                 st: Any = require("sentence_transformers", "hf")
                 try:
                     self._model = st.SentenceTransformer(self.name, device="cpu")

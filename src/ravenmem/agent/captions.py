@@ -141,11 +141,11 @@ class CaptionIndex:
         if not segment_s > 0:
             raise InputError(f"segment_s must be > 0 seconds, got {segment_s}")
         self.mem = mem
+        self.segment_s = segment_s
+        self.segment = _segment_label(segment_frames, segment_s)
         self.encoder: TextEncoder = text_encoder(encoder)
         self.encoder_name = str(getattr(self.encoder, "name", type(self.encoder).__name__))
         self.segment_frames = segment_frames
-        self.segment_s = segment_s
-        self.segment = _segment_label(segment_frames, segment_s)
         self.path = Path(mem.path) / CAPTION_FILE
         self._db = sqlite3.connect(self.path, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")

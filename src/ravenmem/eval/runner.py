@@ -314,7 +314,10 @@ class Runner:
         self.thresholds.check_subsets({q.subset for e in eps for q in e.questions})
         log = self._open_dir()
         self._write_manifest(eps)
-        for note in preset_notes(self.cfg):
+        notes = {n for e in eps for n in e.meta.get("notes", [])} | {
+            str(e.meta["zone"]) for e in eps if e.meta.get("zone")
+        }
+        for note in sorted(notes) + preset_notes(self.cfg):
             self.log(f"eval: {note}")
         done = {r["key"] for r in log.rows() if not (self.cfg.retry_failed and r["answer"].get("failed"))}
         names, seeds = self.cfg.methods.names, range(self.cfg.seeds)

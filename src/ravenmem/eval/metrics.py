@@ -343,12 +343,14 @@ def bootstrap_ci(table: np.ndarray, resamples: int = BOOTSTRAP) -> tuple[float, 
         return None
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     idx = rng.integers(0, table.shape[0], size=(resamples, table.shape[0]))
-    picked = table[idx]  # resamples x questions x seeds
-    scored = np.isfinite(picked)
-    sums = np.where(scored, picked, 0.0).sum(axis=1)
-    counts = scored.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        per_seed = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    scored_all = np.isfinite(table)
+    values = np.where(scored_all, table, 0.0)
+    parts = []
+    for chunk in np.array_split(idx, max(1, resamples // 100)):  # bounded memory on large datasets
+        sums = values[chunk].sum(axis=1)  # resamples x seeds
+        counts = scored_all[chunk].sum(axis=1)
+        parts.append(np.where(counts > 0, sums / np.maximum(counts, 1), np.nan))
+    per_seed = np.concatenate(parts)
     usable = np.isfinite(per_seed).any(axis=1)
     if not usable.any():
         return None

@@ -10,7 +10,7 @@ import pytest
 
 import ravenmem
 from ravenmem.errors import InputError
-from ravenmem.manifest import MANIFEST, Manifest
+from ravenmem.memory.manifest import MANIFEST, Manifest
 from tests.cli.helpers import assert_one_line_error, make_memory, run_cli
 
 

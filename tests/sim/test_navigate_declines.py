@@ -12,31 +12,31 @@ import typer
 from typer.testing import CliRunner
 
 import ravenmem
-from ravenmem.agent import OfflineReasoner, OfflineSettings
+from ravenmem.agent import OfflineReasoner, OfflineReasonerConfig
 from ravenmem.cli.nav import register
 from ravenmem.demo import _declined
 
 
 @pytest.fixture(scope="module")
 def rooms(tmp_path_factory) -> str:
-    """The synthetic rooms explored into a memory with a map (the colour embedder)."""
+    """The synthetic rooms explored into a memory with a map (tests/box_embedder.py)."""
     app = typer.Typer()
     register(app)
     app.command("version")(lambda: None)  # a second command keeps typer in multi-command mode
     mem = tmp_path_factory.mktemp("rooms") / "rooms.mem"
     args = ["explore", "--env", "synthetic:rooms", "--memory", str(mem), "--steps", "500"]
-    r = CliRunner().invoke(app, [*args, "--embedder", "test-colour", "--keyframe-dist", "1.0", "--json"])
+    r = CliRunner().invoke(app, [*args, "--embedder", "test-boxes", "--keyframe-dist", "1.0", "--json"])
     assert r.exit_code == 0, r.output
     return str(mem)
 
 
 def test_the_reasoner_says_why_it_declines_and_shows_what_a_search_finds(rooms: str) -> None:
     with ravenmem.open(rooms) as mem:
-        # one word, so that the reasoner's queries are the search's (the colour embedder reads
-        # a bare "box" as any plain picture)
+        # one word, so that the reasoner's queries are the search's (the boxes embedder reads
+        # a text naming no colour as nothing any picture holds)
         top = mem.search_text("blue", k=3, diverse=False)
         # a threshold above every cosine: the search still lists blue memories first
-        strict = OfflineReasoner(mem, settings=OfflineSettings(min_score=2.0))
+        strict = OfflineReasoner(mem, config=OfflineReasonerConfig(min_score=2.0))
         ans = strict.ask("Where did you see blue?")
         assert not ans.found and ans.position is None and ans.position_source == "none"
         m = re.search(

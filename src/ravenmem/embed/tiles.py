@@ -72,5 +72,7 @@ def tile_batch(images: Sequence[np.ndarray], boxes: Sequence[Box], size: int) ->
             left, top = round(x0 * w), round(y0 * h)
             crop = (left, top, max(round(x1 * w), left + 1), max(round(y1 * h), top + 1))
             for c, chan in enumerate(channels):
-                out[i * len(boxes) + j, c] = np.asarray(chan.crop(crop).resize((size, size), Image.Resampling.BILINEAR))
+                out[i * len(boxes) + j, c] = np.asarray(
+                    chan.crop(crop).resize((size, size), Image.Resampling.BILINEAR)
+                )
     return np.clip(out, 0.0, 1.0, out=out)

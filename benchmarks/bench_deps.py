@@ -40,7 +40,7 @@ TUM = Path(os.environ.get("RAVENMEM_TUM", ROOT.parent / "shared" / "data" / "tum
 TORCH_PIN = "torch==2.13.0"  # as scripts/install.sh
 TARGET_CORE = 1.2e9
 EXTRAS = ["serve", "torch", "hf", "clip", "sim", "eval", "milvus", "api-docs", "robot", "view", "dev", "docs"]
-TORCH_EXTRAS = {"torch", "hf", "clip"}
+TORCH_EXTRAS = {"torch", "hf", "clip", "dev"}  # dev: sentence-transformers, the tests' reference
 # the module ravenmem imports from each dependency (the import time a user pays)
 CORE_MODULES = [
     "numpy",

@@ -34,7 +34,7 @@ from .types import MemoryRecord, Pose
 PAPER_RATE = 0.12  # keyframes per second (RAVEN's robot)
 SYNTHETIC_N = 100_000
 BATCH = 16  # ingest's batch of frames
-SECONDS_PER_EMBEDDER = 5.0
+SECONDS_PER_EMBEDDER = 3.0
 QUERIES_PER_TOOL = 30
 T0 = 1_700_000_000.0
 TOOLS = ("image", "time", "position", "text")
@@ -141,7 +141,7 @@ def measure_embedder(spec: Any, seconds: float = SECONDS_PER_EMBEDDER) -> Embedd
         return EmbedderFigure(label, name, error=f"{type(e).__name__}: {e}"[:200])
 
 
-def measure_ocr(seconds: float = 3.0) -> float | None:
+def measure_ocr(seconds: float = 2.0) -> float | None:
     """frames/s of the OCR reader on a 640x480 frame with a sign on it; None without OCR."""
     try:
         from PIL import Image, ImageDraw

@@ -25,7 +25,7 @@ def bench_cmd(
     synthetic: Annotated[
         int, typer.Option(help="memories in the synthetic store (without --memory)")
     ] = 100_000,
-    seconds: Annotated[float, typer.Option(help="seconds of embedding per embedder")] = 5.0,
+    seconds: Annotated[float, typer.Option(help="seconds of embedding per embedder")] = 3.0,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
 ) -> None:
     """Measure the embedders, OCR and the store here; print keyframes/s and days of memory per GB."""

@@ -97,9 +97,9 @@ def build_graph(sd: dict[str, np.ndarray], what: str = "efficientnet-lite0") -> 
 
 
 class EffnetLite0Onnx:
-    """The classifier through onnxruntime. `quantize=True`: weights int8 (dynamic quantisation)."""
+    """The classifier through onnxruntime (float32; int8 was measured and rejected: docs/embedders.md)."""
 
-    def __init__(self, threads: int | None = None, quantize: bool = False) -> None:
+    def __init__(self, threads: int | None = None) -> None:
         from ._torchfile import load_state_dict
 
         src = weights_path()
@@ -109,9 +109,8 @@ class EffnetLite0Onnx:
             self._sd = self._sd or load_state_dict(src)
             return build_graph(self._sd, str(src))
 
-        variant = "int8" if quantize else "fp32"
         self.session = _onnx.cached_session(
-            f"{MODEL_ID}-{variant}", [GRAPH_VERSION, _onnx.fingerprint(src)], build, threads, quantize
+            f"{MODEL_ID}-fp32", [GRAPH_VERSION, _onnx.fingerprint(src)], build, threads
         )
         fc = self._classifier(src)
         self.classifier_weight: np.ndarray = fc[0]

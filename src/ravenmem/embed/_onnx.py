@@ -100,19 +100,14 @@ def fingerprint(path: Path) -> str:
     return f"{path.name}:{st.st_size}:{st.st_mtime_ns}"
 
 
-def cached_model(
-    stem: str, key_parts: list[Any], build: Callable[[], Any], quantize: bool = False
-) -> Path | bytes:
-    """The cached graph's path, building (and quantising) it first when absent; the serialised
-    model itself when the cache cannot be written."""
-    key = hashlib.sha256(json.dumps([stem, *key_parts, quantize], default=str).encode()).hexdigest()[:16]
+def cached_model(stem: str, key_parts: list[Any], build: Callable[[], Any]) -> Path | bytes:
+    """The cached graph's path, building it first when absent; the serialised model itself when
+    the cache cannot be written."""
+    key = hashlib.sha256(json.dumps([stem, *key_parts], default=str).encode()).hexdigest()[:16]
     path = cache_dir() / f"{stem}-{key}.onnx"
     if path.is_file() and path.stat().st_size > 0:
         return path
-    model = build()
-    data: bytes = model.SerializeToString()
-    if quantize:
-        data = _quantize(data)
+    data: bytes = build().SerializeToString()
     try:
         with atomic_open(path) as f:
             f.write(data)
@@ -121,35 +116,18 @@ def cached_model(
     return path
 
 
-def _quantize(data: bytes) -> bytes:
-    """Dynamic int8 quantisation of the weights (onnxruntime.quantization), serialised."""
-    import tempfile
-
-    from onnxruntime.quantization import QuantType, quantize_dynamic
-
-    with tempfile.TemporaryDirectory() as d:
-        src, dst = Path(d) / "fp32.onnx", Path(d) / "int8.onnx"
-        src.write_bytes(data)
-        quantize_dynamic(src, dst, weight_type=QuantType.QUInt8)
-        return dst.read_bytes()
-
-
 def cached_session(
-    stem: str,
-    key_parts: list[Any],
-    build: Callable[[], Any],
-    threads: int | None = None,
-    quantize: bool = False,
+    stem: str, key_parts: list[Any], build: Callable[[], Any], threads: int | None = None
 ) -> Any:
     """A session over the cached graph; a cache file onnxruntime cannot load is rebuilt once."""
-    model = cached_model(stem, key_parts, build, quantize)
+    model = cached_model(stem, key_parts, build)
     try:
         return session(model, threads)
     except RavenmemError:
         if not isinstance(model, Path):
             raise
         model.unlink(missing_ok=True)
-        return session(cached_model(stem, key_parts, build, quantize), threads)
+        return session(cached_model(stem, key_parts, build), threads)
 
 
 def session(model: Path | bytes, threads: int | None = None) -> Any:

@@ -8,14 +8,15 @@ navqa = create_method("raven", mem, preset="navqa", vlm=...)   # the paper's per
 
 from __future__ import annotations
 
-from .base import METHODS, MemoryLike, Method
+from ..memory.protocol import MemoryLike
+from .base import METHODS, Method
 from .baselines import EmbedderOnly, RandomBaseline, VLMOnly
 from .captions import CaptionAgent, CaptionIndex, caption_memories
 from .client import VLMClient, VLMError
 from .config import VLMConfig
 from .loop import Agent
 from .methods import create_method
-from .offline import OfflineReasoner, OfflineSettings
+from .offline import OfflineReasoner, OfflineReasonerConfig
 from .presets import PRESETS, Preset, get_preset, parse_top_k
 from .schema import Answer, Cost, Evidence, QuestionType
 
@@ -31,7 +32,7 @@ __all__ = [
     "MemoryLike",
     "Method",
     "OfflineReasoner",
-    "OfflineSettings",
+    "OfflineReasonerConfig",
     "PRESETS",
     "Preset",
     "QuestionType",

@@ -27,7 +27,7 @@ from pydantic import ValidationError
 from ..errors import InputError
 from ..fsio import atomic_write
 from ..imageio import read_image
-from .base import MemoryLike
+from ..memory.protocol import MemoryLike
 from .client import NO_MODEL, ChatReply, ToolsRejectedError, VLMClient, VLMError
 from .config import VLMConfig
 from .images import data_url, jpeg_of_array
@@ -36,7 +36,7 @@ from .presets import Preset, get_preset, merge_top_k
 from .prompts import budget_spent, reask, system_prompt
 from .questions import classify_question
 from .schema import Answer, Cost
-from .tools import (
+from .tool_calls import (
     DEFAULT_K,
     ToolRunner,
     WorkingMemory,

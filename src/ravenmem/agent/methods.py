@@ -13,11 +13,12 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import InputError
-from .base import METHODS, MemoryLike, Method, needs_vlm, vlm_method
+from ..memory.protocol import MemoryLike
+from .base import METHODS, Method, needs_vlm, vlm_method
 from .client import NO_MODEL
 from .config import VLMConfig
 from .presets import Preset, apply_preset
-from .tools import per_tool_k
+from .tool_calls import per_tool_k
 
 AGENT_OPTS = (
     "vlm",
@@ -56,7 +57,7 @@ def _raven(spec: str, memory: MemoryLike, **opts: Any) -> Method:
 def _offline(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .offline import OfflineReasoner
 
-    return OfflineReasoner(memory, **_pick(opts, ("top_k", "settings")))
+    return OfflineReasoner(memory, **_pick(opts, ("top_k", "config")))
 
 
 @METHODS.register("embedder-only")
@@ -87,7 +88,7 @@ def _vlm_only(spec: str, memory: MemoryLike, **opts: Any) -> Method:
 def _caption(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .captions import CaptionAgent
 
-    names = AGENT_OPTS + ("encoder", "captioner", "auto_caption", "segment_frames")
+    names = AGENT_OPTS + ("encoder", "captioner", "auto_caption", "segment_frames", "segment_s")
     return CaptionAgent(memory, **_pick(opts, names, per_tool=True))
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ravenmem.nav.grid import MapConfig, OccupancyGrid
-from ravenmem.nav.nav2 import read_pose_stamped
+from ravenmem.nav.goals import read_pose_stamped
 from tests.agent.conftest import SCENE, run_cli
 from tests.agent.scripted_server import answer, tool
 from tests.agent.test_cli import ids_of

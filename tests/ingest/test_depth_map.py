@@ -17,7 +17,7 @@ pytest.importorskip("vizdoom")
 from functools import partial
 
 from ravenmem.nav import load_map  # noqa: E402
-from ravenmem.nav.nav2 import read_pose_stamped  # noqa: E402
+from ravenmem.nav.goals import read_pose_stamped  # noqa: E402
 from tests.cli.helpers import run_cli
 
 REPO = Path(__file__).resolve().parents[2]

@@ -13,7 +13,7 @@ from PIL import Image
 
 import ravenmem
 from ravenmem.ingest.folder import FolderSource
-from ravenmem.ingest.rosbag import RosbagSource
+from ravenmem.ros.bag import RosbagSource
 from ravenmem.ingest.tum import TumSource
 from ravenmem.ingest.video import VideoSource
 from ravenmem.types import Frame, Pose

@@ -11,7 +11,7 @@ from PIL import Image
 from ravenmem.errors import InputError
 from ravenmem.ingest import SOURCES, FrameSource
 from ravenmem.ingest.folder import FolderSource
-from ravenmem.ingest.rosbag import RosbagSource
+from ravenmem.ros.bag import RosbagSource
 from ravenmem.ingest.sources import detect_format, open_source
 from ravenmem.ingest.tum import TumSource
 from ravenmem.ingest.video import VideoSource

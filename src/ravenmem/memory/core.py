@@ -118,6 +118,13 @@ class Core:
                 raise
             self._writer.hold(lock)
             self._writer.recover(self.store)
+            try:  # a re-anchoring a killed writer left half done is finished first
+                from .anchor import finish
+
+                self.manifest = finish(self.path, self.store, self.manifest) or self.manifest
+            except BaseException:
+                self._writer.release()
+                raise
 
     def release_writer(self) -> None:
         """Let another process write (this Memory takes the lock again at its next write)."""

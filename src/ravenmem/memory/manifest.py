@@ -52,6 +52,13 @@ class Manifest:
     created: float = 0.0
     ingests: list[dict[str, Any]] = field(default_factory=list)
     format_version: int = FORMAT_VERSION
+    # where the poses are (REP 105): their frame (`map`, or `odom` when there was no map frame)
+    # and the map's identity; None in memories written before they were recorded (read as
+    # `map` and `memory:<folder name>`). `anchor`: the transform `ravenmem align --apply` put
+    # the poses through, and the map they came from (`ravenmem.memory.anchor`).
+    frame_id: str | None = None
+    map_id: str | None = None
+    anchor: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)  # unknown keys, written back as they were
 
     def __post_init__(self) -> None:
@@ -77,6 +84,12 @@ class Manifest:
         if not isinstance(self.store, str):
             _bad("store", "a string", self.store)
         store_kind(self.store)
+        for name in ("frame_id", "map_id"):
+            v = getattr(self, name)
+            if v is not None and not is_name(v):
+                _bad(name, "a name of 1 to 200 printable characters", v)
+        if self.anchor is not None:
+            check_anchor(self.anchor)
 
     # ------------------------------------------------------------------ JSON
     @classmethod
@@ -136,6 +149,25 @@ class Manifest:
             return self.store
         rel = self.store[len(LITE) :] if self.store.startswith(LITE) else self.store[len("milvus://") :]
         return "milvus://" + str(_inside(folder, rel, "store"))
+
+
+def is_name(v: object) -> bool:
+    """A frame or map name: 1 to 200 printable characters, no surrounding space."""
+    return isinstance(v, str) and 0 < len(v) <= 200 and v == v.strip() and v.isprintable()
+
+
+def check_anchor(a: object) -> None:
+    """The manifest's `anchor`: {"transform": [x, y, z, yaw], "from": {"frame_id", "map_id"}, ...}."""
+    if not isinstance(a, dict):
+        _bad("anchor", "an object", a)
+    t = a.get("transform")  # type: ignore[union-attr]
+    ok = isinstance(t, list) and len(t) == 4
+    ok = ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in t)  # type: ignore[union-attr]
+    if not ok:
+        _bad("anchor.transform", "four finite numbers [x, y, z, yaw]", t)
+    origin = a.get("from")  # type: ignore[union-attr]
+    if not isinstance(origin, dict) or not all(is_name(origin.get(k)) for k in ("frame_id", "map_id")):
+        _bad("anchor.from", "the frame_id and map_id the poses came from", origin)
 
 
 def store_kind(value: str) -> str:

@@ -15,13 +15,13 @@ import httpx
 import pytest
 
 import ravenmem
-from ravenmem.ingest import rosmsg
+from ravenmem.ros import msgs as rosmsg
 from ravenmem.types import Pose
 from tests.agent.conftest import SCENE
 from tests.cli.helpers import assert_one_line_error
-from tests.server import ros_wire as w
+from tests.ros import ros_wire as w
 from tests.server.conftest import REPO, make_memory, serve_subprocess
-from tests.server.test_zenoh_loopback import free_port, peer, wait_until
+from tests.ros.test_zenoh_loopback import free_port, peer, wait_until
 
 zenoh: Any = pytest.importorskip("zenoh", reason="the robot extra (eclipse-zenoh) is not installed")
 

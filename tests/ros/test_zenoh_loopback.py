@@ -18,12 +18,13 @@ import numpy as np
 import pytest
 
 import ravenmem
-from ravenmem.ingest import rosmsg
+from ravenmem.ros import msgs as rosmsg
 from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer
-from ravenmem.server.zenoh_link import SKIP_NO_POSE, ZenohEndpoints, ZenohLink, parse_link_spec
+from ravenmem.ros.link import SKIP_NO_POSE, LinkConfig
+from ravenmem.ros.zenoh import ZenohEndpoints, ZenohLink
 from ravenmem.types import Frame, Pose
 from tests.conftest import ColorEmbedder
-from tests.server import ros_wire as w
+from tests.ros import ros_wire as w
 
 zenoh: Any = pytest.importorskip("zenoh", reason="the robot extra (eclipse-zenoh) is not installed")
 
@@ -77,7 +78,7 @@ def mem(tmp_path: Path) -> Iterator[ravenmem.Memory]:
 
 def test_frames_published_over_zenoh_become_memories(mem: ravenmem.Memory) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cfg = parse_link_spec("image=camera/color/image_raw,pose=odom,goal=goal_pose,wait=0.3")
+    cfg = LinkConfig.from_spec("image=camera/color/image_raw,pose=odom,goal=goal_pose,wait=0.3")
     link = ZenohLink(
         cfg, MemorySink(mem, KeyframeConfig(min_translation=0.15)), ZenohEndpoints(listen=(endpoint,))
     )
@@ -140,7 +141,7 @@ def test_tf_over_zenoh_with_tf_static_sent_before_the_link_started(mem: ravenmem
         robot, "tf_static", cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
     )
     static.put(w.tf_static())  # before anyone listens
-    cfg = parse_link_spec("image=camera/image_raw/compressed,pose=tf")  # parent: map, found in tf
+    cfg = LinkConfig.from_spec("image=camera/image_raw/compressed,pose=tf")  # parent: map, found in tf
     link = ZenohLink(cfg, MemorySink(mem, KeyframeConfig.only()), ZenohEndpoints(connect=(endpoint,))).start()
     try:
         pubs = {k: robot.declare_publisher(k) for k in ("camera/image_raw/compressed", "tf")}

@@ -232,3 +232,29 @@ def test_spec_defaults() -> None:
     assert not cfg.tf and cfg.tf_static_key is None and cfg.max_gap is None
     near = LinkConfig.from_spec("image=c,pose=odom,pose_match=nearest", pose_type="Odometry")
     assert near.max_gap == 0.05 and near.pose_type == rosmsg.ODOMETRY
+
+
+def test_poses_of_another_frame_than_the_memorys_are_not_stored() -> None:
+    """The poses' frame (the odometry's header.frame_id, or the TF parent) is checked once
+    against the memory's; a memory in `map` takes no `odom` poses."""
+    seen: list[str] = []
+
+    def memory_in_map(frame: str) -> str | None:
+        seen.append(frame)
+        return None if frame == "map" else f"poses in frame {frame!r}, the memory's are in 'map'"
+
+    sink = Recorder()
+    lk = RosLink(LinkConfig.from_spec("image=cam,pose=odom"), sink, clock=lambda: 5000.0, frame_check=memory_in_map)
+    for t in POSE_TIMES:
+        lk.pose("odom", w.odom(t))
+    for i in range(3):
+        lk.image("cam", w.image(10.1 + 0.1 * i, w.picture(i)))
+    assert sink.calls == 0 and lk.stats.skipped == {"poses in frame 'odom', the memory's are in 'map'": 3}
+    assert seen == ["odom"] and lk.poses.frame == "odom"  # asked once
+    sink2 = Recorder()
+    lk2 = RosLink(LinkConfig.from_spec("image=cam,pose=tf,tf_parent=map"), sink2, frame_check=memory_in_map)
+    lk2.pose("tf_static", w.tf_static())
+    for t in POSE_TIMES[:3]:
+        lk2.pose("tf", w.tf(t))
+    lk2.image("cam", w.image(10.1, w.picture(0)))
+    assert lk2.stats.stored == 1 and lk2.poses.frame == "map"

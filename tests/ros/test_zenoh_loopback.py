@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import ravenmem
+from ravenmem.nav.goals import pose_stamped
 from ravenmem.ros import msgs as rosmsg
 from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer
 from ravenmem.ros.link import SKIP_NO_POSE, LinkConfig
@@ -116,13 +117,15 @@ def test_frames_published_over_zenoh_become_memories(mem: ravenmem.Memory) -> No
             assert img is not None
             pic = w.picture(round((r.t - 10.0) / 0.1))
             assert np.abs(img.astype(int) - pic).mean() < 12  # the thumbnail is the published picture
-        # an answer with a position goes back to the robot as a PoseStamped in map
-        answer = {"found": True, "position": [recs[2].pose.x, recs[2].pose.y, 0.0], "yaw": recs[2].pose.yaw}
+        # an answer with a plan goes back to the robot as the plan's PoseStamped (here: odom)
+        goal_json = pose_stamped(recs[2].pose.x, recs[2].pose.y, recs[2].pose.yaw, frame_id="odom")
+        answer = {"found": True, "position": [0.0, 0.0, 0.0], "navigation": {"ok": True, "pose_stamped": goal_json}}
         assert link.publish_goal(answer)
         assert not link.publish_goal({"found": False, "position": None})
+        assert not link.publish_goal({"found": True, "position": [1.0, 2.0, 0.0]})  # no plan, no planner
         assert wait_until(lambda: len(goals) == 1)
         goal = rosmsg.deserialize(goals[0], rosmsg.POSE_STAMPED)
-        assert goal.header.frame_id == "map"
+        assert goal.header.frame_id == "odom"
         assert (goal.pose.position.x, goal.pose.position.y) == pytest.approx((recs[2].pose.x, recs[2].pose.y))
         q = goal.pose.orientation
         assert Pose.from_quaternion(0, 0, 0, q.x, q.y, q.z, q.w).yaw == pytest.approx(recs[2].pose.yaw)

@@ -35,6 +35,7 @@ from .folder import MANIFEST
 FORMAT_VERSION = 1  # the newest manifest format this code reads and writes
 MAX_MANIFEST_BYTES = 64 << 20  # the ingest history grows ~0.5 KB per run: 64 MB is ~100k runs
 LOCAL = "local"
+_UNSET_LEFT_OUT = ("frame_id", "map_id", "anchor")  # written only once known
 LITE = "milvus-lite:"
 _REMOTE = re.compile(r"(?:https?://)?[A-Za-z0-9_.\-]+:\d{1,5}/?|https?://[A-Za-z0-9_.\-]+/?")
 
@@ -108,6 +109,9 @@ class Manifest:
     def to_json(self) -> dict[str, Any]:
         out = dict(self.extra)
         out.update({f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"})
+        for key in _UNSET_LEFT_OUT:
+            if out[key] is None:
+                del out[key]
         return out
 
     @classmethod

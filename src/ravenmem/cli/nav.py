@@ -172,7 +172,9 @@ def navigate(
         gp, grid, start = _plan(memory, to, from_, method, robot_radius, drive, out)
     except RavenmemError as e:
         if json_out:
-            sys.stdout.write(json.dumps(out | {"ok": False, "problem": "input", "reason": str(e)}, indent=2) + "\n")
+            sys.stdout.write(
+                json.dumps(out | {"ok": False, "problem": "input", "reason": str(e)}, indent=2) + "\n"
+            )
         raise
     out |= gp.as_dict()
     if gp.ok and drive:

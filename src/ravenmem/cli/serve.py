@@ -101,7 +101,9 @@ def serve(
     ] = None,
     map_id: Annotated[
         str | None,
-        typer.Option(help="the map live poses are in (a memory in another map is refused; see `ravenmem align`)"),
+        typer.Option(
+            help="the map live poses are in (a memory in another map is refused; see `ravenmem align`)"
+        ),
     ] = None,
 ) -> None:
     """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds, a robot."""

@@ -2,11 +2,12 @@
 
 Frames (REP 105): a memory records the frame its poses are in (`frame_id`: `map`, or `odom`
 when the robot had no map frame) and the identity of that map (`map_id`: a name the user gave,
-`ingest --map-id` or `serve --map-id`, or one derived from the recording). A memory holds one
-map: a recording that says it is in another one is refused (`claim_map`), because coordinates
-of two maps side by side would point at the wrong places without anything saying so. Memories
-written before this was recorded read as frame `map`, map `memory:<folder name>`, and take
-the identity of the next recording added.
+`ingest --map-id` or `serve --map-id`, or one derived from its first recording). A memory holds
+one map: a recording named to be in another one, or with poses of another frame, is refused
+(`claim_map`), because coordinates of two maps side by side would point at the wrong places
+without anything saying so; a recording that names no map is taken to be in the memory's (and
+the ingest says so). Memories written before this was recorded read as frame `map`, map
+`memory:<folder name>`, and take the identity of the next recording added.
 
 Re-anchoring (`reanchor`): after `ravenmem align` found (or was given) the rigid transform
 from this memory's map into another's, every pose is put through it, nothing re-embedded. The
@@ -122,33 +123,42 @@ class Anchoring(Core):
         return map_identity(self.manifest, self.path)
 
     def claim_map(
-        self, map_id: str | None = None, frame_id: str | None = None, given: bool = True, what: str = "the recording"
-    ) -> None:
+        self,
+        map_id: str | None = None,
+        frame_id: str | None = None,
+        given: bool = True,
+        what: str = "the recording",
+    ) -> str | None:
         """Say that poses about to be added are in map `map_id`, frame `frame_id` (None: not
-        said). A memory that has no identity yet takes it; one that has another is a one-line
-        `InputError` naming both (nothing is written). `given`: the user named the map (rather
-        than it being derived from the recording), for the message."""
+        said). A memory that has no identity yet takes it. One in another map refuses a map the
+        user named (`given`) with a one-line `InputError` naming both (nothing is written); a
+        map derived from an unnamed recording is taken to be the memory's, and the note saying
+        so is returned. Poses of another frame are always refused."""
         for name, v in (("map id", map_id), ("frame", frame_id)):
             if v is not None and not is_name(v):
                 raise InputError(f"{name} {v!r}: expected 1 to 200 printable characters")
         m = self.manifest
+        note = None
         if map_id is not None and m.map_id is not None and map_id != m.map_id:
-            how = "" if given else " (derived from it; give --map-id if it is the same map)"
-            raise InputError(
-                f"{what} is in map {map_id!r}{how} but memory {self.path} is in map {m.map_id!r}: "
-                "put it in another memory and `ravenmem align` the two, or name the same map"
-            )
+            if given:
+                raise InputError(
+                    f"{what} is in map {map_id!r} but memory {self.path} is in map {m.map_id!r}: put "
+                    "it in another memory and `ravenmem align` the two, or name the memory's map"
+                )
+            note = f"{what} names no map: taken to be in the memory's, {m.map_id!r} (--map-id says otherwise)"
+            map_id = None
         if frame_id is not None and m.frame_id is not None and frame_id != m.frame_id:
             raise InputError(
                 f"{what} has poses in frame {frame_id!r} but memory {self.path} has them in "
                 f"{m.frame_id!r}: a memory holds poses of one frame"
             )
         if (map_id is None or m.map_id == map_id) and (frame_id is None or m.frame_id == frame_id):
-            return
+            return note
         with self.writer().change():
             m.map_id = map_id if map_id is not None else m.map_id or self.map_id
             m.frame_id = frame_id if frame_id is not None else m.frame_id or DEFAULT_FRAME
             m.save(self.path)
+        return note
 
     # ---------------------------------------------------------------- re-anchoring
     def reanchor(self, transform: Transform, map_id: str, frame_id: str | None = None) -> int:

@@ -215,7 +215,9 @@ def goal_for(
     frame_id, map_id = memory.frame_id, memory.map_id
     refused = _refusal(answer, map_id, allow_unsupported)
     if refused is not None:
-        return GoalPlan(PlanResult(ok=False, reason=refused[1]), frame_id=frame_id, map_id=map_id, problem=refused[0])
+        return GoalPlan(
+            PlanResult(ok=False, reason=refused[1]), frame_id=frame_id, map_id=map_id, problem=refused[0]
+        )
     if grid is None:
         try:
             grid = OccupancyGrid.load(memory.path)
@@ -248,11 +250,17 @@ def goal_for(
 def _refusal(answer: AnswerLike, map_id: str, allow_unsupported: bool) -> tuple[str, str] | None:
     """(problem, reason) when the answer must not be driven to, else None."""
     if getattr(answer, "failed", False):
-        return ANSWER, f"the question failed: {getattr(answer, 'error', None) or 'no answer'}; the robot stays put"
+        return (
+            ANSWER,
+            f"the question failed: {getattr(answer, 'error', None) or 'no answer'}; the robot stays put",
+        )
     if getattr(answer, "unsupported", False) and not allow_unsupported:
         d = getattr(answer, "support_distance", None)
         where = f"{float(d):.1f} m from" if isinstance(d, (int, float)) else "not near"
-        return ANSWER, f"unsupported answer: its position is {where} every memory the model was shown; the robot stays put"
+        return (
+            ANSWER,
+            f"unsupported answer: its position is {where} every memory the model was shown; the robot stays put",
+        )
     if not answer.found or not answer.position:
         return ANSWER, "the answer has no position to go to" + ("" if answer.found else " (not found)")
     pos = answer.position
@@ -268,7 +276,12 @@ def _refusal(answer: AnswerLike, map_id: str, allow_unsupported: bool) -> tuple[
 
 
 def _blame(
-    grid: OccupancyGrid, start: tuple[float, float], goal: tuple[float, float], radius: float, snap: float, reason: str
+    grid: OccupancyGrid,
+    start: tuple[float, float],
+    goal: tuple[float, float],
+    radius: float,
+    snap: float,
+    reason: str,
 ) -> tuple[str, str]:
     """Whether the start or the goal is why no path was found, with the reason to log. A goal
     reachable from some free region, but not from the start's, blames the start when the
@@ -314,7 +327,9 @@ def _heading(answer: AnswerLike, memory: Memory, grid: OccupancyGrid, gp: GoalPl
     if gp.plan.snapped and moved > grid.resolution:
         (gx, gy), (tx, ty) = gp.plan.goal, gp.target
         return Heading(
-            math.atan2(ty - gy, tx - gx), "target", f"facing the answer's position from the goal ({moved:.2f} m away)"
+            math.atan2(ty - gy, tx - gx),
+            "target",
+            f"facing the answer's position from the goal ({moved:.2f} m away)",
         )
     pose = _evidence_pose(memory, answer)
     if pose is not None:

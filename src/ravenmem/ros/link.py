@@ -168,7 +168,9 @@ class LinkConfig(BaseModel):
         values.update({k: v for k, v in overrides.items() if v is not None})
         for need in ("image", "pose"):
             if need not in values:
-                raise InputError(f"zenoh: {need}=KEY is missing (e.g. image=camera/color/image_raw,pose=odom)")
+                raise InputError(
+                    f"zenoh: {need}=KEY is missing (e.g. image=camera/color/image_raw,pose=odom)"
+                )
         try:
             return cls(**values)
         except ValidationError as e:

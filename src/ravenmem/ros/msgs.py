@@ -183,7 +183,9 @@ def register(definitions: dict[str, str]) -> None:
     ts = typestore()
     new = {}
     for name, text in definitions.items():
-        if name not in ts.types:  # keyed by the name given (rosbags would file srv types under .../srv/msg/...)
+        if (
+            name not in ts.types
+        ):  # keyed by the name given (rosbags would file srv types under .../srv/msg/...)
             new[name] = next(iter(get_types_from_msg(text, name).values()))
     if new:
         ts.register(new)

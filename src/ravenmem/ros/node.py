@@ -101,16 +101,24 @@ class LinkNode:
         img_cls = msg_class(cfg.image, cfg.image_type, msgs.IMAGE)
         pose_cls = msg_class(cfg.pose, cfg.pose_type, msgs.TF if cfg.tf else msgs.ODOMETRY)
         sensor = qos.qos_profile_sensor_data
-        self.node.create_subscription(img_cls, topic(cfg.image), lambda raw: link.image(cfg.image, raw), sensor, raw=True)
-        self.node.create_subscription(pose_cls, topic(cfg.pose), lambda raw: link.pose(cfg.pose, raw), 100, raw=True)
+        self.node.create_subscription(
+            img_cls, topic(cfg.image), lambda raw: link.image(cfg.image, raw), sensor, raw=True
+        )
+        self.node.create_subscription(
+            pose_cls, topic(cfg.pose), lambda raw: link.pose(cfg.pose, raw), 100, raw=True
+        )
         if cfg.tf_static_key:
             latched = qos.QoSProfile(depth=100, durability=qos.DurabilityPolicy.TRANSIENT_LOCAL)
             key = cfg.tf_static_key
             tf_cls = utils.get_message(msgs.TF)
-            self.node.create_subscription(tf_cls, topic(key), lambda raw: link.pose(key, raw), latched, raw=True)
+            self.node.create_subscription(
+                tf_cls, topic(key), lambda raw: link.pose(key, raw), latched, raw=True
+            )
         self.goal_pub = None
         if cfg.goal:
-            self.goal_pub = self.node.create_publisher(utils.get_message(msgs.POSE_STAMPED), topic(cfg.goal), 10)
+            self.goal_pub = self.node.create_publisher(
+                utils.get_message(msgs.POSE_STAMPED), topic(cfg.goal), 10
+            )
         if cfg.services:
             for service_name, answer in (("ask", self.logic.ask), ("search", self.logic.search)):
 

@@ -162,7 +162,12 @@ def search_reply(backend: Backend, request: dict[str, Any]) -> dict[str, Any]:
         return {"memories": [], "error": "near must be empty or x, y, radius"}
     try:
         rows = backend.search(
-            tool, str(request.get("query") or ""), k, request.get("after") or None, request.get("before") or None, near or None
+            tool,
+            str(request.get("query") or ""),
+            k,
+            request.get("after") or None,
+            request.get("before") or None,
+            near or None,
         )
     except RavenmemError as e:
         return {"memories": [], "error": " ".join(str(e).split())}
@@ -291,4 +296,3 @@ class ServiceBackend:
             raise RavenmemError(f"tool {t.name} needs a picture: ask with the HTTP API or MCP instead")
         hits = self.service.search(t, t.validate(args), k)
         return self.service.rows(hits, lambda rec: None)
-

@@ -331,7 +331,9 @@ class Service:
 
         return goal_for(ans, self.mem, start)
 
-    def plan_json(self, data: dict[str, Any], start: tuple[float, float] | None = None) -> dict[str, Any] | None:
+    def plan_json(
+        self, data: dict[str, Any], start: tuple[float, float] | None = None
+    ) -> dict[str, Any] | None:
         """`plan` for an answer given as its JSON (a robot link's hook); None when it is not one."""
         try:
             ans = Answer.model_validate(data)

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ravenmem.nav.grid import MapConfig, OccupancyGrid
 from ravenmem.nav.goals import read_pose_stamped
+from ravenmem.nav.grid import MapConfig, OccupancyGrid
 from tests.agent.conftest import SCENE, run_cli
 from tests.agent.scripted_server import answer, tool
 from tests.agent.test_cli import ids_of

@@ -16,10 +16,12 @@ from test_mapping import WORLD_Y_UP, _frames  # noqa: E402
 
 import ravenmem  # noqa: E402
 from ravenmem.agent.schema import Answer, Evidence  # noqa: E402
-from ravenmem.errors import InputError  # noqa: E402
-from ravenmem.nav.goals import goal_for, to_map_xy  # noqa: E402
+from ravenmem.nav.goals import (  # noqa: E402
+    goal_for,
+    read_pose_stamped,  # noqa: E402
+    to_map_xy,
+)
 from ravenmem.nav.mapping import MapBuilder, recording_config  # noqa: E402
-from ravenmem.nav.goals import read_pose_stamped  # noqa: E402
 
 
 @pytest.fixture()

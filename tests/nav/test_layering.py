@@ -60,7 +60,20 @@ ALLOWED = {
     },
 }
 # packages below ros: none of them may import it
-BELOW_ROS = ("types", "errors", "fsio", "memory", "store", "embed", "ingest", "agent", "nav", "server", "sim", "robot")
+BELOW_ROS = (
+    "types",
+    "errors",
+    "fsio",
+    "memory",
+    "store",
+    "embed",
+    "ingest",
+    "agent",
+    "nav",
+    "server",
+    "sim",
+    "robot",
+)
 
 
 def _ravenmem_imports(path: Path, package: str) -> set[str]:

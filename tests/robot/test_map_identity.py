@@ -47,7 +47,19 @@ def test_ingest_records_frame_and_map_and_refuses_another(cli, tmp_path: Path) -
 
     # a memory named at its first ingest, in map frame
     b = tmp_path / "b.mem"
-    r = cli("ingest", str(bag), "-m", str(b), "--pose-topic", "/tf", "--tf-parent", "map", "--map-id", "lab", *common)
+    r = cli(
+        "ingest",
+        str(bag),
+        "-m",
+        str(b),
+        "--pose-topic",
+        "/tf",
+        "--tf-parent",
+        "map",
+        "--map-id",
+        "lab",
+        *common,
+    )
     assert r.returncode == 0, r.stderr
     info = json.loads(cli("info", "-m", str(b), "--json").stdout)
     assert (info["frame_id"], info["map_id"]) == ("map", "lab")

@@ -116,7 +116,9 @@ def test_every_front_end_gives_the_same_goal_in_the_memorys_frame(cli, mem_path:
     try:
         info = httpx.get(url + "/info", timeout=30).json()
         assert (info["frame_id"], info["map_id"]) == ("odom", MAP_ID)
-        r = httpx.post(url + "/ask", json={"question": QUESTION, "method": "offline", "navigate": True}, timeout=90)
+        r = httpx.post(
+            url + "/ask", json={"question": QUESTION, "method": "offline", "navigate": True}, timeout=90
+        )
         assert r.status_code == 200, r.text
         nav = r.json()["navigation"]
         assert {k: nav[k] for k in reference} == reference
@@ -127,7 +129,9 @@ def test_every_front_end_gives_the_same_goal_in_the_memorys_frame(cli, mem_path:
 
         async def mcp_ask() -> dict[str, Any]:
             async with Client(f"{url}/mcp", read_timeout_seconds=90) as client:
-                res = await client.call_tool("ask", {"question": QUESTION, "method": "offline", "navigate": True})
+                res = await client.call_tool(
+                    "ask", {"question": QUESTION, "method": "offline", "navigate": True}
+                )
                 assert not res.is_error, res.content
                 return dict(res.structured_content or {})
 
@@ -139,19 +143,32 @@ def test_every_front_end_gives_the_same_goal_in_the_memorys_frame(cli, mem_path:
 
         # ravenmem_msgs/srv/Ask over Zenoh, as zenoh-bridge-ros2dds routes `ros2 service call`
         assert wait_until(lambda: bool(list(robot.liveliness().get("@/*/@ros2_lv/SS/**", timeout=2.0))), 30)
-        tokens = [str(r.ok.key_expr) for r in robot.liveliness().get("@/*/@ros2_lv/SS/**", timeout=5.0) if r.ok]
+        tokens = [
+            str(r.ok.key_expr) for r in robot.liveliness().get("@/*/@ros2_lv/SS/**", timeout=5.0) if r.ok
+        ]
         assert any(t.endswith("/SS/ravenmem§ask/ravenmem_msgs§srv§Ask") for t in tokens), tokens
         raw, _ = call(robot, "ravenmem/ask", ask_request(ts, QUESTION, True), attachment=bytes(16))
         reply = ts.deserialize_cdr(raw, "ravenmem_msgs/srv/Ask_Response")
         assert reply.found and not reply.unsupported and reply.reason == "" and reply.map_id == MAP_ID
-        assert "magenta" in reply.answer.lower() or json.loads(reply.answer_json)["position"] == [7.0, 3.0, 0.5]
+        assert "magenta" in reply.answer.lower() or json.loads(reply.answer_json)["position"] == [
+            7.0,
+            3.0,
+            0.5,
+        ]
         assert json.loads(reply.answer_json)["navigation"]["pose_stamped"] == reference["pose_stamped"]
         goals["srv/Ask via the bridge key"] = _goal(reply)
         # ... and as rmw_zenoh names the service, with its attachment echoed
         key = "0/ravenmem/ask/ravenmem_msgs::srv::dds_::Ask_/RIHS01_" + "0" * 64
         raw, att = call(robot, key, ask_request(ts, QUESTION, True), rmw_request_attachment(41, b"G" * 16))
-        assert att is not None and len(att) == 32 and att[:8] == (41).to_bytes(8, "little") and att[16:] == b"G" * 16
-        goals["srv/Ask via the rmw_zenoh key"] = _goal(ts.deserialize_cdr(raw, "ravenmem_msgs/srv/Ask_Response"))
+        assert (
+            att is not None
+            and len(att) == 32
+            and att[:8] == (41).to_bytes(8, "little")
+            and att[16:] == b"G" * 16
+        )
+        goals["srv/Ask via the rmw_zenoh key"] = _goal(
+            ts.deserialize_cdr(raw, "ravenmem_msgs/srv/Ask_Response")
+        )
         # the service's questions went to the robot's goal topic as well
         assert wait_until(lambda: len(published) == 4, 30)
         goals["/goal_pose after srv/Ask"] = xyyaw(_as_dict(ts, published[-1]))
@@ -166,11 +183,16 @@ def test_every_front_end_gives_the_same_goal_in_the_memorys_frame(cli, mem_path:
         search = ts.types["ravenmem_msgs/srv/Search_Request"](
             tool="text", query="magenta", k=2, after="", before="", near=np.zeros(0)
         )
-        raw, _ = call(robot, "ravenmem/search", bytes(ts.serialize_cdr(search, "ravenmem_msgs/srv/Search_Request")))
+        raw, _ = call(
+            robot, "ravenmem/search", bytes(ts.serialize_cdr(search, "ravenmem_msgs/srv/Search_Request"))
+        )
         found = ts.deserialize_cdr(raw, "ravenmem_msgs/srv/Search_Response")
         assert found.error == "" and len(found.memories) == 2
         best = found.memories[0]
-        assert best.pose.header.frame_id == "odom" and (best.pose.pose.position.x, best.pose.pose.position.y) == (7.0, 3.0)
+        assert best.pose.header.frame_id == "odom" and (
+            best.pose.pose.position.x,
+            best.pose.pose.position.y,
+        ) == (7.0, 3.0)
         assert best.score > found.memories[1].score and best.pose.header.stamp.sec > 1_600_000_000
         links = httpx.get(url + "/info", timeout=30).json()["links"]
         assert links[0]["questions"] == 4 and links[0]["goals"] == 5
@@ -182,10 +204,11 @@ def test_every_front_end_gives_the_same_goal_in_the_memorys_frame(cli, mem_path:
     from ravenmem.ros.link import LinkConfig
     from ravenmem.ros.node import NodeLogic
     from ravenmem.server.service import Service, ServiceConfig
-
     from tests.conftest import ColorEmbedder
 
-    service = Service(ravenmem.open(mem_path, embedder=ColorEmbedder()), ServiceConfig(method="offline")).start()
+    service = Service(
+        ravenmem.open(mem_path, embedder=ColorEmbedder()), ServiceConfig(method="offline")
+    ).start()
     try:
         logic = NodeLogic(LinkConfig.from_spec("image=camera,pose=odom,goal=goal_pose"), service)
         reply_d = logic.ask({"question": QUESTION, "navigate": True})

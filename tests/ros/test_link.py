@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from ravenmem.errors import InputError
-from ravenmem.ros import msgs as rosmsg
 from ravenmem.ingest.poses import SKIP_GAP, SKIP_OUTSIDE
 from ravenmem.nav.goals import pose_stamped, read_pose_stamped
+from ravenmem.ros import msgs as rosmsg
 from ravenmem.ros.link import SKIP_NO_POSE, SKIP_TYPE, LinkConfig, RosLink, goal_bytes, goal_of
 from ravenmem.types import Pose
 from tests.ros import ros_wire as w
@@ -244,7 +244,9 @@ def test_poses_of_another_frame_than_the_memorys_are_not_stored() -> None:
         return None if frame == "map" else f"poses in frame {frame!r}, the memory's are in 'map'"
 
     sink = Recorder()
-    lk = RosLink(LinkConfig.from_spec("image=cam,pose=odom"), sink, clock=lambda: 5000.0, frame_check=memory_in_map)
+    lk = RosLink(
+        LinkConfig.from_spec("image=cam,pose=odom"), sink, clock=lambda: 5000.0, frame_check=memory_in_map
+    )
     for t in POSE_TIMES:
         lk.pose("odom", w.odom(t))
     for i in range(3):

@@ -14,8 +14,8 @@ import pytest
 from PIL import Image
 
 from ravenmem.errors import InputError
-from ravenmem.nav.grid import MapConfig, OccupancyGrid
 from ravenmem.nav.goals import pose_stamped, read_pose_stamped
+from ravenmem.nav.grid import MapConfig, OccupancyGrid
 from ravenmem.ros.nav2 import export_map_server, import_map_server
 
 REPO = Path(__file__).resolve().parents[2]

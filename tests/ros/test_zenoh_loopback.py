@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 import ravenmem
+from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer
 from ravenmem.nav.goals import pose_stamped
 from ravenmem.ros import msgs as rosmsg
-from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer
 from ravenmem.ros.link import SKIP_NO_POSE, LinkConfig
 from ravenmem.ros.zenoh import ZenohEndpoints, ZenohLink
 from ravenmem.types import Frame, Pose
@@ -119,7 +119,11 @@ def test_frames_published_over_zenoh_become_memories(mem: ravenmem.Memory) -> No
             assert np.abs(img.astype(int) - pic).mean() < 12  # the thumbnail is the published picture
         # an answer with a plan goes back to the robot as the plan's PoseStamped (here: odom)
         goal_json = pose_stamped(recs[2].pose.x, recs[2].pose.y, recs[2].pose.yaw, frame_id="odom")
-        answer = {"found": True, "position": [0.0, 0.0, 0.0], "navigation": {"ok": True, "pose_stamped": goal_json}}
+        answer = {
+            "found": True,
+            "position": [0.0, 0.0, 0.0],
+            "navigation": {"ok": True, "pose_stamped": goal_json},
+        }
         assert link.publish_goal(answer)
         assert not link.publish_goal({"found": False, "position": None})
         assert not link.publish_goal({"found": True, "position": [1.0, 2.0, 0.0]})  # no plan, no planner

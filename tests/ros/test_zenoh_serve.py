@@ -21,8 +21,8 @@ from tests.agent.conftest import SCENE
 from tests.agent.test_ask_navigate import with_map
 from tests.cli.helpers import assert_one_line_error
 from tests.ros import ros_wire as w
-from tests.server.conftest import REPO, make_memory, serve_subprocess
 from tests.ros.test_zenoh_loopback import free_port, peer, wait_until
+from tests.server.conftest import REPO, make_memory, serve_subprocess
 
 zenoh: Any = pytest.importorskip("zenoh", reason="the robot extra (eclipse-zenoh) is not installed")
 

@@ -490,7 +490,7 @@ def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: J
 
 def _register_extensions() -> None:
     """Let the agent / nav / eval areas add their commands when their modules are present."""
-    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong", "viz"):
+    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong", "viz", "align"):
         try:
             module = importlib.import_module(f"ravenmem.cli.{mod}")
         except ModuleNotFoundError as e:

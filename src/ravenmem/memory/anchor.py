@@ -79,6 +79,12 @@ class Transform:
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return Transform(-(c * self.x + s * self.y), -(-s * self.x + c * self.y), -self.z, -self.yaw)
 
+    def then(self, other: Transform) -> Transform:
+        """This transform followed by `other` (other . self)."""
+        x, y = other.xy(self.x, self.y)
+        yaw = math.atan2(math.sin(self.yaw + other.yaw), math.cos(self.yaw + other.yaw))
+        return Transform(x, y, self.z + other.z, yaw)
+
     def xy(self, x: float, y: float) -> tuple[float, float]:
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return (c * x - s * y + self.x, s * x + c * y + self.y)

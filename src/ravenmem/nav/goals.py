@@ -224,6 +224,9 @@ def goal_for(
         except InputError as e:
             why = f"no map to plan on ({e})" if (memory.path / MAP_GRID).exists() else str(e)
             return GoalPlan(PlanResult(ok=False, reason=why), frame_id=frame_id, map_id=map_id, problem=MAP)
+    if (memory.manifest.anchor or {}).get("transform") != grid.meta.get("anchor"):
+        why = "the map is not in the frame of the memory's poses (a re-anchoring was interrupted): run `ravenmem align --apply` again"
+        return GoalPlan(PlanResult(ok=False, reason=why), frame_id=frame_id, map_id=map_id, problem=MAP)
     assert answer.position is not None
     target = to_map_xy(grid, [float(v) for v in answer.position])
     start = start if start is not None else last_pose(grid, memory)
@@ -331,7 +334,7 @@ def _heading(answer: AnswerLike, memory: Memory, grid: OccupancyGrid, gp: GoalPl
             "target",
             f"facing the answer's position from the goal ({moved:.2f} m away)",
         )
-    pose = _evidence_pose(memory, answer)
+    pose = _evidence_pose(memory, answer, grid)
     if pose is not None:
         return Heading(heading_of(grid, pose), "evidence", "the way the evidence camera looked from the goal")
     if len(gp.plan.waypoints) >= 2:
@@ -342,15 +345,23 @@ def _heading(answer: AnswerLike, memory: Memory, grid: OccupancyGrid, gp: GoalPl
     return Heading(0.0, "default", "nothing gave a heading: map +x")
 
 
-def _evidence_pose(mem: Memory, answer: AnswerLike) -> Pose | None:
-    """The full pose of the answer's first evidence memory, when it is still stored."""
+def _evidence_pose(mem: Memory, answer: AnswerLike, grid: OccupancyGrid) -> Pose | None:
+    """The pose of the answer's first evidence memory: the stored record's full pose when it is
+    this memory's (same id, time and place: an answer from another memory of the same map names
+    ids of its own), else the pose the evidence carries, on z-up maps (its yaw is a heading)."""
     if not answer.evidence:
         return None
-    ev_id = getattr(answer.evidence[0], "id", None)
-    if ev_id is None:
+    ev = answer.evidence[0]
+    ev_id = getattr(ev, "id", None)
+    try:
+        xyz = tuple(float(getattr(ev, k)) for k in ("x", "y", "z"))
+        yaw, t = float(getattr(ev, "yaw", 0.0)), float(ev.t)
+    except (AttributeError, TypeError, ValueError):
         return None
     try:
-        (rec,) = mem.get([int(ev_id)])
+        (rec,) = mem.get([int(ev_id)])  # type: ignore[arg-type]
     except (ValueError, TypeError):  # not an id, or no such memory (NotFoundError is a ValueError)
-        return None
-    return rec.pose
+        rec = None
+    if rec is not None and abs(rec.t - t) < 1e-6 and math.dist(rec.pose.xyz, xyz) < 1e-6:
+        return rec.pose
+    return Pose(*xyz, yaw) if grid.frame.is_world_xy else None

@@ -115,7 +115,9 @@ def over_zenoh(msgs: list[bytes], poses: list[bytes], label: str, rate: float) -
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
     sink = Count()
-    link = ZenohLink(LinkConfig.from_spec("image=cam,pose=odom"), sink, ZenohEndpoints(listen=(endpoint,))).start()
+    link = ZenohLink(
+        LinkConfig.from_spec("image=cam,pose=odom"), sink, ZenohEndpoints(listen=(endpoint,))
+    ).start()
     conf = zenoh.Config()
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))

@@ -350,7 +350,11 @@ def test_set_poses_moves_memories_for_every_tool_and_reopen(open_fn: StoreOpener
             got = store.get(ids, with_embeddings=True)
             assert [g.pose for g in got] == new
             assert [(g.t, g.ocr_text, g.source) for g in got] == [(r.t, r.ocr_text, r.source) for r in recs]
-            assert np.allclose(np.stack([g.embedding for g in got]), emb / np.linalg.norm(emb, axis=1, keepdims=True), atol=1e-6)
+            assert np.allclose(
+                np.stack([g.embedding for g in got]),
+                emb / np.linalg.norm(emb, axis=1, keepdims=True),
+                atol=1e-6,
+            )
             near = store.nearest(100.0, 0.0, None, 10)
             d = {r.id: float(np.hypot(p.x - 100.0, p.y)) for r, p in zip(recs, new, strict=True)}
             assert [i for i, _ in near] == sorted(d, key=lambda i: (d[i], i))[:10]

@@ -164,12 +164,13 @@ def check_anchor(a: object) -> None:
     """The manifest's `anchor`: {"transform": [x, y, z, yaw], "from": {"frame_id", "map_id"}, ...}."""
     if not isinstance(a, dict):
         _bad("anchor", "an object", a)
-    t = a.get("transform")  # type: ignore[union-attr]
+        return
+    t = a.get("transform")
     ok = isinstance(t, list) and len(t) == 4
     ok = ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in t)  # type: ignore[union-attr]
     if not ok:
         _bad("anchor.transform", "four finite numbers [x, y, z, yaw]", t)
-    origin = a.get("from")  # type: ignore[union-attr]
+    origin = a.get("from")
     if not isinstance(origin, dict) or not all(is_name(origin.get(k)) for k in ("frame_id", "map_id")):
         _bad("anchor.from", "the frame_id and map_id the poses came from", origin)
 

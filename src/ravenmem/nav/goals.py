@@ -354,14 +354,15 @@ def _evidence_pose(mem: Memory, answer: AnswerLike, grid: OccupancyGrid) -> Pose
     ev = answer.evidence[0]
     ev_id = getattr(ev, "id", None)
     try:
-        xyz = tuple(float(getattr(ev, k)) for k in ("x", "y", "z"))
+        x, y, z = (float(getattr(ev, k)) for k in ("x", "y", "z"))
         yaw, t = float(getattr(ev, "yaw", 0.0)), float(ev.t)
     except (AttributeError, TypeError, ValueError):
         return None
+    xyz = (x, y, z)
     try:
         (rec,) = mem.get([int(ev_id)])  # type: ignore[arg-type]
     except (ValueError, TypeError):  # not an id, or no such memory (NotFoundError is a ValueError)
         rec = None
     if rec is not None and abs(rec.t - t) < 1e-6 and math.dist(rec.pose.xyz, xyz) < 1e-6:
         return rec.pose
-    return Pose(*xyz, yaw) if grid.frame.is_world_xy else None
+    return Pose(x, y, z, yaw) if grid.frame.is_world_xy else None

@@ -116,6 +116,8 @@ def ask_reply(backend: Backend, request: dict[str, Any]) -> dict[str, Any]:
         reason = f"the question failed: {data.get('error') or 'no answer'}"
     elif nav is not None and not nav.get("ok"):
         reason = str(nav.get("reason") or "no path")
+    elif isinstance(data.get("drive"), dict) and data["drive"].get("status") != "succeeded":
+        reason = f"the robot did not get there: NavigateToPose {data['drive'].get('status')}"
     goal = nav.get("pose_stamped") if nav is not None and nav.get("ok") else None
     return {
         "answer": str(data.get("text") or ""),
@@ -258,9 +260,10 @@ class ServiceBackend:
     `POST /ask` answers them (the service's method and model), goals from `nav.goals.goal_for`
     (from `start()`, the robot's latest pose, when known), searches through the tools table."""
 
-    def __init__(self, service: Service, start: Any = None) -> None:
+    def __init__(self, service: Service, start: Any = None, drive: Any = None) -> None:
         self.service = service
         self.start = start or (lambda: None)
+        self.drive = drive  # goal -> the NavigateToPose action's result, when the link has one
 
     @property
     def frame_id(self) -> str:
@@ -270,7 +273,9 @@ class ServiceBackend:
         ans = self.service.ask(question, image=image)
         data = self.service.answer_json(ans, lambda rec: None)
         if navigate:
-            data["navigation"] = self.service.plan(ans, self.start()).as_dict()
+            data["navigation"] = nav = self.service.plan(ans, self.start()).as_dict()
+            if self.drive is not None and nav["ok"]:  # the answer reports how the drive went
+                data["drive"] = self.drive(nav["pose_stamped"])
         self.service.publish_answer(data)
         return data
 

@@ -269,10 +269,19 @@ class ZenohLink:
             return False
         if self._goal_pub is not None:
             self._goal_pub.put(goal_bytes(goal, time.time()))
-        if self.action is not None:
-            self.last_drive = self.action.drive(goal)
+        if self.action is not None and "drive" not in answer:  # (an answer driven to already)
+            self.last_drive = {"status": "sent", "goal": goal}
+            threading.Thread(target=self.drive, args=(goal,), name="ravenmem-drive", daemon=True).start()
         self.link.stats.add("goals")
         return True
+
+    def drive(self, goal: dict[str, Any]) -> dict[str, Any] | None:
+        """Drive to a goal with the NavigateToPose action and wait for its result (None when no
+        action is configured); the result is also `describe()["last_drive"]`."""
+        if self.action is None:
+            return None
+        self.last_drive = result = self.action.drive(goal)
+        return result
 
     def on_answer(self, answer: dict[str, Any]) -> None:
         """The service's answer hook: an answer with a plan to drive to becomes a goal."""
@@ -291,6 +300,8 @@ class ZenohLink:
 
     def close(self, timeout: float = 30.0) -> None:
         """Stop taking messages and questions, settle what is queued, then close the session."""
+        if self.action is not None:
+            self.action.close()
         for sub in self._subs:
             with contextlib.suppress(Exception):
                 sub.undeclare()
@@ -324,11 +335,14 @@ def start_link(service: Service, cfg: LinkConfig, endpoints: ZenohEndpoints | No
     def planner(answer: dict[str, Any], xy: tuple[float, float] | None) -> dict[str, Any] | None:
         return service.plan_json(answer, xy)
 
+    def drive(goal: dict[str, Any]) -> dict[str, Any] | None:
+        return holder[0].drive(goal) if holder else None
+
     link = ZenohLink(
         cfg,
         writer_sink(service.writer, cfg.source),
         endpoints,
-        backend=ServiceBackend(service, start),
+        backend=ServiceBackend(service, start, drive if cfg.action else None),
         planner=planner,
         frame_check=service.frame_check,
     )

@@ -22,42 +22,13 @@ import pytest
 SRC = Path(__file__).resolve().parents[2] / "src" / "ravenmem"
 
 # What each package may import from ravenmem (anything else is a sideways or upward arrow).
+_GROUND = {"types", "errors", "registry", "fsio", "timeparse", "imageio"}
+_DATA = _GROUND | {"memory", "tools", "store", "embed", "ingest"}
 ALLOWED = {
-    "sim": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "sim"},
-    "nav": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "memory", "tools", "nav"},
-    "robot": {
-        "types",
-        "errors",
-        "registry",
-        "fsio",
-        "timeparse",
-        "imageio",
-        "memory",
-        "tools",
-        "store",
-        "embed",
-        "sim",
-        "nav",
-        "ingest",
-        "robot",
-    },
-    "ros": {
-        "types",
-        "errors",
-        "registry",
-        "fsio",
-        "timeparse",
-        "imageio",
-        "memory",
-        "tools",
-        "store",
-        "embed",
-        "ingest",
-        "agent",
-        "nav",
-        "server",
-        "ros",
-    },
+    "sim": _GROUND | {"sim"},
+    "nav": _GROUND | {"memory", "tools", "nav"},
+    "robot": _DATA | {"sim", "nav", "robot"},
+    "ros": _DATA | {"agent", "nav", "server", "ros"},
 }
 # packages below ros: none of them may import it
 BELOW_ROS = (

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -26,7 +25,7 @@ from ravenmem.nav.grid import OccupancyGrid
 from ravenmem.robot.explore import ExploreConfig
 from ravenmem.robot.mission import explore_into, navigate_to
 from ravenmem.sim.synthetic import SyntheticEnv
-from tests.cli.helpers import assert_one_line_error
+from tests.cli.helpers import assert_one_line_error, run_cli
 from tests.robot import sessions as S
 
 REPO = Path(__file__).resolve().parents[2]
@@ -55,14 +54,7 @@ def tiny_plugin(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def rm(site: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}:{REPO}:{site}", COLUMNS="200")
-    return subprocess.run(
-        [sys.executable, "-m", "ravenmem.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=300,
-    )
+    return run_cli(*args, paths=(site,))
 
 
 def explore(path: Path, env: object, map_id: str, frame_id: str) -> None:

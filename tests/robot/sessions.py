@@ -57,6 +57,7 @@ class OdomEnv:
         self.env = SyntheticEnv(lab_world(start), name="synthetic:lab", start_time=start_time)
         self.to_odom = Transform(start[0], start[1], 0.0, start[2]).inverse()
         self.name = "synthetic:lab from its second start"
+        self.frame_id = "odom"  # REP 105: poses from where the robot started
         self.intrinsics, self.robot = self.env.intrinsics, self.env.robot
 
     def _odom(self, obs: Observation) -> Observation:

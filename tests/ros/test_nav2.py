@@ -17,7 +17,6 @@ from ravenmem.ros.nav2 import export_map_server, import_map_server
 from tests.cli.helpers import run_cli
 
 
-
 def _grid() -> OccupancyGrid:
     """5 x 4 cells of 0.1 m from (-1.0, 2.0): row 4 (the largest y) has an obstacle at col 0."""
     g = OccupancyGrid(MapConfig(resolution=0.1), origin=(-1.0, 2.0), shape=(5, 4))

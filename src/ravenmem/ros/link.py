@@ -178,7 +178,9 @@ class LinkConfig(BaseModel):
             key = ".".join(str(p) for p in err["loc"]) or "spec"
             msg = str(err["msg"]).removeprefix("Value error, ")
             got = values.get(key)
-            raise InputError(f"zenoh: {key}={got!r}: {msg}" if got is not None else f"zenoh: {msg}") from None
+            if msg.startswith("zenoh: ") or got is None:  # the check named the key itself
+                raise InputError(msg if msg.startswith("zenoh: ") else f"zenoh: {msg}") from None
+            raise InputError(f"zenoh: {key}={got!r}: {msg}") from None
         except InputError as e:
             raise InputError(str(e)) from None
 

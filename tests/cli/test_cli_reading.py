@@ -5,6 +5,7 @@ table's id column (the ids `--like ID` and `forget --ids` take)."""
 from __future__ import annotations
 
 import json
+import math
 import re
 from typing import Any
 
@@ -97,6 +98,15 @@ def test_info_lines_put_unknown_keys_in_words() -> None:
         info_lines({"path": "m.mem", "memories": 0, "store": "local", "live": True, "map": {"id": "a1"}})
     )
     assert rows["live"] == "yes" and rows["map"] == "id: a1" and rows["memories"] == "0"
+
+
+def test_info_lines_say_the_map_and_a_re_anchoring_in_words() -> None:
+    base = {"path": "m.mem", "memories": 3, "store": "local", "frame_id": "map", "map_id": "lab"}
+    rows = dict(info_lines(base | {"anchor": None}))
+    assert rows["map"] == "lab (poses in frame map)" and "anchor" not in rows
+    moved = {"transform": [1.0, -2.5, 0.0, math.pi / 2], "from": {"map_id": "memory:b.mem"}}
+    rows = dict(info_lines(base | {"anchor": moved}))
+    assert rows["anchor"] == "re-anchored from map memory:b.mem: moved (1.00, -2.50, 0.00) m, turned 90.0 deg"
 
 
 def test_search_table_has_the_ids_like_takes(tum_desk) -> None:

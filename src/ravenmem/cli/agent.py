@@ -187,6 +187,7 @@ def ask(
     with ravenmem.open(memory) as mem:
         m = create_method(name, mem, preset=preset, **opts)
         ans = m.ask(question, image=img)
+        ans.frame_id, ans.map_id = mem.frame_id, mem.map_id  # where its position is
         if sheet is not None:
             from ravenmem.viz.sheet import answer_sheet
 
@@ -198,9 +199,9 @@ def ask(
             f = files.get(ev["id"])
             ev["image_file"] = str(f) if f else None
         if grid is not None:
-            from ravenmem.nav.goals import plan_to_answer
+            from ravenmem.nav.goals import goal_for
 
-            data["navigation"] = plan_to_answer(mem, ans, start, robot_radius, grid=grid).as_dict()
+            data["navigation"] = goal_for(ans, mem, start, robot_radius=robot_radius, grid=grid).as_dict()
     if sheet is not None:
         data["sheet"] = str(sheet)
     _output(data, json_out)
@@ -240,13 +241,15 @@ def _output(data: dict[str, Any], json_out: bool) -> None:
 def _render_navigation(nav: dict[str, Any]) -> None:
     con = out_console()
     if not nav["ok"]:
-        con.print(f"[bold]navigate:[/] [red]no path[/]: {esc(nav['reason'])}", highlight=False)
+        what = f" ({nav['problem']})" if nav.get("problem") else ""
+        con.print(f"[bold]navigate:[/] [red]no path{what}[/]: {esc(nav['reason'])}", highlight=False)
         return
     (sx, sy), (gx, gy, gyaw) = nav["start"], nav["goal"]
+    heading = nav.get("heading") or {}
     con.print(
         f"[bold]navigate:[/] A* path {nav['path_length_m']:.2f} m, {len(nav['waypoints'])} waypoints, "
         f"from ({sx:.2f}, {sy:.2f}) to ({gx:.2f}, {gy:.2f}) facing {math.degrees(gyaw):.0f} deg "
-        f"(frame {esc(nav['frame_id'])})",
+        f"({esc(heading.get('reason', ''))}; frame {esc(nav['frame_id'])}, map {esc(nav.get('map_id') or '')})",
         highlight=False,
     )
     for note in nav.get("notes", []):

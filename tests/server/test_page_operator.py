@@ -104,17 +104,23 @@ def test_header_shows_the_name_and_the_map_identity_and_the_icon_is_served(
     from ravenmem.nav.grid import MapConfig, OccupancyGrid
 
     served.mem.set_name("Lab, second floor")
+    d = browser
+    open_page(d, served)  # no occupancy map yet: the map identity alone
+    wait_for(d, lambda d: by_css(d, "#map-id")[0].is_displayed(), "the map's identity")
+    assert by_css(d, "#map-id")[0].text == "map memory:scene.mem (frame map), no occupancy map"
     grid = OccupancyGrid(MapConfig(resolution=0.5), origin=(-2.0, -3.0), shape=(20, 32))
     grid.known[:] = True
     grid.logodds[:] = -1.0
     grid.meta["env"] = "vizdoom:freedoom1/E1M2"
     grid.save(served.mem.path)
-    d = browser
     open_page(d, served)
     assert by_css(d, "#memory-name")[0].text == "Lab, second floor"
     assert "scene.mem" in by_css(d, "#memory-name")[0].get_attribute("title")  # the folder, on hover
     wait_for(d, lambda d: by_css(d, "#map-id")[0].is_displayed(), "the map's identity")
-    assert by_css(d, "#map-id")[0].text == "map: vizdoom:freedoom1/E1M2, explored, 0.5 m cells"
+    # the map identity (a memory that never named one is in `memory:<folder>`) and its frame
+    assert by_css(d, "#map-id")[0].text == (
+        "map memory:scene.mem (frame map): vizdoom:freedoom1/E1M2, explored, 0.5 m cells"
+    )
     assert d.title == "Lab, second floor - ravenmem"
     icon = httpx.get(served.url + "/favicon.ico")
     assert icon.status_code == 200 and icon.headers["content-type"] == "image/svg+xml"

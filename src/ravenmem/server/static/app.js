@@ -18,6 +18,8 @@ const state = {
   t0: null,
   until: null,         // the scrubber's time (Unix s): memories after it are not shown; null = all
   probe: null,         // the last map click {x, y} that ran the position tool
+  mapId: null,         // the map the poses are in (/info map_id)
+  mapName: "map",      // the header's words for it, with the poses' frame
 };
 const MAX_FRAMES = 12;  // live frames kept in their panel
 const VLM_REASON = "needs a VLM: start the service with --model and --base-url (or RAVENMEM_VLM_*)";
@@ -451,6 +453,9 @@ async function load() {
   document.title = `${info.name || info.path} - ravenmem`;
   $("count").textContent = String(info.memories);
   state.t0 = info.t_min !== undefined ? info.t_min : null;
+  // the map the poses are in (`ravenmem ingest --map-id`, `ravenmem align`), and its frame
+  state.mapId = info.map_id || null;
+  state.mapName = info.map_id ? `map ${info.map_id} (frame ${info.frame_id || "map"})` : "map";
   // methods that need a VLM are shown, disabled with the reason, when the service has none
   const needs = new Set(info.ask.needs_vlm || []), noVlm = !info.ask.vlm;
   const methods = $("method");
@@ -478,9 +483,14 @@ async function loadMap() {
     img.onload = draw;
     img.src = await imageSrc(m.image);
     state.map = { extent: m.extent, img };
+    const env = m.env && m.env !== state.mapId ? m.env + ", " : "";
     $("map-id").hidden = false;
-    $("map-id").textContent = `map: ${m.env ? m.env + ", " : ""}${m.kind || "occupancy"}, ${m.resolution} m cells`;
-  } catch (e) { state.map = null; $("map-id").hidden = true; }  // 404: this memory has no map
+    $("map-id").textContent = `${state.mapName}: ${env}${m.kind || "occupancy"}, ${m.resolution} m cells`;
+  } catch (e) {  // 404: this memory has no occupancy map; its identity is still shown
+    state.map = null;
+    $("map-id").hidden = state.mapName === "map";
+    $("map-id").textContent = `${state.mapName}, no occupancy map`;
+  }
 }
 
 function takeToken() {

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import typer
 
 from ._console import esc, out_console
+from .options import COUNT, GAP, SIMILARITY, SPAN
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
@@ -68,8 +69,10 @@ def forget(
     verb = "would forget" if dry_run else "forgot"
     span = f" from {out['first_time']} to {out['last_time']}" if rep.removed else ""
     unknown = f"; {rep.unknown_ids} of the given ids are not in the memory" if rep.unknown_ids else ""
+    used = [f"--{k} {v!r} is {out[f'{k}_time']}" for k, v in (("before", before), ("after", after)) if v]
     line = (
-        f"{verb} {rep.removed} memories{span}, {rep.thumbnails} thumbnails, "
+        (f"{'; '.join(used)} (against all this memory has held, so a rerun means the same)\n" if used else "")
+        + f"{verb} {rep.removed} memories{span}, {rep.thumbnails} thumbnails, "
         f"{_bytes(rep.bytes_freed)} ({_bytes(rep.thumbnail_bytes)} of thumbnails); "
         f"{rep.memories_left} left{unknown}"
     )
@@ -78,15 +81,15 @@ def forget(
 
 def consolidate(
     memory: MemoryOpt,
-    budget: Annotated[int | None, typer.Option(help="keep at most this many memories")] = None,
+    budget: Annotated[int | None, COUNT, typer.Option(help="keep at most this many memories")] = None,
     max_similarity: Annotated[
-        float | None, typer.Option(help="merge neighbours more similar than this cosine")
+        float | None, SIMILARITY, typer.Option(help="merge neighbours more similar than this cosine")
     ] = None,
     max_distance: Annotated[
-        float, typer.Option(help="a merged run fits in a box this many metres across (inf: no limit)")
+        float, SPAN, typer.Option(help="a merged run fits in a box this many metres across (inf: no limit)")
     ] = 1.0,
     max_gap: Annotated[
-        float | None, typer.Option(help="never merge across a gap in time longer than this (s)")
+        float | None, GAP, typer.Option(help="never merge across a gap in time longer than this (s)")
     ] = None,
     dry_run: DryRun = False,
     wait: Wait = False,

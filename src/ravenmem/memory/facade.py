@@ -65,9 +65,9 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, MemoryLike):
         """
         if not frames:
             return []
-        writer = self.writer()
         for f in frames:
-            _validate_frame(f)
+            f.check()  # the ranges of ravenmem.types, before anything is written
+        writer = self.writer()
         if embeddings is None:
             embeddings = self.embedder.embed_images([f.image for f in frames])
         embeddings = np.asarray(embeddings, dtype=np.float32)
@@ -208,16 +208,3 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, MemoryLike):
 
     def __repr__(self) -> str:
         return f"Memory({str(self.path)!r}, embedder={self.manifest.embedder!r}, memories={self.count()})"
-
-
-def _validate_frame(f: Frame) -> None:
-    img = f.image
-    if not isinstance(img, np.ndarray) or img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
-        shape = getattr(img, "shape", None)
-        raise InputError(
-            f"frame {f.source}#{f.index}: image must be an RGB uint8 array (H, W, 3), got {shape}"
-        )
-    if f.pose is None:
-        raise InputError(f"frame {f.source}#{f.index}: no pose")
-    if not np.isfinite(f.t):
-        raise InputError(f"frame {f.source}#{f.index}: timestamp is not finite ({f.t})")

@@ -51,6 +51,7 @@ class Manifest:
     ocr: bool = False
     created: float = 0.0
     ingests: list[dict[str, Any]] = field(default_factory=list)
+    span_seen: list[float] | None = None  # [first, last] time this memory ever held (`forget`)
     format_version: int = FORMAT_VERSION
     extra: dict[str, Any] = field(default_factory=dict)  # unknown keys, written back as they were
 
@@ -74,6 +75,14 @@ class Manifest:
             _bad("created", "a finite number", self.created)
         if not isinstance(self.ingests, list) or not all(isinstance(r, dict) for r in self.ingests):
             _bad("ingests", "a list of objects", self.ingests)
+        if self.span_seen is not None and not (
+            isinstance(self.span_seen, list)
+            and len(self.span_seen) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in self.span_seen)
+            and all(math.isfinite(v) for v in self.span_seen)
+            and self.span_seen[0] <= self.span_seen[1]
+        ):
+            _bad("span_seen", "[first, last] Unix seconds", self.span_seen)
         if not isinstance(self.store, str):
             _bad("store", "a string", self.store)
         store_kind(self.store)

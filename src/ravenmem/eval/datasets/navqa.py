@@ -38,6 +38,7 @@ from zoneinfo import ZoneInfo
 import numpy as np
 
 from ...errors import InputError
+from ...fsio import read_text
 from ...ingest.poses import read_pose_table
 from ...types import Pose
 from ..types import Episode, EvalType, Question, Truth, horizon_of
@@ -158,7 +159,7 @@ def load_frames(root: Path, seq: str) -> SeqFrames:
 def read_data_csv(path: Path) -> list[dict[str, str]]:
     """The NaVQA question table, columns renamed to uuid/seq/question/stamp/type/text/parsable/category."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_text(path, what="question file")
     except OSError as e:
         raise InputError(f"{path}: cannot read ({e.strerror or e})") from e
     reader = csv.reader(io.StringIO(text))
@@ -316,7 +317,7 @@ def _clip_episodes(
     root: Path, seq: str, hq: Path, frames: SeqFrames, by_uuid: dict[str, dict[str, str]], context: bool
 ) -> list[Episode]:
     try:
-        items = json.loads(hq.read_text(encoding="utf-8"))["data"]
+        items = json.loads(read_text(hq, what="question file"))["data"]
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
         raise InputError(f"{hq}: not a human_qa.json ({e})") from e
     clips: dict[tuple[float, float], list[Question]] = {}

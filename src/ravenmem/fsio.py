@@ -18,6 +18,7 @@ exclusive `flock` on it while it writes, which the OS drops when the process die
 from __future__ import annotations
 
 import errno
+import functools
 import json
 import os
 import re
@@ -25,10 +26,10 @@ import sqlite3
 import stat
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, ParamSpec, TypeVar
 from urllib.parse import quote
 
 try:
@@ -38,6 +39,8 @@ except ImportError:  # pragma: no cover - not POSIX: temp files are then never r
 
 from .errors import InputError, RavenmemError
 
+P = ParamSpec("P")
+R = TypeVar("R")
 _TEMP_NAME = re.compile(r"\..+\.[0-9a-f]{12}\.tmp")
 
 MAX_TEXT = 64 << 20  # a list, a table or a question file: 64 MiB (a pose track of 500,000 rows is 40)
@@ -52,7 +55,8 @@ class DiskFullError(RavenmemError, OSError):
 
 def disk_full(e: BaseException) -> DiskFullError | None:
     """`e` as a one-line DiskFullError when it (or what caused it) is "no space left", else None:
-    SQLite says `database or disk is full`, the OS says ENOSPC (EDQUOT, EFBIG)."""
+    SQLite says `database or disk is full` (or a write error: a quota, a file-size limit), the
+    OS says ENOSPC (EDQUOT, EFBIG)."""
     seen: BaseException | None = e
     while seen is not None:
         if isinstance(seen, DiskFullError):
@@ -60,9 +64,15 @@ def disk_full(e: BaseException) -> DiskFullError | None:
         if isinstance(seen, OSError) and seen.errno in _FULL:
             where = f" writing {seen.filename}" if seen.filename else ""
             return DiskFullError(f"disk full{where} ({os.strerror(seen.errno)}); nothing stored was lost")
-        if "database or disk is full" in str(seen):
+        name = getattr(seen, "sqlite_errorname", "")
+        if name == "SQLITE_FULL" or "database or disk is full" in str(seen):
             return DiskFullError(
                 "disk full: the store cannot grow (SQLite: database or disk is full); nothing stored was lost"
+            )
+        if name in ("SQLITE_IOERR_WRITE", "SQLITE_IOERR_FSYNC", "SQLITE_IOERR_TRUNCATE"):
+            # what SQLite says when a write fails with EFBIG (a file-size limit) or EDQUOT
+            return DiskFullError(
+                f"disk full or failing: the store cannot write (SQLite: {seen}); nothing stored was lost"
             )
         seen = seen.__cause__ or seen.__context__
     return None
@@ -106,6 +116,25 @@ def rollback(conn: sqlite3.Connection) -> None:
     full disk has already rolled back, and a second error would hide the first."""
     if conn.in_transaction:
         conn.execute("ROLLBACK")
+
+
+def reports_full_disk(fn: Callable[P, R]) -> Callable[P, R]:
+    """`fn` (a write) with a full disk raised as one `DiskFullError`, whatever raised it (SQLite,
+    a thumbnail, the manifest): callers and front ends see one line, "disk full ..."."""
+
+    @functools.wraps(fn)
+    def write(*args: P.args, **kwargs: P.kwargs) -> R:
+        try:
+            return fn(*args, **kwargs)
+        except DiskFullError:
+            raise
+        except Exception as e:
+            full = disk_full(e)
+            if full is None:
+                raise
+            raise full from e
+
+    return write
 
 
 def read_bounded(path: str | os.PathLike[str], limit: int = MAX_TEXT, what: str = "file") -> bytes:

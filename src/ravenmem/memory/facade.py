@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..fsio import reports_full_disk
 from ..imageio import write_jpeg
 from ..types import Frame, MemoryRecord, Pose
 from .changes import Changes
@@ -56,6 +57,7 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, MemoryLike):
         """Append one observation (thread-safe; another thread may search meanwhile)."""
         return self.add_frames([Frame(image=image, t=t, pose=pose, source=source, index=frame_index)])[0]
 
+    @reports_full_disk
     def add_frames(self, frames: Sequence[Frame], embeddings: np.ndarray | None = None) -> list[int]:
         """Embed, OCR, thumbnail and store frames; durable when this returns.
 
@@ -109,6 +111,7 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, MemoryLike):
             writer.end(journal)
         return ids
 
+    @reports_full_disk
     def import_embeddings(
         self, batches: Iterable[tuple[Sequence[MemoryRecord], np.ndarray]], resume: str | None = None
     ) -> int:
@@ -159,6 +162,7 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, MemoryLike):
         )
         return rel
 
+    @reports_full_disk
     def record_ingest(self, report: dict[str, Any]) -> None:
         """Append an ingest run's counts to the manifest (frames seen/kept, raw bytes)."""
         with self.writer().change():

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, RavenmemError
 from ..ingest.keyframes import KeyframeConfig, Keyframer
 from ..memory import Memory
 from ..types import Frame, MemoryRecord, Pose
@@ -219,7 +219,7 @@ class LiveWriter:
         try:
             self._store(jobs)
         except Exception as e:  # a failed batch fails its frames, not the writer
-            if not isinstance(e, InputError):
+            if not isinstance(e, RavenmemError):  # bad input, a full disk: the client is told
                 log.exception("storing %d live frame(s) failed", len(jobs))
             for j in jobs:
                 if not j.future.done():

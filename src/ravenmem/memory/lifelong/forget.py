@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import InputError
+from ...fsio import reports_full_disk
 from ...timeparse import TimeContext, fmt_time, parse_time
 from ...types import MemoryRecord
 from ..core import Core
@@ -122,6 +123,7 @@ def select(
 class Forgetting(Core):
     """`Memory.forget`."""
 
+    @reports_full_disk
     def forget(
         self,
         before: TimeLike = None,

@@ -131,15 +131,15 @@ class TimeArgs(ToolArgs):
         return v
 
 
-_IN_MAP = {"allow_inf_nan": False, "ge": -MAX_COORD, "le": MAX_COORD}  # ravenmem.types' range
-
-
 class PositionArgs(ToolArgs):
-    x: float = Field(..., **_IN_MAP, description="map x in metres")  # type: ignore[arg-type]
-    y: float = Field(..., **_IN_MAP, description="map y in metres")  # type: ignore[arg-type]
+    # positions within the map's range (ravenmem.types): 1e308 is a one-line error, not an overflow
+    x: float = Field(..., ge=-MAX_COORD, le=MAX_COORD, allow_inf_nan=False, description="map x in metres")
+    y: float = Field(..., ge=-MAX_COORD, le=MAX_COORD, allow_inf_nan=False, description="map y in metres")
     z: float | None = Field(
         None,
-        **_IN_MAP,  # type: ignore[arg-type]
+        ge=-MAX_COORD,
+        le=MAX_COORD,
+        allow_inf_nan=False,
         description="height in metres; planar distance when left out",
     )
     radius: float | None = Field(

@@ -69,12 +69,16 @@ def forget(
     verb = "would forget" if dry_run else "forgot"
     span = f" from {out['first_time']} to {out['last_time']}" if rep.removed else ""
     unknown = f"; {rep.unknown_ids} of the given ids are not in the memory" if rep.unknown_ids else ""
-    used = [f"--{k} {v!r} is {out[f'{k}_time']}" for k, v in (("before", before), ("after", after)) if v]
+    used = [f"--{k} {v!r} = {out[f'{k}_time']}" for k, v in (("before", before), ("after", after)) if v]
     line = (
-        (f"{'; '.join(used)} (against all this memory has held, so a rerun means the same)\n" if used else "")
-        + f"{verb} {rep.removed} memories{span}, {rep.thumbnails} thumbnails, "
+        f"{verb} {rep.removed} memories{span}, {rep.thumbnails} thumbnails, "
         f"{_bytes(rep.bytes_freed)} ({_bytes(rep.thumbnail_bytes)} of thumbnails); "
         f"{rep.memories_left} left{unknown}"
+        + (
+            f" ({'; '.join(used)}: resolved against all the memory ever held, so a rerun means the same)"
+            if used
+            else ""
+        )
     )
     _print(out, json_out, line)
 

@@ -84,7 +84,7 @@ class TumSource:
         if groundtruth is None:
             groundtruth = poses  # the name every other source uses for its pose track
         gt = groundtruth if groundtruth is not None else self.root / "groundtruth.txt"
-        if groundtruth is None and not Path(gt).is_file():
+        if groundtruth is None and not (self.root / "groundtruth.txt").is_file():
             raise InputError(f"{self.root}: no groundtruth.txt (pass groundtruth=FILE with poses)")
         self.track = pose_track_arg(gt, sort=True)
         self.pose_match = check_match_mode(pose_match)

@@ -104,6 +104,8 @@ class Manifest:
     def to_json(self) -> dict[str, Any]:
         out = dict(self.extra)
         out.update({f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"})
+        if self.span_seen is None:  # only once `forget` resolved a relative time
+            del out["span_seen"]
         return out
 
     @classmethod

@@ -100,8 +100,8 @@ def import_map_server(yaml_path: str | Path) -> OccupancyGrid:
     if not isinstance(origin, (list, tuple)) or len(origin) != 3:
         raise InputError(f"{yaml_path}, field 'origin': expected [x, y, yaw], got {origin!r}")
     ox, oy, oyaw = (_num({"origin": v}, "origin", yaml_path) for v in origin)
-    for v in (ox, oy):
-        check_coord(v, f"{yaml_path}, field 'origin'")
+    for corner in (ox, oy):
+        check_coord(corner, f"{yaml_path}, field 'origin'")
     if abs(oyaw) > 1e-9:
         raise InputError(f"{yaml_path}, field 'origin': yaw {oyaw} is not supported (only 0)")
     mode = str(meta.get("mode", "trinary"))

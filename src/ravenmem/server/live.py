@@ -323,4 +323,6 @@ def _checked_frame(image: np.ndarray, pose: Pose, t: float, source: str) -> Fram
         raise InputError(f"t must be a finite number of Unix seconds, got {t!r}")
     if not source or len(source) > 200 or not source.isprintable():
         raise InputError("source must be a printable name of 1 to 200 characters")
-    return Frame(image=image, t=float(t), pose=pose, source=source, index=0)
+    frame = Frame(image=image, t=float(t), pose=pose, source=source, index=0)
+    frame.check()  # what a memory stores (ravenmem.types): refused here, not in the writer's batch
+    return frame

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..fsio import disk_full, remove_stale_temp_files, sqlite_reader
-from ..types import Filter, MemoryRecord
+from ..types import MAX_ID, Filter, MemoryRecord
 from . import _sql
 from ._columns import Columns, ColumnsFileError
 from ._common import (
@@ -569,7 +569,7 @@ class LocalStore:
         """Records in the order of `ids`; an unknown id raises KeyError."""
         want = [int(i) for i in ids]
         found: dict[int, MemoryRecord] = {}
-        uniq = sorted(set(want))
+        uniq = sorted({i for i in want if 0 <= i <= MAX_ID})  # others cannot be stored: unknown
         with self._lock:
             self._check_open()
             for s in range(0, len(uniq), 900):

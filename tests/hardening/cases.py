@@ -3,8 +3,9 @@
 A case is one line: `cli(...)` a `ravenmem` command line (run in its own process by
 `forkrun.py`), `http(...)` a request to a real `ravenmem serve`, `mcp(...)` a tool call through
 the `mcp` package's client. Each names a piece of the problem that its one-line error must
-hold (`expect`). Placeholders in command lines and paths: `{mem}` the memory the CLI cases share,
-`{tmp}` a scratch folder, `{files}` the folder of prepared hostile files (see `hostile_files`).
+hold (`expect`). Placeholders in command lines and paths: `{mem}` the memory the CLI cases share
+(5 memories and a 4 x 4 m map), `{tmp}` a scratch folder, `{files}` the folder of prepared
+hostile files (see `runner.hostile_files`).
 
 Every outcome is one of (`classify_*`):
 - clear: refused with one line naming the problem (CLI: exit 2 or 1, one `error: ...` line, no
@@ -72,10 +73,10 @@ CASES: list[Case] = [
     http("POST /memories", "depth_scale", **post(depth_scale="1e300") | {"files": "frame+depth"}),
     http("POST /memories", "source", **post(source="s" * 300)),
     http("POST /memories", "too small", **post() | {"files": "one-pixel.png"}),
-    cli("ingest {files}/tum-t1e20 -m {mem}", "timestamp"),
-    cli("ingest {files}/tum-t-1e12 -m {mem}", "timestamp"),
-    cli("ingest {files}/tum-gt1e15 -m {mem}", "'t'"),
-    cli("ingest {files}/tum-x1e308 -m {mem}", "'x'"),
+    cli("ingest {files}/tum-t1e20 -m {mem} --embedder test-color", "timestamp"),
+    cli("ingest {files}/tum-t-1e12 -m {mem} --embedder test-color", "timestamp"),
+    cli("ingest {files}/tum-gt1e15 -m {mem} --embedder test-color", "'t'"),
+    cli("ingest {files}/tum-x1e308 -m {mem} --embedder test-color", "'x'"),
     # ------------------------------------------------------------ ids past SQLite's INTEGER
     http(f"GET /memories/{BIG}", BIG),
     http(f"GET /memories/{BIG}/image", BIG),
@@ -117,14 +118,14 @@ CASES: list[Case] = [
     cli("ask 'where is red?' -m {mem} --offline --frames 0", "--frames"),
     cli("ask 'where is red?' -m {mem} --offline --seed -1", "--seed"),
     cli("ask 'where is red?' -m {mem} --offline --navigate --from 1e308,0", "--from"),
-    cli("map -m {mem} --import-nav2 {files}/map-res1e-300.yaml", "resolution"),
-    cli("map -m {mem} --import-nav2 {files}/map-origin1e308.yaml", "origin"),
+    cli("map -m {mem} --import-nav2 {files}/map-res1e-300.yaml --overwrite", "resolution"),
+    cli("map -m {mem} --import-nav2 {files}/map-origin1e308.yaml --overwrite", "origin"),
     cli("map -m {mem} --rebuild --resolution 0", "--resolution"),
     cli("ingest {files}/tum-ok -m {tmp}/new.mem --embedder test-color --fps nan", "--fps"),
     cli("ingest {files}/tum-ok -m {tmp}/new.mem --embedder test-color --stride 0", "--stride"),
     cli("ingest {files}/tum-ok -m {tmp}/new.mem --embedder test-color --thumb-size -1", "--thumb-size"),
     cli("ingest {files}/tum-ok -m {tmp}/new.mem --embedder test-color --batch-size 0", "--batch-size"),
-    cli("consolidate -m {mem} --max-distance nan --dry-run", "--max-distance"),
+    cli("consolidate -m {mem} --budget 3 --max-distance nan --dry-run", "--max-distance"),
     cli("consolidate -m {mem} --max-similarity 2 --dry-run", "--max-similarity"),
     cli("consolidate -m {mem} --budget 0 --dry-run", "--budget"),
     cli("search -m {mem} red -k 0", "--k"),
@@ -160,7 +161,7 @@ CASES: list[Case] = [
         "ingest {files}/tum-ok -m {tmp}/new.mem --embedder test-color --poses {files}/huge-poses.csv", "limit"
     ),
     cli("ask 'where is red?' -m {mem} --offline --config /dev/zero", "--config"),
-    cli("map -m {mem} --import-nav2 {files}/map-huge.yaml", "limit"),
+    cli("map -m {mem} --import-nav2 {files}/map-huge.yaml --overwrite", "limit"),
     # ------------------------------------------------------------ outputs never destroy inputs
     cli("search -m {mem} red --sheet {mem}/memory.json", "--sheet"),
     cli("search -m {mem} red --sheet {mem}/store.sqlite", "--sheet"),

@@ -78,6 +78,7 @@ def hostile_files(folder: Path) -> Path:
     _tum(folder / "tum-gt1e15", ok, _gt([*ok, 1e15]))
     _tum(folder / "tum-x1e308", ok, _gt(ok, x="1e308"))
     (folder / "bad-key.toml").write_text('[vlm]\nmodel = "m"\nbogus = 1\n')
+    _nav2(folder, "map-ok", "1.0", "[-1.0, -1.0, 0.0]")
     _nav2(folder, "map-res1e-300", "1e-300", "[0.0, 0.0, 0.0]")
     _nav2(folder, "map-origin1e308", "0.05", "[1e308, 0.0, 0.0]")
     _nav2(folder, "map-huge", "0.05", "[0.0, 0.0, 0.0]", pad=2 << 20)
@@ -154,6 +155,8 @@ def session(root: Path) -> Iterator[Run]:
     proc, url = serve_subprocess(root / "served.mem")
     driver = Driver()
     try:
+        imported = driver.run(["map", "-m", str(mem), "--import-nav2", str(files / "map-ok.yaml")])
+        assert imported["rc"] == 0, imported  # navigate's cases then reach their options
         yield Run(root, url, driver, {"mem": str(mem), "tmp": str(root / "tmp"), "files": str(files)})
     finally:
         driver.close()
@@ -185,7 +188,10 @@ def run_http(run: Run, case: Case, client: httpx.Client) -> tuple[str, str]:
         kw["data"] = case.body["data"]
     if "files" in case.body:
         kw["files"] = _files(run, case.body["files"])
-    r = client.request(method, run.url + path, **kw)
+    try:
+        r = client.request(method, run.url + path, **kw)
+    except httpx.HTTPError as e:  # the service reset the connection or is gone
+        return "traceback", f"{type(e).__name__}: {e}"
     return classify_http(case, r.status_code, r.content), f"HTTP {r.status_code}: {r.text[:600]}"
 
 
@@ -213,7 +219,10 @@ def run_table(run: Run, cases: list[Case] = CASES) -> dict[str, tuple[str, str]]
                 run.outcomes[case.name] = run_http(run, case, client)
     mcp_cases = [c for c in cases if c.front == "mcp"]
     if mcp_cases:
-        seen = anyio.run(_mcp_calls, run.url, mcp_cases)
+        try:
+            seen = anyio.run(_mcp_calls, run.url, mcp_cases)
+        except Exception as e:  # the service is gone
+            seen = [(True, f"internal error: {type(e).__name__}")] * len(mcp_cases)
         for case, (is_error, text) in zip(mcp_cases, seen, strict=True):
             run.outcomes[case.name] = (classify_mcp(case, is_error, text), text[:600])
     return run.outcomes
@@ -223,6 +232,13 @@ def run_table(run: Run, cases: list[Case] = CASES) -> dict[str, tuple[str, str]]
 def check_intact(run: Run) -> list[str]:
     """After the table: both memories open, search and accept a write, holding what they held
     (5 and 12 memories), and no refused ingest left a memory behind. Returns what failed."""
+    try:
+        return _check_intact(run)
+    except Exception as e:  # a memory that does not open, a service that is gone
+        return [f"{type(e).__name__}: {e}"]
+
+
+def _check_intact(run: Run) -> list[str]:
     lost: list[str] = []
     if (Path(run.places["tmp"]) / "new.mem").exists():
         lost.append("a refused ingest left tmp/new.mem behind")

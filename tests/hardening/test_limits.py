@@ -139,10 +139,25 @@ def test_a_full_disk_is_one_line_507_reads_go_on_and_the_service_stops_cleanly(t
         env["PYTHONPATH"] = f"{REPO / 'src'}{os.pathsep}{REPO}"
         log = tempfile.TemporaryFile("w+")  # noqa: SIM115 - read after the service stopped
         proc = subprocess.Popen(
-            [sys.executable, str(REPO / "tests/server/serve_color.py"), "serve", "-m", str(disk / "m.mem"),
-             "--port", "0", "--log-level", "warning", "--keyframes", "all"],
-            stdout=subprocess.PIPE, stderr=log, text=True, env=env, preexec_fn=preexec,
-        )  # fmt: skip
+            [
+                sys.executable,
+                str(REPO / "tests/server/serve_color.py"),
+                "serve",
+                "-m",
+                str(disk / "m.mem"),
+                "--port",
+                "0",
+                "--log-level",
+                "warning",
+                "--keyframes",
+                "all",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=log,
+            text=True,
+            env=env,
+            preexec_fn=preexec,
+        )
         try:
             assert proc.stdout is not None
             url = proc.stdout.readline().split(" at ")[1].split("/ ")[0].rstrip("/")
@@ -189,10 +204,23 @@ def test_ingest_on_a_full_disk_is_one_line(tmp_path):
         env = {k: v for k, v in os.environ.items() if not k.startswith("RAVENMEM_")}
         env["PYTHONPATH"] = f"{REPO / 'src'}{os.pathsep}{REPO}"
         r = subprocess.run(
-            [sys.executable, str(REPO / "tests/server/serve_color.py"), "ingest", str(files / "tum-ok"),
-             "-m", str(disk / "new.mem"), "--embedder", "test-color", "--no-ocr"],
-            capture_output=True, text=True, env=env, preexec_fn=preexec, timeout=300,
-        )  # fmt: skip
+            [
+                sys.executable,
+                str(REPO / "tests/server/serve_color.py"),
+                "ingest",
+                str(files / "tum-ok"),
+                "-m",
+                str(disk / "new.mem"),
+                "--embedder",
+                "test-color",
+                "--no-ocr",
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+            preexec_fn=preexec,
+            timeout=300,
+        )
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1, (used, r.stderr[-3000:])
         assert lines[0].startswith("error: disk full"), lines

@@ -184,6 +184,8 @@ BATCH = Kind("a whole number from 1 to 4096", (Field(ge=1, le=4096),))
 TEMPERATURE = _num("a number from 0 to 2", ge=0, le=2)
 SIMILARITY = _num("a cosine from -1 to 1", ge=-1, le=1)
 RATE = _num("a rate > 0, at most 1000 per second", gt=0, le=1000)
+MEASURE = _num("seconds > 0, at most 600", gt=0, le=600)  # a benchmark's share of time
+SYNTHETIC = Kind("a whole number from 100 to 10,000,000", (Field(ge=100, le=10_000_000),))
 DISTANCE = _num(f"metres > 0, at most {4 * MAX_COORD:g}", gt=0, le=4 * MAX_COORD)
 SPAN = Kind(f"metres > 0 (inf: no limit), at most {4 * MAX_COORD:g} when finite", (Field(gt=0),))
 ROBOT_RADIUS = _num("metres from 0 to 10", ge=0, le=10)

@@ -45,6 +45,7 @@ _TEMP_NAME = re.compile(r"\..+\.[0-9a-f]{12}\.tmp")
 
 MAX_TEXT = 64 << 20  # a list, a table or a question file: 64 MiB (a pose track of 500,000 rows is 40)
 MAX_CONFIG = 1 << 20  # a settings file: 1 MiB
+MAX_IMAGE = 256 << 20  # a picture file sent to a service: 256 MiB (40 MP raw is 120)
 _FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)  # no space, a quota, a file-size limit (ulimit -f)
 
 

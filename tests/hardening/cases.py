@@ -4,7 +4,7 @@ A case is one line: `cli(...)` a `ravenmem` command line (run in its own process
 `forkrun.py`), `http(...)` a request to a real `ravenmem serve`, `mcp(...)` a tool call through
 the `mcp` package's client. Each names a piece of the problem that its one-line error must
 hold (`expect`). Placeholders in command lines and paths: `{mem}` the memory the CLI cases share
-(5 memories and a 4 x 4 m map), `{tmp}` a scratch folder, `{files}` the folder of prepared
+(5 memories and a 4 x 4 m map), `{tmp}` a scratch folder, `{url}` the running service, `{files}` the folder of prepared
 hostile files (see `runner.hostile_files`).
 
 Every outcome is one of (`classify_*`):
@@ -140,6 +140,8 @@ CASES: list[Case] = [
     cli("search -m {mem} --image {files}/one-pixel.png", "too small"),
     cli("search -m {mem} --image {files}/bomb.png", "bomb.png"),
     cli("search -m {mem} --image /dev/zero", "/dev/zero"),
+    cli("search --server {url} --image /dev/zero", "/dev/zero"),
+    cli("ask 'what is this?' --server {url} --offline --image /dev/zero", "/dev/zero"),
     http("GET /search/text?q=%FF%FE%FA", "UTF-8"),
     http("GET /search/text?q=red&near=1e308,0,1", "near"),
     http("GET /search/position?x=1e308&y=0", "x"),

@@ -157,7 +157,9 @@ def session(root: Path) -> Iterator[Run]:
     try:
         imported = driver.run(["map", "-m", str(mem), "--import-nav2", str(files / "map-ok.yaml")])
         assert imported["rc"] == 0, imported  # navigate's cases then reach their options
-        yield Run(root, url, driver, {"mem": str(mem), "tmp": str(root / "tmp"), "files": str(files)})
+        yield Run(
+            root, url, driver, {"mem": str(mem), "tmp": str(root / "tmp"), "files": str(files), "url": url}
+        )
     finally:
         driver.close()
         stop(proc)

@@ -4,19 +4,22 @@ relative time means the same instant when it is run again."""
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 from PIL import Image
 
 import ravenmem
-from ravenmem.types import Pose
+from ravenmem.types import MemoryRecord, Pose
 from tests.cli.helpers import T0, make_memory
 from tests.conftest import ColorEmbedder, solid
 from tests.hardening.conftest import one_line_error, snapshot
 from tests.hardening.runner import Driver, hostile_files
+from tests.server.conftest import serve_subprocess, stop
 
 
 def _still_works(mem: Path, n: int) -> None:
@@ -162,3 +165,54 @@ def test_forget_dry_run_resolves_like_the_real_run_and_writes_nothing(tmp_path, 
     real = json.loads(str(driver.run(["forget", "-m", str(mem), "--before", "+45", "--json"])["stdout"]))
     assert dry["removed"] == real["removed"] == 5 and dry["before_time"] == real["before_time"]
     assert np.isclose(real["t_last"], T0 + 40)
+
+
+# ---------------------------------------------------------------- times stored before the checks
+def test_a_memory_holding_absurd_times_from_before_the_checks_still_answers(tmp_path, driver: Driver):
+    """A memory an earlier version let `t=-1e12` and `t=1e15` into (every later search and
+    `info` failed with "year -29719 is out of range", even after a restart) lists, searches and
+    serves them as numbers; only new ones are refused at the door."""
+    mem = make_memory(tmp_path / "m.mem")
+    with ravenmem.open(mem, writable=True, embedder=ColorEmbedder()) as m:
+        vec = np.full((2, m.store.dim), 1 / np.sqrt(m.store.dim), np.float32)
+        bad = [MemoryRecord(id=0, t=t, pose=Pose(0.0, 0.0), source="old") for t in (-1e12, 1e15)]
+        m.store.add(bad, vec)  # below the door: what the earlier version stored
+    for args in (
+        ["info", "-m", str(mem)],
+        ["info", "-m", str(mem), "--json"],
+        ["search", "-m", str(mem), "red", "-k", "7"],
+        ["search", "-m", str(mem), "--time", "start", "-k", "7"],
+        ["search", "-m", str(mem), "--position", "0,0", "-k", "7", "--json"],
+        ["ask", "When did I see red?", "-m", str(mem), "--offline"],
+    ):
+        r = driver.run(args)
+        assert r["rc"] == 0 and "Traceback" not in str(r["stderr"]) + str(r["stdout"]), (args, r)
+    listed = json.loads(
+        str(driver.run(["search", "-m", str(mem), "--position", "0,0", "-k", "7", "--json"])["stdout"])
+    )
+    assert "no calendar date" in json.dumps(listed)
+    proc, url = serve_subprocess(mem)
+    try:
+        for path, params in (
+            ("/search/text", {"q": "red", "k": 7}),
+            ("/search/time", {"t": "start", "k": 7}),
+            ("/search/position", {"x": 0, "y": 0, "k": 7}),
+        ):
+            r = httpx.get(url + path, params=params, timeout=120)
+            assert r.status_code == 200, (path, r.text)
+        refused = httpx.post(
+            url + "/memories",
+            data={"x": "1", "y": "1", "t": "1e15"},
+            files={"image": ("f.png", _png(), "image/png")},
+            timeout=120,
+        )
+        assert refused.status_code == 400 and "out of range" in refused.json()["error"], refused.text
+    finally:
+        stop(proc)
+    _still_works(mem, 7)
+
+
+def _png() -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(solid("green")).save(buf, format="PNG")
+    return buf.getvalue()

@@ -164,6 +164,7 @@ CASES: list[Case] = [
     ),
     cli("ask 'where is red?' -m {mem} --offline --config /dev/zero", "--config"),
     cli("map -m {mem} --import-nav2 {files}/map-huge.yaml --overwrite", "limit"),
+    cli("eval study embedders --labels /dev/zero --images {tmp} --embedders offline", "/dev/zero"),
     # ------------------------------------------------------------ outputs never destroy inputs
     cli("search -m {mem} red --sheet {mem}/memory.json", "--sheet"),
     cli("search -m {mem} red --sheet {mem}/store.sqlite", "--sheet"),

@@ -12,7 +12,6 @@ import socket
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -235,11 +234,9 @@ def test_reads_of_named_files_are_bounded_and_a_device_fails_fast(tmp_path, driv
     with pytest.raises(InputError, match="not a regular file"):
         read_bounded(fifo, 100, "config file")  # refused before open: no wait for a writer
     files = hostile_files(tmp_path / "files")
-    start = time.monotonic()
     r = driver.run(["ingest", str(files / "tum-ok"), "-m", str(tmp_path / "n.mem"), "--poses", "/dev/zero"])
-    line = one_line_error(r)
+    line = one_line_error(r)  # it stopped at the limit: before, it read until the kernel stepped in
     assert "/dev/zero" in line and "512 MiB" in line
-    assert time.monotonic() - start < 120  # it did not read until the kernel stepped in
     assert not (tmp_path / "n.mem").exists()
 
 

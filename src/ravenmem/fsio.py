@@ -155,14 +155,16 @@ def read_bounded(path: str | os.PathLike[str], limit: int = MAX_TEXT, what: str 
     if stat.S_ISFIFO(st.st_mode) or stat.S_ISSOCK(st.st_mode):
         raise InputError(f"{what} {p} is not a regular file")
     if stat.S_ISREG(st.st_mode) and st.st_size > limit:
-        raise InputError(f"{what} {p} is larger than the limit of {_size(limit)} ({_size(st.st_size)})")
+        raise InputError(
+            f"{what} {p} is larger than the limit of {size_text(limit)} ({size_text(st.st_size)})"
+        )
     try:
         with open(p, "rb") as f:
             data = f.read(limit + 1)
     except OSError as e:
         raise InputError(f"{what} {p} cannot be read ({e.strerror or e})") from None
     if len(data) > limit:
-        raise InputError(f"{what} {p} is larger than the limit of {_size(limit)}")
+        raise InputError(f"{what} {p} is larger than the limit of {size_text(limit)}")
     return data
 
 
@@ -178,7 +180,8 @@ def read_text(
         raise InputError(f"{what} {path}: not UTF-8 text (byte {e.start})") from None
 
 
-def _size(n: int) -> str:
+def size_text(n: int) -> str:
+    """A size as people read it (`512 MiB`, `12.5 KiB`): limits, and what a command freed."""
     for unit in ("bytes", "KiB", "MiB", "GiB"):
         if n < 1024 or unit == "GiB":
             return f"{n:g} {unit}" if unit == "bytes" else f"{n:.4g} {unit}"

@@ -20,6 +20,7 @@ here, so the folder's layout can be read, and changed, in one file:
 | `study_memory.json` | an ablation study's copy of a memory is complete | `eval.studies` |
 | `anchor/poses.npz` | every memory's pose before `ravenmem align --apply` moved it | `memory.anchor` |
 | `anchor/pending.json` | a re-anchoring under way (finished by the next writer) | `memory.anchor` |
+| `anchor/pending.json.aside` | an unreadable re-anchoring journal, kept for a person (the poses follow the manifest) | `memory.transform` |
 | `anchor/map.npz`, `anchor/map.json` | the occupancy map before it was re-anchored | `nav.align` |
 
 The store's own files (`store.sqlite`, `index.faiss`, `columns.cache` for the embedded store; a

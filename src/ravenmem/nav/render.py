@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..fsio import PICTURE_TAG
 from .grid import OccupancyGrid
 
 UNKNOWN, FREE, EXPLORED, OCCUPIED = (
@@ -258,6 +259,6 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
     if layers.truths:  # last: placing needs the final layout (limits, aspect, margins)
         place_labels(ax, layers.truths, color="#d62728")
     out = Path(path)
-    fig.savefig(out, dpi=dpi)
+    fig.savefig(out, dpi=dpi, metadata=dict([PICTURE_TAG]))  # a later --force may replace only such a file
     plt.close(fig)
     return out

@@ -1,10 +1,11 @@
 """Live adds: the one writer of a served memory.
 
 A robot streams frames (RGB + pose + time) into a running memory. Every frame goes through the
-same online keyframe rule as a recorded ingest (`ingest.keyframes.Keyframer`, one per source so
-two cameras do not thin each other out), then the embedder, then `Memory.add_frames`. One thread
-does all of it, in arrival order, so the keyframe state and the store see one writer; searches
-run meanwhile on other threads.
+same admission stage as a recorded ingest (`ingest.admit.Admission`: time check, map, keyframe
+prefilter, embedder, novelty rule, `Memory.add_frames`; keyframe state per source, so two
+cameras do not thin each other out). What this adds is the queue: one thread does all of it, in
+arrival order, so the keyframe state and the store see one writer; searches run meanwhile on
+other threads.
 
 An add is answered only after `add_frames` returned, i.e. after the store made it durable: an
 acknowledged memory survives a crash of the service. Every front end that adds frames (the HTTP
@@ -36,14 +37,12 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..ingest.keyframes import KeyframeConfig, Keyframer
+from ..ingest.admit import Admission
+from ..ingest.keyframes import KeyframeConfig
 from ..memory import Memory
 from ..types import Frame, MemoryRecord, Pose
 
 log = logging.getLogger(__name__)
-
-SKIP_TIME = "non-monotonic timestamp"  # the ingest pipeline's name for the same rule
-MAX_SOURCES = 64  # keyframe state is kept per source name; a bound keeps a client from growing it
 
 
 class BusyError(InputError):
@@ -91,13 +90,25 @@ class _Job:
     future: Future[AddResult]
 
 
-class _Source:
-    """Keyframe state of one camera: the keyframer and the last timestamp seen."""
+class _LoggedMap:
+    """The map builder as live adds use it: a frame the map cannot take is logged, and the
+    frame still goes on to the memory."""
 
-    def __init__(self, cfg: KeyframeConfig) -> None:
-        self.keyframer = Keyframer(cfg)
-        self.last_t = -math.inf
-        self.frames = 0
+    def __init__(self, mapper: Any) -> None:
+        self.mapper = mapper
+
+    def add(self, frame: Frame) -> bool:
+        try:
+            return bool(self.mapper.add(frame))
+        except Exception:
+            log.exception("mapping a live frame failed")
+            return False
+
+    def close(self) -> None:
+        try:
+            self.mapper.close()
+        except Exception:  # the memory itself is stored; a map that failed to save is logged
+            log.exception("saving the live map failed")
 
 
 class LiveWriter:
@@ -121,12 +132,12 @@ class LiveWriter:
     ) -> None:
         self.mem = mem
         self.mapper = mapper
-        self.cfg = keyframes or KeyframeConfig()
+        self.cfg = keyframes if keyframes is not None else KeyframeConfig()
+        self.stage = Admission(mem, self.cfg, _LoggedMap(mapper) if mapper is not None else None, number=True)
         self.on_result = on_result
         self.batch = max(1, batch)
         self.stats = LiveStats()
         self._queue: queue.Queue[_Job | None] = queue.Queue(maxsize=max(1, max_pending))
-        self._sources: dict[str, _Source] = {}
         self._thread: threading.Thread | None = None
         self._closed = False
         self._lock = threading.Lock()
@@ -149,11 +160,8 @@ class LiveWriter:
         if thread is not None:
             self._queue.put(None)
             thread.join(timeout)
-        if self.mapper is not None:
-            try:
-                self.mapper.close()
-            except Exception:  # the memory itself is stored; a map that failed to save is logged
-                log.exception("saving the live map failed")
+        if self.stage.mapper is not None:
+            self.stage.mapper.close()
 
     # ---------------------------------------------------------------- adding
     def submit(
@@ -226,61 +234,31 @@ class LiveWriter:
                     j.future.set_exception(e)
 
     def _store(self, jobs: list[_Job]) -> None:
-        candidates: list[tuple[_Job, _Source]] = []
+        candidates: list[_Job] = []
         for j in jobs:
             self.stats.seen += 1
             try:
-                src = self._source(j.frame.source)
+                reason = self.stage.screen(j.frame, j.frame.source)
             except InputError as e:
                 j.future.set_exception(e)
                 continue
-            j.frame.index, src.frames = src.frames, src.frames + 1
-            if self.mapper is not None and j.frame.depth is not None:
-                self._map(j.frame)
-            reason = SKIP_TIME if j.frame.t < src.last_t else src.keyframer.pre(j.frame)
             if reason is None:
-                src.last_t = j.frame.t
-                candidates.append((j, src))
+                candidates.append(j)
             else:
                 self._skip(j, reason)
         if not candidates:
             return
-        emb = self.mem.embedder.embed_images([j.frame.image for j, _ in candidates])
-        kept: list[int] = []
-        for i, (j, src) in enumerate(candidates):
-            reason = src.keyframer.post(emb[i])
-            if reason is None:
-                kept.append(i)
+        outcomes = self.stage.admit([(j.frame.source, j.frame) for j in candidates])
+        ids = [o for o in outcomes if isinstance(o, int)]
+        records = {r.id: r for r in self.mem.get(ids)} if ids else {}
+        for j, o in zip(candidates, outcomes):
+            if isinstance(o, int):
+                self.stats.kept += 1
+                res = AddResult(t=j.frame.t, source=j.frame.source, id=o)
+                j.future.set_result(res)
+                self._notify(res, records[o])
             else:
-                self._skip(j, reason)
-        if not kept:
-            return
-        frames = [candidates[i][0].frame for i in kept]
-        ids = self.mem.add_frames(frames, embeddings=emb[kept])
-        records = self.mem.get(ids)
-        self.stats.kept += len(ids)
-        for i, mid, rec in zip(kept, ids, records):
-            j = candidates[i][0]
-            res = AddResult(t=j.frame.t, source=j.frame.source, id=mid)
-            j.future.set_result(res)
-            self._notify(res, rec)
-
-    def _map(self, frame: Frame) -> None:
-        """Every depth frame into the map, keyframe or not; a mapping failure is logged, the
-        frame still goes on to the memory."""
-        try:
-            self.mapper.add(frame)  # type: ignore[union-attr]
-        except Exception:
-            log.exception("mapping a live frame failed")
-        frame.depth = None  # not kept past the map
-
-    def _source(self, name: str) -> _Source:
-        src = self._sources.get(name)
-        if src is None:
-            if len(self._sources) >= MAX_SOURCES:
-                raise InputError(f"more than {MAX_SOURCES} live sources; reuse a source name")
-            src = self._sources[name] = _Source(self.cfg)
-        return src
+                self._skip(j, str(o))
 
     def _skip(self, j: _Job, reason: str) -> None:
         self.stats.skipped[reason] = self.stats.skipped.get(reason, 0) + 1

@@ -170,14 +170,14 @@ def ingest(
     already in it are skipped, so running the same command again after an interruption resumes
     where it stopped."""
     import ravenmem
-    from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
+    from ravenmem.ingest.keyframes import KeyframeConfig
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
     from ravenmem.memory.folder import MANIFEST
 
     if keyframes is not None:
-        cfg = parse_keyframes(keyframes)
+        cfg = KeyframeConfig.from_spec(keyframes)
     else:  # `--stride 5` alone means every 5th frame, not the default rules thinned further
         cfg = KeyframeConfig.only() if stride is not None or fps is not None else KeyframeConfig()
     # replace() checks the rules again (a stride of 0 or a NaN rate is a one-line error)

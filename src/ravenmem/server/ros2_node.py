@@ -108,20 +108,22 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--link", required=True, help="image=TOPIC,pose=TOPIC[,key=value...] as for serve --zenoh"
     )
-    ap.add_argument("--keyframes", default=None, help="keyframe rule, e.g. fps=1,min_translation=0.2")
+    ap.add_argument(
+        "--keyframes", default=None, help="keyframe rules as for ingest (default: the default rules; 'all')"
+    )
     args = ap.parse_args(argv)
     cfg = parse_link_spec(args.link)
     rclpy, _, _ = _ros()
     import ravenmem
 
-    from ..ingest.keyframes import parse_keyframes
+    from ..ingest.keyframes import KeyframeConfig
     from ..memory.folder import is_memory
     from .live import LiveWriter
 
     path = Path(args.memory)
     mem = ravenmem.open(path) if is_memory(path) else ravenmem.create(path)
     mem.acquire_writer()
-    writer = LiveWriter(mem, parse_keyframes(args.keyframes)).start()
+    writer = LiveWriter(mem, KeyframeConfig.from_spec(args.keyframes)).start()
     rclpy.init()
     node = LinkNode(cfg, writer_sink(writer, cfg.source))
     try:

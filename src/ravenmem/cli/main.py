@@ -21,6 +21,7 @@ import typer
 from rich.table import Table
 
 from ..errors import InputError, RavenmemError
+from ..threads import share_cores
 from ..timeparse import fmt_time
 from ..tools import TextArgs
 from ._console import esc, out_console, print_error, print_warning
@@ -481,6 +482,7 @@ def main(argv: list[str] | None = None) -> None:
     # the hub library's retry warnings would spread one error over many stderr lines; a user
     # who wants them sets HF_HUB_VERBOSITY (read when huggingface_hub is imported)
     os.environ.setdefault("HF_HUB_VERBOSITY", "error")
+    share_cores()  # OpenMP pools that sleep, not spin, on a shared computer (ravenmem.threads)
     for stream in (sys.stdout, sys.stderr):  # text from argv may hold lone surrogates
         reconfigure = getattr(stream, "reconfigure", None)
         if reconfigure is not None:

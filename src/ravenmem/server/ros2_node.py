@@ -22,6 +22,7 @@ from typing import Any
 
 from ..errors import MissingDependencyError, RavenmemError
 from ..ingest import rosmsg
+from ..threads import share_cores
 from .zenoh_link import LinkConfig, RosLink, Sink, parse_link_spec, writer_sink
 
 TICK_S = 0.1  # how often waiting images are settled
@@ -112,6 +113,7 @@ def main(argv: list[str] | None = None) -> None:
         "--keyframes", default=None, help="keyframe rules as for ingest (default: the default rules; 'all')"
     )
     args = ap.parse_args(argv)
+    share_cores()  # before torch loads (ravenmem.threads)
     cfg = parse_link_spec(args.link)
     rclpy, _, _ = _ros()
     import ravenmem

@@ -62,8 +62,10 @@ class Admission:
     """The admission stage (see the module docstring) for one memory and one keyframe rule set.
 
     `mapper` takes every depth frame that passes the time check (`FrameSink`); `number=True`
-    numbers each lane's frames in arrival order (`Frame.index`: live frames carry none). Not
-    thread-safe: one caller screens, in order, and admits in the same order.
+    numbers each lane's frames in arrival order (`Frame.index`: live frames carry none);
+    `text` is `Memory.add_frames`' (`later`: a memory with OCR stores frames before their text
+    is read). One caller at a time screens, in order; the frames that pass are admitted in the
+    same order (another thread may do that while the next frames are screened).
     """
 
     def __init__(
@@ -73,8 +75,10 @@ class Admission:
         mapper: FrameSink | None = None,
         number: bool = False,
         max_lanes: int = MAX_LANES,
+        text: str = "now",
     ) -> None:
         self.mem = mem
+        self.text = text
         self.cfg = keyframes if keyframes is not None else KeyframeConfig()
         self.mapper = mapper
         self.number = number
@@ -133,5 +137,5 @@ class Admission:
         if not keep:
             return out
         assert emb is not None
-        ids = self.mem.add_frames([frames[i] for i in keep], embeddings=emb[keep])
+        ids = self.mem.add_frames([frames[i] for i in keep], embeddings=emb[keep], text=self.text)
         return [ids[o] if isinstance(o, int) else o for o in out]

@@ -8,7 +8,9 @@ Re-running an ingest resumes it: a frame the memory already holds from the same 
 counted as `already in memory`. Every frame still goes through the keyframe rules in order, and
 the novelty rule is replayed on the stored embeddings of the skipped frames before the next new
 frame, so a run killed at any point and started again keeps the frames one run would have kept.
-Frames that carry depth also feed an optional `mapper` (every one, not only keyframes).
+Frames that carry depth also feed an optional `mapper` (every one, not only keyframes). Each
+frame goes through the admission stage that live adds use too (`ingest.admit`); on a memory with
+OCR the keyframes' text is read in a thread while the next frames are embedded.
 """
 
 from __future__ import annotations
@@ -138,11 +140,15 @@ def ingest(
     progress: bool | None = None,
     wait: bool | float = False,
     mapper: FrameSink | None = None,
+    text: str = "later",
 ) -> IngestReport:
     """Run a source into a memory; returns counts (also appended to the memory's manifest).
 
     Takes the memory's writer lock first (`wait` as in `Memory.acquire_writer`: another
     writer makes this fail at once, or wait). Frames already stored are skipped (see above).
+    On a memory with OCR, `text="later"` (the default) reads the keyframes' text in a thread
+    while the next frames are decoded and embedded (`Memory.add_frames`); the run returns once
+    all of it is stored. `text="now"` reads it before each batch is stored.
     """
     cfg = keyframes if keyframes is not None else KeyframeConfig()
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
@@ -151,7 +157,7 @@ def ingest(
     identity = source_identity(source)
     report = IngestReport(source=getattr(source, "name", str(source)), source_id=identity)
     stored = StoredFrames(mem.store, identity)
-    stage = Admission(mem, cfg, mapper)
+    stage = Admission(mem, cfg, mapper, text=text)
     show = sys.stderr.isatty() if progress is None else progress
     total = getattr(source, "frame_count", None)
     bar = tqdm(desc="ingest", unit="frame", total=total, disable=not show, file=sys.stderr)
@@ -207,6 +213,7 @@ def ingest(
             if n_new >= batch_size or len(items) >= 8 * batch_size:
                 flush()
         flush()
+        mem.wait_text()  # the text read meanwhile is stored before the run counts as done
     finally:
         if mapper is not None:
             mapper.close()

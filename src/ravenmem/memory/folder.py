@@ -10,6 +10,7 @@ here, so the folder's layout can be read, and changed, in one file:
 | `memory.json` | the manifest: embedder, store, thumbnail and OCR settings, ingest history | `memory.manifest` |
 | `writer.lock` | the one writer's lock (pid, command, since) | `memory.lock` |
 | `pending-thumbs-<id>.json` | a thumbnail journal while a batch commits | `memory.recovery` |
+| `pending-text-<id>.npz` | pictures whose text is read after they are stored | `memory.text` |
 | `thumbs/<ms>_<hex>.jpg` | thumbnails | `Memory.add_frames` |
 | `lifelong.sqlite` | consolidated groups (count, span) | `memory.groups` |
 | `map.npz`, `map.json` | the occupancy grid and its settings | `nav.grid` |
@@ -43,12 +44,19 @@ STUDY_DONE = "study_memory.json"
 
 JOURNAL_PREFIX = "pending-thumbs-"
 JOURNAL_NAME = re.compile(r"pending-thumbs-[0-9a-f]{12}\.json")
+TEXT_JOURNAL_PREFIX = "pending-text-"
+TEXT_JOURNAL_NAME = re.compile(r"pending-text-[0-9a-f]{12}\.npz")
 THUMB_NAME = re.compile(r"-?\d+_[0-9a-f]{8}\.jpg")
 
 
 def journal_name(token: str) -> str:
     """A thumbnail journal's file name (`token`: 12 hex digits)."""
     return f"{JOURNAL_PREFIX}{token}.json"
+
+
+def text_journal_name(token: str) -> str:
+    """A text journal's file name (`token`: 12 hex digits)."""
+    return f"{TEXT_JOURNAL_PREFIX}{token}.npz"
 
 
 def thumb_name(t: float, token: str) -> str:

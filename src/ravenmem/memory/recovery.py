@@ -25,14 +25,37 @@ import numpy as np
 
 from ..fsio import atomic_write_json, remove_stale_temp_files
 from ..store.base import Store
-from .folder import JOURNAL_NAME, JOURNAL_PREFIX, MANIFEST, THUMBS, journal_name, thumb_file
+from .folder import (
+    JOURNAL_NAME,
+    JOURNAL_PREFIX,
+    MANIFEST,
+    TEXT_JOURNAL_PREFIX,
+    THUMBS,
+    journal_name,
+    thumb_file,
+)
 
 log = logging.getLogger(__name__)
 
-_WRITER_ONLY = (f"{MANIFEST}.", JOURNAL_PREFIX)  # files only the lock holder writes
+_WRITER_ONLY = (f"{MANIFEST}.", JOURNAL_PREFIX, TEXT_JOURNAL_PREFIX)  # files only the lock holder writes
 
 # (thumbnail path relative to the memory folder, source, frame index, time)
 Entry = tuple[str, str, int, float]
+
+
+def stored_ids(store: Store, entries: Sequence[tuple[str, int, float]]) -> dict[tuple[str, int, float], int]:
+    """The ids of the memories the store holds for (source, frame index, time) entries: how a
+    journal written before its batch committed finds what the batch stored."""
+    out: dict[tuple[str, int, float], int] = {}
+    for source in {e[0] for e in entries}:
+        sf = store.source_frames(source)
+        want = {(i, t) for s, i, t in entries if s == source}
+        near = np.flatnonzero(np.isin(sf.frame_index, [i for i, _ in want]))
+        for k in near:
+            key = (int(sf.frame_index[k]), float(sf.t[k]))
+            if key in want:
+                out[(source, *key)] = int(sf.ids[k])
+    return out
 
 
 def begin(folder: Path, entries: Sequence[Entry]) -> Path:
@@ -56,14 +79,8 @@ def settle(folder: Path, store: Store, journal: Path) -> int:
     except (OSError, ValueError, KeyError, TypeError) as e:
         log.warning("%s: unreadable thumbnail journal, left as is (%s)", journal, e)
         return 0
-    referenced: set[str] = set()
-    for source in {e[1] for e in entries}:
-        sf = store.source_frames(source)
-        want = {(i, t) for _, s, i, t in entries if s == source}
-        near = np.flatnonzero(np.isin(sf.frame_index, [i for i, _ in want]))
-        hit = [int(k) for k in near if (int(sf.frame_index[k]), float(sf.t[k])) in want]
-        if hit:
-            referenced.update(r.image_path or "" for r in store.get(np.asarray(sf.ids)[hit].tolist()))
+    found = stored_ids(store, [(s, i, t) for _, s, i, t in entries])
+    referenced = {r.image_path or "" for r in store.get(sorted(found.values()))} if found else set()
     removed = 0
     for name, *_ in entries:
         p = thumb_file(folder, name)

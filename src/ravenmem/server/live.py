@@ -3,13 +3,19 @@
 A robot streams frames (RGB + pose + time) into a running memory. Every frame goes through the
 same admission stage as a recorded ingest (`ingest.admit.Admission`: time check, map, keyframe
 prefilter, embedder, novelty rule, `Memory.add_frames`; keyframe state per source, so two
-cameras do not thin each other out). What this adds is the queue: one thread does all of it, in
-arrival order, so the keyframe state and the store see one writer; searches run meanwhile on
-other threads.
+cameras do not thin each other out). What this adds is the queue. `submit` runs the cheap steps
+(time check, map, prefilter) in the caller's thread, in arrival order, so a frame they skip is
+answered at once instead of waiting behind the embedding of the frames before it; the frames
+that pass are queued, and one thread embeds them (those that arrive together in one batch),
+applies the novelty rule and stores them, in the same order, so the keyframe state and the store
+see one writer; searches run meanwhile on other threads.
 
-An add is answered only after `add_frames` returned, i.e. after the store made it durable: an
-acknowledged memory survives a crash of the service. Every front end that adds frames (the HTTP
-route, the Zenoh link) calls `LiveWriter.add` (blocking) or `LiveWriter.submit` (a future):
+A kept frame is answered only after `add_frames` returned, i.e. after the store made it durable:
+an acknowledged memory survives a crash of the service. On a memory with OCR its text is read
+after that answer (`add_frames(text="later")`, `ravenmem.memory.text`): searchable by picture at
+once, by its words when the text lands, and journalled, so a crash loses neither. Every front
+end that adds frames (the HTTP route, the Zenoh link) calls `LiveWriter.add` (blocking) or
+`LiveWriter.submit` (a future):
 
     writer = LiveWriter(mem, KeyframeConfig(fps=2))
     writer.start()
@@ -40,6 +46,7 @@ from ..errors import InputError
 from ..ingest.admit import Admission
 from ..ingest.keyframes import KeyframeConfig
 from ..memory import Memory
+from ..threads import WRITER_NICE, lower_priority
 from ..types import Frame, MemoryRecord, Pose
 
 log = logging.getLogger(__name__)
@@ -133,14 +140,17 @@ class LiveWriter:
         self.mem = mem
         self.mapper = mapper
         self.cfg = keyframes if keyframes is not None else KeyframeConfig()
-        self.stage = Admission(mem, self.cfg, _LoggedMap(mapper) if mapper is not None else None, number=True)
+        self.stage = Admission(
+            mem, self.cfg, _LoggedMap(mapper) if mapper is not None else None, number=True, text="later"
+        )
         self.on_result = on_result
         self.batch = max(1, batch)
         self.stats = LiveStats()
         self._queue: queue.Queue[_Job | None] = queue.Queue(maxsize=max(1, max_pending))
         self._thread: threading.Thread | None = None
         self._closed = False
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # submit's: the keyframe state and the queue, in arrival order
+        self._stats_lock = threading.Lock()
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> LiveWriter:
@@ -186,10 +196,17 @@ class LiveWriter:
                 raise InputError("the memory is closing: no more frames are taken")
             if self._thread is None:
                 raise InputError("the writer is not started")
-            try:
+            if self._queue.full():  # only submit puts (under this lock): a frame screened is queued
+                raise BusyError(f"{self._queue.maxsize} frames are waiting to be stored: slow down")
+            # the cheap steps here, in arrival order: a frame they skip is answered at once,
+            # without waiting behind the embedding of the frames queued before it
+            reason = self.stage.screen(frame, frame.source)
+            self.stats.seen += 1
+            if reason is None:
                 self._queue.put_nowait(_Job(frame, fut))
-            except queue.Full:
-                raise BusyError(f"{self._queue.maxsize} frames are waiting to be stored: slow down") from None
+                return fut
+            self._count(reason)
+        self._answer(fut, AddResult(t=frame.t, source=frame.source, skipped=reason), None)
         return fut
 
     def add(
@@ -206,6 +223,7 @@ class LiveWriter:
 
     # ---------------------------------------------------------------- the writer thread
     def _run(self) -> None:
+        lower_priority(WRITER_NICE)  # searches first (`ravenmem.threads`)
         stop = False
         while not stop:
             job = self._queue.get()
@@ -234,37 +252,27 @@ class LiveWriter:
                     j.future.set_exception(e)
 
     def _store(self, jobs: list[_Job]) -> None:
-        candidates: list[_Job] = []
-        for j in jobs:
-            self.stats.seen += 1
-            try:
-                reason = self.stage.screen(j.frame, j.frame.source)
-            except InputError as e:
-                j.future.set_exception(e)
-                continue
-            if reason is None:
-                candidates.append(j)
-            else:
-                self._skip(j, reason)
-        if not candidates:
-            return
-        outcomes = self.stage.admit([(j.frame.source, j.frame) for j in candidates])
+        outcomes = self.stage.admit([(j.frame.source, j.frame) for j in jobs])
         ids = [o for o in outcomes if isinstance(o, int)]
         records = {r.id: r for r in self.mem.get(ids)} if ids else {}
-        for j, o in zip(candidates, outcomes):
+        for j, o in zip(jobs, outcomes):
             if isinstance(o, int):
-                self.stats.kept += 1
-                res = AddResult(t=j.frame.t, source=j.frame.source, id=o)
-                j.future.set_result(res)
-                self._notify(res, records[o])
+                self._count(None)
+                self._answer(j.future, AddResult(t=j.frame.t, source=j.frame.source, id=o), records[o])
             else:
-                self._skip(j, str(o))
+                self._count(str(o))
+                self._answer(j.future, AddResult(t=j.frame.t, source=j.frame.source, skipped=str(o)), None)
 
-    def _skip(self, j: _Job, reason: str) -> None:
-        self.stats.skipped[reason] = self.stats.skipped.get(reason, 0) + 1
-        res = AddResult(t=j.frame.t, source=j.frame.source, skipped=reason)
-        j.future.set_result(res)
-        self._notify(res, None)
+    def _count(self, skipped: str | None) -> None:
+        with self._stats_lock:
+            if skipped is None:
+                self.stats.kept += 1
+            else:
+                self.stats.skipped[skipped] = self.stats.skipped.get(skipped, 0) + 1
+
+    def _answer(self, fut: Future[AddResult], res: AddResult, rec: MemoryRecord | None) -> None:
+        self._notify(res, rec)  # before the answer: the events keep the order the answers have
+        fut.set_result(res)
 
     def _notify(self, res: AddResult, rec: MemoryRecord | None) -> None:
         if self.on_result is None:

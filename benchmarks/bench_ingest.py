@@ -30,9 +30,7 @@ import numpy as np
 
 from ravenmem.threads import share_cores
 
-share_cores()  # as `ravenmem ingest` does, before torch loads
-
-import torch  # noqa: E402
+share_cores()  # as `ravenmem ingest` does, before FAISS loads
 
 import ravenmem  # noqa: E402
 from ravenmem.ingest.keyframes import KeyframeConfig, describe  # noqa: E402
@@ -91,7 +89,7 @@ def main() -> None:
     )
     ap.add_argument("--default-only", action="store_true", help="only the default-keyframe rows")
     a = ap.parse_args()
-    torch.set_num_threads(a.threads)
+    os.environ["RAVENMEM_THREADS"] = str(a.threads)  # the offline embedder's onnxruntime threads
     every = KeyframeConfig.only()
     print(f"load average before: {os.getloadavg()[0]:.1f} ({os.cpu_count()} cores)")
     with tempfile.TemporaryDirectory() as d:
@@ -109,7 +107,7 @@ def main() -> None:
             thumbs = run(a.tum, a.frames, ocr=False, thumb=320, tmp=tmp, kf=every, name="thumbs")
             withocr = run(a.tum, a.ocr_frames, ocr=True, thumb=320, tmp=tmp, kf=every, name="ocr")
     rep = default["rep"]
-    print(f"torch threads: {a.threads}; load average after: {os.getloadavg()[0]:.1f}")
+    print(f"embedder threads (onnxruntime): {a.threads}; load average after: {os.getloadavg()[0]:.1f}")
     print(f"default keyframes ({describe(KeyframeConfig())}), whole recording:")
     for label, r in rows:
         fps = r["rep"].frames_seen / r["wall"]

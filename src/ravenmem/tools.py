@@ -26,14 +26,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from .errors import InputError
 from .memory.diversity import SAME_VIEW
-from .memory.protocol import MemoryLike, check_k
+from .memory.protocol import MAX_K, MemoryLike, check_k
 from .timeparse import fmt_time
 from .types import Hit, MemoryRecord
 
 TimeArg = float | str
 Order = Literal["best first", "chronological", "nearest first"]
 LATEST_ORDER = "newest place first (its latest sighting, then later views without the thing)"
-TimeMode = Literal["forward", "centred"]
+TimeMode = Literal["forward", "centred", "nearest"]
+NEAREST_ORDER = "nearest in time first"
 
 _TIME_DOC = (
     "a time: ISO 8601 as shown in results (UTC), HH:MM:SS, seconds from the start of the "
@@ -142,6 +143,7 @@ class PositionArgs(ToolArgs):
 
 Runner = Callable[..., list[Hit]]
 _CENTRED = "List the memories around a given time (about half before it, half from it on)."
+_NEAREST = "List the memories nearest in time to a given time, before or after it."
 
 
 @dataclass(frozen=True)
@@ -189,8 +191,11 @@ class Tool:
         a = self.validate(args)
         return self._run(mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search)
 
-    def order_for(self, args: ToolArgs) -> str:
-        """The order of this call's results: the latest mode lists places newest first."""
+    def order_for(self, args: ToolArgs, time_mode: TimeMode = "forward") -> str:
+        """The order of this call's results: the latest mode lists places newest first, the time
+        tool in its nearest mode nearest in time first."""
+        if self.name == "search_time" and time_mode == "nearest":
+            return NEAREST_ORDER
         return LATEST_ORDER if getattr(args, "latest", False) else self.order
 
     def label(self, args: ToolArgs) -> str:
@@ -205,11 +210,13 @@ class Tool:
         """What the tool does, for a model or a person. `scores=False` leaves out the similarity
         score / distance (an ablation hides them from the model); `time_mode="centred"` describes
         the time tool's window around the given time instead of from it onwards."""
-        summary = _CENTRED if self.name == "search_time" and time_mode == "centred" else self.summary
+        modes = {"centred": _CENTRED, "nearest": _NEAREST}
+        summary = modes.get(time_mode, self.summary) if self.name == "search_time" else self.summary
+        order = NEAREST_ORDER if self.name == "search_time" and time_mode == "nearest" else self.order
         more = f" Returns up to {k} memories" if k else " Returns memories"
         metric = {"score": " with a similarity score (higher is better)", "distance": " with the distance"}
         shown = metric.get(self.metric or "", "") if scores else ""
-        return f"{summary}{more}, {self.order}, each with its id, time and pose{shown}."
+        return f"{summary}{more}, {order}, each with its id, time and pose{shown}."
 
     def json_schema(self) -> dict[str, Any]:
         """The full JSON schema of the arguments (MCP and OpenAPI take it as it is)."""
@@ -289,7 +296,13 @@ def _latest(
 
 
 def _time(mem: MemoryLike, a: ToolArgs, k: int, time_mode: TimeMode = "forward", **_: Any) -> list[Hit]:
+    """forward: the k memories from the time on; centred: the k around it; both chronological.
+    nearest: the k nearest in time either side (among the 2k around it), nearest first."""
     assert isinstance(a, TimeArgs)
+    if time_mode == "nearest":
+        t0 = mem.parse_time(a.time)
+        around = mem.search_time(a.time, k=min(2 * k, MAX_K), after=a.after, before=a.before, centred=True)
+        return sorted(around, key=lambda h: (abs(h.memory.t - t0), h.memory.t, h.memory.id))[:k]
     hits = mem.search_time(a.time, k=k, after=a.after, before=a.before, centred=time_mode == "centred")
     return sorted(hits, key=lambda h: (h.memory.t, h.memory.id))
 

@@ -11,10 +11,10 @@ from PIL import Image
 from ravenmem.errors import InputError
 from ravenmem.ingest import SOURCES, FrameSource
 from ravenmem.ingest.folder import FolderSource
-from ravenmem.ingest.rosbag import RosbagSource
 from ravenmem.ingest.sources import detect_format, open_source
 from ravenmem.ingest.tum import TumSource
 from ravenmem.ingest.video import VideoSource
+from ravenmem.ros.bag import RosbagSource
 
 from .bags import write_bag
 from .test_video import write_video
@@ -84,9 +84,9 @@ def test_each_source_has_a_typed_config_checked_before_any_file_is_read(
     tmp_path: Path, tum_path: Path
 ) -> None:
     from ravenmem.ingest.folder import FolderConfig
-    from ravenmem.ingest.rosbag import RosbagConfig
     from ravenmem.ingest.tum import TumConfig
     from ravenmem.ingest.video import VideoConfig
+    from ravenmem.ros.bag import RosbagConfig
 
     gone = tmp_path / "not-there"  # the values are wrong before the path is looked at
     for make, message in (
@@ -97,7 +97,7 @@ def test_each_source_has_a_typed_config_checked_before_any_file_is_read(
         (lambda: FolderConfig(gone, depth_scale=float("nan")), "depth_scale must be a finite number"),
         (lambda: FolderConfig(gone, camera_frame="up"), "camera_frame must be 'body' or 'optical'"),
         (lambda: VideoConfig(gone, pose_match="best"), "unknown pose matching 'best'"),
-        (lambda: RosbagConfig(gone, time_source="wall"), "time_source must be 'header' or 'bag'"),
+        (lambda: RosbagConfig(gone, time_source="wall"), "time_source must be 'header' or 'receive'"),
         (lambda: RosbagConfig(gone, intrinsics="fr9"), "preset"),
         (lambda: open_source(gone, "folder", fps=-2), "folder: fps must be > 0"),
     ):

@@ -88,7 +88,7 @@ def _vlm_only(spec: str, memory: MemoryLike, **opts: Any) -> Method:
 def _caption(spec: str, memory: MemoryLike, **opts: Any) -> Method:
     from .captions import CaptionAgent
 
-    names = AGENT_OPTS + ("encoder", "captioner", "auto_caption", "segment_frames")
+    names = AGENT_OPTS + ("encoder", "captioner", "auto_caption", "segment_frames", "segment_s")
     return CaptionAgent(memory, **_pick(opts, names, per_tool=True))
 
 

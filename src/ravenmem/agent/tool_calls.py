@@ -14,7 +14,7 @@ import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from .images import data_url, record_jpeg
 from .schema import Answer, PlaceChange
 
 DEFAULT_K = 5
-TIME_MODES = ("forward", "centred")
+TIME_MODES = ("forward", "centred", "nearest")
 
 
 @dataclass
@@ -126,8 +126,8 @@ def per_tool_k(top_k: int | Mapping[str, int], default: int = DEFAULT_K) -> dict
 
 def check_time_mode(mode: str) -> TimeMode:
     if mode not in TIME_MODES:
-        raise InputError(f"time_mode must be forward or centred, got {mode!r}")
-    return "centred" if mode == "centred" else "forward"
+        raise InputError(f"time_mode must be forward, centred or nearest, got {mode!r}")
+    return cast(TimeMode, mode)
 
 
 class ToolRunner:
@@ -219,7 +219,7 @@ class ToolRunner:
         self.embedded = self.embedded or name in ("search_text", "search_image")
         mid = getattr(args, "memory_id", None)
         query = getattr(args, "query", None) or (f"m{mid}" if mid is not None else "the attached image")
-        return self._format(tool.label(args), tool.order_for(args), hits, name, wm, query)
+        return self._format(tool.label(args), tool.order_for(args, self.time_mode), hits, name, wm, query)
 
     def _format(
         self, label: str, order: str, hits: list[Hit], name: str, wm: WorkingMemory, query: str = ""

@@ -33,7 +33,9 @@ TimeoutOpt = Annotated[
 RetriesOpt = Annotated[int | None, typer.Option("--max-retries", help="retries on 429/5xx/timeouts")]
 SegmentOpt = Annotated[
     int | None,
-    typer.Option("--segment-frames", help="caption: consecutive keyframes per caption (default 3)"),
+    typer.Option(
+        "--segment-frames", help="caption: keyframes per caption (default: the keyframes of each 3 s)"
+    ),
 ]
 ImageSideOpt = Annotated[
     int | None,
@@ -52,7 +54,9 @@ def ask(
     ] = None,
     preset: Annotated[
         str | None,
-        typer.Option(help="raven-qa | navqa | findingdory: the paper's budget, top-k, temperature, seed"),
+        typer.Option(
+            help="raven-qa-human | raven-qa-robot | raven-qa-robot-open | navqa | findingdory: the paper's settings"
+        ),
     ] = None,
     base_url: BaseUrlOpt = None,
     model: ModelOpt = None,
@@ -183,6 +187,7 @@ def ask(
     with ravenmem.open(memory) as mem:
         m = create_method(name, mem, preset=preset, **opts)
         ans = m.ask(question, image=img)
+        ans.frame_id, ans.map_id = mem.frame_id, mem.map_id  # where its position is
         if sheet is not None:
             from ravenmem.viz.sheet import answer_sheet
 
@@ -194,9 +199,9 @@ def ask(
             f = files.get(ev["id"])
             ev["image_file"] = str(f) if f else None
         if grid is not None:
-            from ravenmem.nav.goals import plan_to_answer
+            from ravenmem.nav.goals import goal_for
 
-            data["navigation"] = plan_to_answer(mem, ans, start, robot_radius, grid=grid).as_dict()
+            data["navigation"] = goal_for(ans, mem, start, robot_radius=robot_radius, grid=grid).as_dict()
     if sheet is not None:
         data["sheet"] = str(sheet)
     _output(data, json_out)
@@ -236,13 +241,15 @@ def _output(data: dict[str, Any], json_out: bool) -> None:
 def _render_navigation(nav: dict[str, Any]) -> None:
     con = out_console()
     if not nav["ok"]:
-        con.print(f"[bold]navigate:[/] [red]no path[/]: {esc(nav['reason'])}", highlight=False)
+        what = f" ({nav['problem']})" if nav.get("problem") else ""
+        con.print(f"[bold]navigate:[/] [red]no path{what}[/]: {esc(nav['reason'])}", highlight=False)
         return
     (sx, sy), (gx, gy, gyaw) = nav["start"], nav["goal"]
+    heading = nav.get("heading") or {}
     con.print(
         f"[bold]navigate:[/] A* path {nav['path_length_m']:.2f} m, {len(nav['waypoints'])} waypoints, "
         f"from ({sx:.2f}, {sy:.2f}) to ({gx:.2f}, {gy:.2f}) facing {math.degrees(gyaw):.0f} deg "
-        f"(frame {esc(nav['frame_id'])})",
+        f"({esc(heading.get('reason', ''))}; frame {esc(nav['frame_id'])}, map {esc(nav.get('map_id') or '')})",
         highlight=False,
     )
     for note in nav.get("notes", []):
@@ -320,7 +327,6 @@ def caption(
     re-running captions only new segments."""
     import ravenmem
     from ravenmem.agent import VLMConfig, caption_memories
-    from ravenmem.agent.captions import SEGMENT_FRAMES
     from ravenmem.agent.methods import require_model
     from ravenmem.memory.folder import CAPTIONS
 
@@ -333,7 +339,7 @@ def caption(
         max_retries=max_retries,
     )
     require_model("caption", vlm)
-    seg = SEGMENT_FRAMES if segment_frames is None else segment_frames
+    seg = segment_frames  # None: segments of 3 s
     with ravenmem.open(memory) as mem:
         n = caption_memories(mem, vlm, segment_frames=seg, image_max_side=image_max_side or 0)
         total = mem.count()
@@ -347,7 +353,7 @@ def caption(
         sys.stdout.write(json.dumps(out, indent=2) + "\n")
     else:
         Console().print(
-            f"captioned {n} segments of {seg} keyframes ({total} memories); captions in {esc(out['file'])}",
+            f"captioned {n} segments of {f'{seg} keyframes' if seg else '3 s'} ({total} memories); captions in {esc(out['file'])}",
             highlight=False,
         )
 

@@ -11,7 +11,8 @@
   memory: accuracy against memories kept (`consolidation_study`);
 - the agent ablations, one method option swept (`option_study`): `top-k` (memories per tool
   call), `scores` (similarity scores shown to the model or hidden), `time-mode` (the time tool
-  looking forward from the asked time, or centred on it) and `tool-calls` (the tool-call budget).
+  looking forward from the asked time, centred on it, or nearest in time first: the paper's ordering
+  study) and `tool-calls` (the tool-call budget).
 
 Every point is an ordinary run folder (`<out>/stride-5/`, `<out>/top_k-10/`, ...) with its rows
 labelled by a variant, and `<out>/study.json` lists the points with accuracy and retrieval cost;

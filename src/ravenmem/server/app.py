@@ -59,6 +59,9 @@ class AskBody(BaseModel):
     image_memory_id: int | None = Field(
         None, ge=0, description="use this memory's picture as the query picture"
     )
+    navigate: bool = Field(
+        False, description="also plan a path on the memory's map to the answer (its goal: `navigation`)"
+    )
 
 
 def create_app(service: Service, token: str | None = None, loopback: bool = True) -> FastAPI:
@@ -145,6 +148,8 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
                     raise InputError(f"memory {body.image_memory_id} has no stored picture")
             ans = service.ask(body.question, body.method, body.top_k, body.max_tool_calls, img, body.preset)
             data = service.answer_json(ans, image_url_for(request))
+            if body.navigate:
+                data["navigation"] = service.plan(ans).as_dict()
             service.publish_answer(data)
             return data
 

@@ -90,6 +90,10 @@ def ask_schema(service: Service) -> dict[str, Any]:
                 "maximum": MAX_CALLS,
                 "description": "tool calls before the model must answer",
             },
+            "navigate": {
+                "type": "boolean",
+                "description": "also plan a path on the memory's map to the answer (its goal: `navigation`)",
+            },
         },
         "required": ["question"],
         "additionalProperties": False,
@@ -159,9 +163,11 @@ def _ask(service: Service, args: dict[str, Any], base: str | None) -> types.Call
     question = args.get("question")
     if not isinstance(question, str) or not question.strip() or len(question) > 2000:
         raise RavenmemError("ask: question must be a non-empty string of at most 2000 characters")
-    extra = set(args) - {"question", "method", "preset", "top_k", "max_tool_calls"}
+    extra = set(args) - {"question", "method", "preset", "top_k", "max_tool_calls", "navigate"}
     if extra:
         raise RavenmemError(f"ask: unknown argument(s) {', '.join(sorted(extra))}")
+    if not isinstance(args.get("navigate", False), bool):
+        raise RavenmemError("ask: navigate must be true or false")
     ans = service.ask(
         question,
         method=args.get("method"),
@@ -170,6 +176,8 @@ def _ask(service: Service, args: dict[str, Any], base: str | None) -> types.Call
         preset=args.get("preset"),
     )
     data = service.answer_json(ans, _url(base))
+    if args.get("navigate"):
+        data["navigation"] = service.plan(ans).as_dict()
     service.publish_answer(data)
     recs = service.mem.get([e["id"] for e in data["evidence"]]) if data["evidence"] else []
     return _result(service, data, recs)

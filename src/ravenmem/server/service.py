@@ -15,10 +15,11 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from PIL import Image
+from pydantic import ValidationError
 
 from ..agent.base import METHODS, needs_vlm
 from ..agent.config import VLMConfig
@@ -34,6 +35,9 @@ from ..tools import TOOLS, Tool, ToolArgs, hit_json
 from ..types import Hit, Intrinsics, MemoryRecord
 from .events import EventBus
 from .live import AddResult, LiveWriter
+
+if TYPE_CHECKING:
+    from ..nav.goals import GoalPlan
 
 log = logging.getLogger(__name__)
 
@@ -315,7 +319,36 @@ class Service:
             ),
         }
         m = create_method(name, self.mem, preset=preset or self.cfg.preset, **opts)
-        return m.ask(question, image=image)
+        ans = m.ask(question, image=image)
+        ans.frame_id, ans.map_id = self.mem.frame_id, self.mem.map_id  # where its position is
+        return ans
+
+    # ---------------------------------------------------------------- goals
+    def plan(self, ans: Any, start: tuple[float, float] | None = None) -> GoalPlan:
+        """The goal for an answer on the memory's map, as every front end plans it
+        (`nav.goals.goal_for`: `POST /ask` with navigate, MCP `ask`, the robot links)."""
+        from ..nav.goals import goal_for
+
+        return goal_for(ans, self.mem, start)
+
+    def plan_json(
+        self, data: dict[str, Any], start: tuple[float, float] | None = None
+    ) -> dict[str, Any] | None:
+        """`plan` for an answer given as its JSON (a robot link's hook); None when it is not one."""
+        try:
+            ans = Answer.model_validate(data)
+        except ValidationError:
+            return None
+        return self.plan(ans, start).as_dict()
+
+    def frame_check(self, frame: str) -> str | None:
+        """Whether live poses in `frame` (REP 105) may be stored: a memory without a frame yet
+        takes it; one in another frame refuses them (the reason, counted by the link)."""
+        try:
+            self.mem.claim_map(frame_id=frame, what="the live poses")
+        except InputError:
+            return f"poses in frame {frame!r}, the memory's are in {self.mem.frame_id!r}"
+        return None
 
     def answer_json(self, ans: Answer, image_url: ImageUrl) -> dict[str, Any]:
         """The answer as `ravenmem ask --json` gives it, evidence images as URLs (no paths)."""

@@ -151,3 +151,52 @@ def test_kill_9_before_the_text_lands_loses_neither_memory_nor_text(tmp_path):
             assert word in got[i].upper(), got
             top = mem.search_text(word.lower(), k=1)[0]
             assert top.memory.id == i and top.ocr_match
+
+
+def test_a_live_stream_and_the_same_recording_keep_the_same_frames_for_the_same_reasons(tmp_path):
+    """One admission stage (ingest.admit): a robot streaming frames to a served memory and an
+    ingest of the same frames keep the same keyframes and name the same skip reasons."""
+    from ravenmem.ingest.pipeline import PREFILTER, ingest
+
+    stream = [  # (colour, x, t): what each rule sees
+        ("red", 0.0, 0.0),  # kept
+        ("red", 0.1, 1.0),  # too little motion
+        ("red", 1.0, 2.0),  # moved, but looks like the last keyframe
+        ("green", 2.0, 3.0),  # kept
+        ("green", 3.0, 2.5),  # back in time
+        ("blue", 3.0, 4.0),  # kept
+        ("blue", 3.0, 10.0),  # 5 s passed, but looks like the last keyframe
+        ("red", 3.1, 10.5),  # too little motion since the frame before
+        ("red", 4.0, 11.0),  # kept
+    ]
+    frames = [Frame(solid(c), T0 + t, Pose(x, 0), "cam", i) for i, (c, x, t) in enumerate(stream)]
+
+    class Recording:
+        name = "recording"
+
+        def __iter__(self):
+            return iter(frames)
+
+    with ravenmem.create(tmp_path / "ingest.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0) as mem:
+        report = ingest(Recording(), mem, KeyframeConfig(), progress=False, batch_size=2)
+        recorded = [r.frame_index for r in mem.all_records()]
+    with ravenmem.create(tmp_path / "live.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0) as mem:
+        w = LiveWriter(mem, KeyframeConfig()).start()
+        try:
+            answers = [w.add(f.image, f.pose, f.t, source="cam") for f in frames]
+        finally:
+            w.close()
+        live = [r.frame_index for r in mem.all_records()]
+    assert recorded == live == [0, 3, 5, 8]
+    assert [a.stored for a in answers] == [i in live for i in range(len(frames))]
+    # the same reasons; the ingest report sums the cheap rules' (docs/ingest.md)
+    assert w.stats.skipped == {
+        "too little motion": 2,
+        "similar to last keyframe": 2,
+        "non-monotonic timestamp": 1,
+    }
+    assert report.skipped == {
+        PREFILTER: 2,
+        "similar to last keyframe": 2,
+        "non-monotonic timestamp": 1,
+    }

@@ -218,6 +218,7 @@ def load(
     acked: dict[int, float] = {}
     add_ms: list[float] = []  # every frame's answer, stored or skipped
     stored_ms: list[float] = []
+    skipped_ms: list[float] = []
     skipped: dict[str, int] = {}
     pictures = frames(100)
 
@@ -253,6 +254,7 @@ def load(
                     elif r.status_code == 200:
                         with lock:
                             add_ms.append(ms)
+                            skipped_ms.append(ms)
                             why = str(r.json()["skipped"])
                             skipped[why] = skipped.get(why, 0) + 1
                     else:
@@ -321,6 +323,8 @@ def load(
         "add_p99_ms": pct(add_ms, 99),
         "stored_p50_ms": pct(stored_ms, 50),
         "stored_p99_ms": pct(stored_ms, 99),
+        "skipped_p50_ms": pct(skipped_ms, 50),
+        "skipped_p99_ms": pct(skipped_ms, 99),
         "acked": acked,
     }
     for kind, vals in lat.items():
@@ -369,7 +373,8 @@ def report(res: dict[str, object], args: argparse.Namespace, label: str) -> None
     )
     print(
         f"  stored      {res['frames_stored']} (answer p50 {res['stored_p50_ms']:.0f} ms p99 "
-        f"{res['stored_p99_ms']:.0f} ms); skipped {res['frames_skipped']}"
+        f"{res['stored_p99_ms']:.0f} ms); skipped {res['frames_skipped']} (answer p50 "
+        f"{res['skipped_p50_ms']:.0f} ms p99 {res['skipped_p99_ms']:.0f} ms)"
     )
 
 

@@ -127,7 +127,7 @@ class Core:
         given up when that fails."""
         self._writer.recover(self.store)
         try:
-            from .anchor import finish
+            from .transform import finish
 
             self.manifest = finish(self.path, self.store, self.manifest) or self.manifest
         except BaseException:

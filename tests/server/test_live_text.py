@@ -200,3 +200,15 @@ def test_a_live_stream_and_the_same_recording_keep_the_same_frames_for_the_same_
         "similar to last keyframe": 2,
         "non-monotonic timestamp": 1,
     }
+
+
+def test_an_unreadable_text_journal_is_set_aside_and_the_memory_still_opens(tmp_path):
+    path = tmp_path / "m.mem"
+    ravenmem.create(path, embedder=ColorEmbedder(), ocr=True, thumb_size=0).close()
+    bad = path / "pending-text-0123456789ab.npz"
+    bad.write_bytes(b"not a journal")
+    with ravenmem.open(path, embedder=ColorEmbedder()) as mem:
+        mem.acquire_writer()  # recovery runs: the journal cannot be read, the writer still starts
+        assert journals(path) == [] and (path / "pending-text-0123456789ab.npz.aside").is_file()
+        mem._ocr = lambda image: ""
+        assert mem.add_frames([Frame(solid("red"), T0, Pose(1, 2), "cam", 0)], text="now")

@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fsio import atomic_open
+from ..fsio import atomic_open, move
 from ..store.base import Store, TextStore
 from ..threads import TEXT_NICE, lower_priority
 from ..types import Frame
-from .folder import TEXT_JOURNAL_NAME, text_journal_name
+from .folder import TEXT_JOURNAL_NAME, aside_name, text_journal_name
 from .recovery import stored_ids
 
 log = logging.getLogger(__name__)
@@ -72,31 +72,40 @@ def read(journal: Path) -> tuple[list[Entry], list[np.ndarray]]:
 def recover(folder: Path, store: Store, reader: Callable[[], Reader]) -> int:
     """Read the text of the frames that journals left by a killed writer list and the store
     holds without text; returns how many got their text. `reader` makes the OCR reader (only
-    called when there is a journal)."""
+    called when there is a journal). It never fails (a journal must not keep a memory from
+    opening): a journal it cannot act on is logged and set aside (`folder.aside_name`)."""
     journals = [folder / e for e in sorted(os.listdir(folder)) if TEXT_JOURNAL_NAME.fullmatch(e)]
     done = 0
     ocr: Reader | None = None
     for journal in journals:
         try:
             entries, images = read(journal)
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            log.warning("%s: unreadable text journal, removed (%s)", journal, e)
-            end(journal)
+            found = stored_ids(store, entries)
+            ids, todo = [], []
+            for entry, image in zip(entries, images, strict=True):
+                i = found.get(entry)
+                if i is not None and not store.get([i])[0].ocr_text:
+                    ids.append(i)
+                    todo.append(image)
+            if ids and isinstance(store, TextStore):
+                ocr = ocr or reader()
+                done += store.set_ocr_text(ids, [ocr(im) for im in todo])
+        except Exception as e:  # anything at all: the memory must open
+            _aside(journal, e)
             continue
-        found = stored_ids(store, entries)
-        ids, todo = [], []
-        for entry, image in zip(entries, images, strict=True):
-            i = found.get(entry)
-            if i is not None and not store.get([i])[0].ocr_text:
-                ids.append(i)
-                todo.append(image)
-        if ids and isinstance(store, TextStore):
-            ocr = ocr or reader()
-            done += store.set_ocr_text(ids, [ocr(im) for im in todo])
         end(journal)
     if journals:
         log.info("%s: read the text of %d frame(s) a killed writer left unread", folder, done)
     return done
+
+
+def _aside(journal: Path, why: Exception) -> None:
+    target = journal.with_name(aside_name(journal.name))
+    try:
+        move(journal, target)
+        log.warning("%s: text journal set aside as %s: %s", journal, target.name, why)
+    except OSError as e:
+        log.warning("%s: text journal left as is (%s; cannot move it: %s)", journal, why, e)
 
 
 class LateText:

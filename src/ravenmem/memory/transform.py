@@ -5,6 +5,7 @@ memory's writer: the writer finishes a journal a killed writer left (`Core.acqui
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,11 +14,13 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..fsio import move
 from ..store.base import Store
 from ..types import Pose
-from .folder import ANCHOR_JOURNAL, ANCHOR_POSES
+from .folder import ANCHOR_JOURNAL, ANCHOR_POSES, aside_name
 from .manifest import Manifest
 
+log = logging.getLogger(__name__)
 _CHUNK = 5000  # records read or written per store call
 
 
@@ -96,17 +99,33 @@ def load_originals(folder: Path) -> tuple[np.ndarray, np.ndarray]:
 def finish(folder: Path, store: Store, manifest: Manifest) -> Manifest | None:
     """Apply a re-anchoring journal left in `folder` (by this writer, or one that was killed):
     every memory's pose becomes the journal's transform of its original, the manifest takes the
-    journal's identity, the journal goes. Returns the new manifest, None when there was none."""
+    journal's identity, the journal goes. Returns the new manifest, None when there was none.
+
+    A journal that cannot be read (it is written atomically, so only a hand or a damaged disk
+    makes one) cannot wedge the memory: it is logged and set aside (`folder.aside_name`), and the
+    poses are put back to what the manifest says (its transform of the originals), undoing any
+    part of the re-anchoring that was applied before the writer died."""
     path = folder / ANCHOR_JOURNAL
     if not path.is_file():
         return None
+    map_id: str | None
+    frame_id: str | None
     try:
         journal = json.loads(path.read_text(encoding="utf-8"))
         anchor = journal["anchor"]
         map_id, frame_id = str(journal["map_id"]), str(journal["frame_id"])
         t = Transform.of(anchor["transform"]) if anchor else Transform()
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise InputError(f"{path}: unreadable re-anchoring journal ({e}); nothing was moved by it") from None
+    except (OSError, ValueError, KeyError, TypeError, InputError) as e:
+        aside = path.with_name(aside_name(path.name))
+        move(path, aside)
+        log.warning(
+            "%s: unreadable re-anchoring journal (%s) set aside as %s; poses kept as the manifest says",
+            path,
+            e,
+            aside.name,
+        )
+        anchor, map_id, frame_id = manifest.anchor, manifest.map_id, manifest.frame_id
+        t = Transform.of(anchor["transform"]) if anchor else Transform()
     ids, table = load_originals(folder)
     stored = set(store.select().tolist())
     keep = [k for k, i in enumerate(ids.tolist()) if i in stored]

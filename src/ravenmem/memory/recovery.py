@@ -85,7 +85,7 @@ def settle(folder: Path, store: Store, journal: Path) -> int:
         raw = json.loads(read_text(journal, limit=MAX_JOURNAL, what="thumbnail journal"))["thumbs"]
         entries = [(str(n), str(s), int(i), float(t)) for n, s, i, t in raw]
     except Exception as e:  # anything at all: the memory must open
-        return _aside(journal, f"unreadable ({e})")
+        return set_aside(journal, f"unreadable ({e})")
     failed: list[str] = []
     referenced: set[str] = set()
     for source in {e[1] for e in entries}:
@@ -108,20 +108,20 @@ def settle(folder: Path, store: Store, journal: Path) -> int:
         except OSError as e:  # e.g. a name too long for the file system (ENAMETOOLONG)
             failed.append(f"thumbnail {name[:80]!r}: {e.strerror or e}")
     if failed:
-        _aside(journal, "; ".join(failed[:3]))
+        set_aside(journal, "; ".join(failed[:3]))
     else:
         end(journal)
     return removed
 
 
-def _aside(journal: Path, why: str) -> int:
+def set_aside(journal: Path, why: str, what: str = "thumbnail journal") -> int:
     """Log a journal recovery cannot act on and move it out of recovery's way; 0 removed."""
     target = journal.with_name(aside_name(journal.name))
     try:
         move(journal, target)
-        log.warning("%s: thumbnail journal set aside as %s: %s", journal, target.name, why)
+        log.warning("%s: %s set aside as %s: %s", journal, what, target.name, why)
     except OSError as e:
-        log.warning("%s: thumbnail journal left as is (%s; cannot move it: %s)", journal, why, e)
+        log.warning("%s: %s left as is (%s; cannot move it: %s)", journal, what, why, e)
     return 0
 
 

@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fsio import atomic_open, move
+from ..fsio import atomic_open
 from ..store.base import Store, TextStore
 from ..threads import TEXT_NICE, lower_priority
 from ..types import Frame
-from .folder import TEXT_JOURNAL_NAME, aside_name, text_journal_name
-from .recovery import stored_ids
+from .folder import TEXT_JOURNAL_NAME, text_journal_name
+from .recovery import set_aside, stored_ids
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +73,7 @@ def recover(folder: Path, store: Store, reader: Callable[[], Reader]) -> int:
     """Read the text of the frames that journals left by a killed writer list and the store
     holds without text; returns how many got their text. `reader` makes the OCR reader (only
     called when there is a journal). It never fails (a journal must not keep a memory from
-    opening): a journal it cannot act on is logged and set aside (`folder.aside_name`)."""
+    opening): a journal it cannot act on is logged and set aside (`recovery.set_aside`)."""
     journals = [folder / e for e in sorted(os.listdir(folder)) if TEXT_JOURNAL_NAME.fullmatch(e)]
     done = 0
     ocr: Reader | None = None
@@ -91,21 +91,12 @@ def recover(folder: Path, store: Store, reader: Callable[[], Reader]) -> int:
                 ocr = ocr or reader()
                 done += store.set_ocr_text(ids, [ocr(im) for im in todo])
         except Exception as e:  # anything at all: the memory must open
-            _aside(journal, e)
+            set_aside(journal, str(e), "text journal")
             continue
         end(journal)
     if journals:
         log.info("%s: read the text of %d frame(s) a killed writer left unread", folder, done)
     return done
-
-
-def _aside(journal: Path, why: Exception) -> None:
-    target = journal.with_name(aside_name(journal.name))
-    try:
-        move(journal, target)
-        log.warning("%s: text journal set aside as %s: %s", journal, target.name, why)
-    except OSError as e:
-        log.warning("%s: text journal left as is (%s; cannot move it: %s)", journal, why, e)
 
 
 class LateText:

@@ -118,7 +118,9 @@ def test_a_dripping_model_fails_the_question_within_its_time_limit(cli, mem_path
     took = time.monotonic() - t0
     data = json.loads(r.stdout)
     assert data["failed"] is True and "timed out after 2 s (no complete reply" in data["error"]
-    assert took < 2 + 8, took  # the 2 s limit plus starting Python; a per-read timeout never ends
+    # the drip would take minutes (a byte a second of a ~300-byte reply): far less means the 2 s
+    # limit cut it, with room for starting Python on a loaded machine (no tighter timing here)
+    assert took < 2 + 100, took
     assert r.returncode == 1
 
 

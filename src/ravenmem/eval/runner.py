@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from ..agent.ask import AskRequest, ask
 from ..agent.schema import Answer
 from ..errors import InputError
 from ..fsio import atomic_open, atomic_write, atomic_write_json
@@ -411,7 +412,7 @@ class Runner:
         try:
             image = read_image(q.image) if q.image is not None else None
             with self._borrow(method, mem, seed, q.id, pool) as m:
-                ans = m.ask(q.text, image=image)
+                ans = ask(mem, AskRequest(q.text, image=image), method=m).answer
             if not isinstance(ans, Answer):
                 raise TypeError(f"method {method} returned {type(ans).__name__}, not an Answer")
         except Exception as e:  # noqa: BLE001 - one failing question must not end the run; it is recorded

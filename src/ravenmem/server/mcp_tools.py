@@ -89,6 +89,11 @@ def ask_schema(service: Service) -> dict[str, Any]:
                 "maximum": MAX_CALLS,
                 "description": "tool calls before the model must answer",
             },
+            "allow_unsupported": {
+                "type": "boolean",
+                "description": "accept (and send to the robot) a position far from every memory the "
+                "model was shown; without it such an answer is an error",
+            },
         },
         "required": ["question"],
         "additionalProperties": False,
@@ -158,18 +163,24 @@ def _ask(service: Service, args: dict[str, Any], base: str | None) -> types.Call
     question = args.get("question")
     if not isinstance(question, str) or not question.strip() or len(question) > 2000:
         raise RavenmemError("ask: question must be a non-empty string of at most 2000 characters")
-    extra = set(args) - {"question", "method", "preset", "top_k", "max_tool_calls"}
+    extra = set(args) - {"question", "method", "preset", "top_k", "max_tool_calls", "allow_unsupported"}
     if extra:
         raise RavenmemError(f"ask: unknown argument(s) {', '.join(sorted(extra))}")
-    ans = service.ask(
+    allow = args.get("allow_unsupported", False)
+    if not isinstance(allow, bool):
+        raise RavenmemError("ask: allow_unsupported must be true or false")
+    result = service.ask(
         question,
         method=args.get("method"),
         top_k=args.get("top_k"),
         max_tool_calls=args.get("max_tool_calls"),
         preset=args.get("preset"),
+        allow_unsupported=allow,
     )
-    data = service.answer_json(ans, _url(base))
-    service.publish_answer(data)
+    data = service.result_json(result, _url(base))
+    service.publish_answer(data, drive=result.refusal is None)
+    if result.refusal:
+        return _error(result.refusal)
     recs = service.mem.get([e["id"] for e in data["evidence"]]) if data["evidence"] else []
     return _result(service, data, recs)
 

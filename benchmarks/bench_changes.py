@@ -36,7 +36,7 @@ from ravenmem.robot.explore import ExploreConfig  # noqa: E402
 from ravenmem.robot.mission import explore_into  # noqa: E402
 from ravenmem.sim.synthetic import SyntheticEnv  # noqa: E402
 from ravenmem.types import Frame, Pose  # noqa: E402
-from tests.robot.box_embedder import BoxEmbedder  # noqa: E402
+from tests.box_embedder import BoxEmbedder  # noqa: E402
 
 T0 = 1_700_000_000.0
 DAY = 86_400.0

@@ -15,7 +15,7 @@ frames = 0.13 s away). Columns:
 - mAP / top-1 / P@5: the labelled queries ranking the kept frames (mAP's chance level changes
   with the set, so compare top-1 and P@5 across rows).
 
-Then the diverse-results rule (ravenmem.diversity) on every frame and on the default keyframes:
+Then the diverse-results rule (ravenmem.memory.diversity) on every frame and on the default keyframes:
 P@5 and distinct views in the top 5, with and without it.
 
     PYTHONPATH=src python benchmarks/bench_keyframes.py [--threads 2] [--sheet kept.png]
@@ -36,8 +36,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from ravenmem import diversity  # noqa: E402
 from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer, describe  # noqa: E402
+from ravenmem.memory import diversity  # noqa: E402
 from ravenmem.types import Frame, Hit, MemoryRecord  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "tum_fr1_rpy"

@@ -121,12 +121,12 @@ def score(
 
 def sweep(mem: object, times: list[float], seen: dict[str, list[int]], tol: float) -> None:
     """How much the offline reasoner's answers depend on its two thresholds."""
-    from ravenmem.agent import OfflineReasoner, OfflineSettings
+    from ravenmem.agent import OfflineReasoner, OfflineReasonerConfig
 
     for quantile in (0.8, 0.9):
         for margin in (1.0, 0.85, 0.75, 0.6, 0.5):
             r = OfflineReasoner(
-                mem, settings=OfflineSettings(temporal_margin=margin, decoy_quantile=quantile)
+                mem, config=OfflineReasonerConfig(temporal_margin=margin, decoy_quantile=quantile)
             )  # type: ignore[arg-type]
             per = score(r, times, seen, tol)
             print(

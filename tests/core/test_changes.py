@@ -1,4 +1,4 @@
-"""A world that changes: the rules of `ravenmem.changes` on small hand-made timelines.
+"""A world that changes: the rules of `ravenmem.memory.changes` on small hand-made timelines.
 
 The robot stands at a few poses and looks around; a red picture is a view that shows the red
 thing, a black one a view without it. Verdicts come from what the robot saw later from the
@@ -12,8 +12,9 @@ import math
 import pytest
 
 import ravenmem
-from ravenmem.changes import ChangeHit, ChangeSettings, overlaps
 from ravenmem.errors import InputError
+from ravenmem.memory.places import ChangeHit
+from ravenmem.memory.views import ChangeConfig, overlaps
 from ravenmem.timeparse import fmt_time
 from ravenmem.tools import TOOLS, hit_json
 from ravenmem.types import Frame, MemoryRecord, Pose
@@ -108,7 +109,7 @@ def test_looking_away_and_back_on_the_same_pass_is_no_revisit(tmp_path) -> None:
     w = mem.last_seen("red")
     assert [p.verdict for p in w.places] == ["not revisited"] and w.places[0].revisits == []
     # with a short pass, the same look back counts
-    short = mem.last_seen("red", settings=ChangeSettings(episode_gap_s=5.0))
+    short = mem.last_seen("red", config=ChangeConfig(episode_gap_s=5.0))
     assert [p.verdict for p in short.places] == ["gone"] and short.places[0].revisited == T0 + 16
     mem.close()
 
@@ -120,7 +121,7 @@ def test_a_view_from_elsewhere_or_another_way_is_not_a_revisit(tmp_path) -> None
     ]  # turned 90 deg; 2 m away
     mem = build(tmp_path, first_pass() + later)
     assert [p.verdict for p in mem.last_seen("red").places] == ["not revisited"]
-    wide = mem.last_seen("red", settings=ChangeSettings(view_radius=2.5))
+    wide = mem.last_seen("red", config=ChangeConfig(view_radius=2.5))
     assert [p.verdict for p in wide.places] == ["gone"]
     mem.close()
 
@@ -182,7 +183,7 @@ def test_nothing_that_stands_out_and_bad_input(tmp_path) -> None:
     with pytest.raises(InputError, match="no such memory"):
         mem.last_seen(memory_id=999)
     with pytest.raises(InputError, match="match_ratio"):
-        ChangeSettings(match_ratio=1.5)
+        ChangeConfig(match_ratio=1.5)
     with pytest.raises(InputError, match="latest"):
         TOOLS["search_text"].validate({"query": "red", "latest": "maybe"})
     mem.close()
@@ -197,7 +198,7 @@ class ProtocolOnly:
         self.path = mem.path
 
     def __getattr__(self, name: str) -> object:
-        from ravenmem.agent.base import MemoryLike
+        from ravenmem.memory import MemoryLike
 
         if name.startswith("_") or name not in dir(MemoryLike):
             raise AttributeError(name)
@@ -205,8 +206,8 @@ class ProtocolOnly:
 
 
 def test_the_latest_mode_needs_only_the_memory_protocol(tmp_path) -> None:
-    from ravenmem.agent.base import MemoryLike
     from ravenmem.agent.offline import OfflineReasoner
+    from ravenmem.memory import MemoryLike
 
     later = [look(DAY + t, "black", 0.0, 0.0, EAST) for t in (0, 1)]
     later += [look(DAY + 2, "black", 6.0, 0.0, WEST)] + [

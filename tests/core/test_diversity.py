@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import ravenmem
-from ravenmem import diversity
+from ravenmem.memory import diversity
 from ravenmem.tools import get_tool
 from ravenmem.types import Frame, Hit, MemoryRecord, Pose
 from tests.conftest import ColorEmbedder
@@ -103,4 +103,6 @@ def test_text_and_image_search_are_diverse_by_default(burst_memory) -> None:
 def test_tools_table_passes_the_opt_out(burst_memory) -> None:
     text = get_tool("search_text")
     assert len({round(h.memory.t) for h in text.run(burst_memory, {"query": "red"}, 3)}) == 3
-    assert len({round(h.memory.t) for h in text.run(burst_memory, {"query": "red"}, 3, diverse=False)}) == 1
+    assert (
+        len({round(h.memory.t) for h in text.run(burst_memory, {"query": "red", "diverse": False}, 3)}) == 1
+    )

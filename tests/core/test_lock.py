@@ -1,4 +1,4 @@
-"""The writer lock (ravenmem.lock) and how Memory takes it."""
+"""The writer lock (ravenmem.memory.lock) and how Memory takes it."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ import pytest
 
 import ravenmem
 from ravenmem.errors import MemoryBusyError
-from ravenmem.lock import LOCK_FILE, WriterLock
+from ravenmem.memory.folder import LOCK
+from ravenmem.memory.lock import WriterLock
 from ravenmem.types import Pose
 from tests.conftest import solid
 
@@ -24,7 +25,7 @@ REPO = Path(__file__).resolve().parents[2]
 def test_one_holder_per_folder_even_within_a_process(tmp_path: Path) -> None:
     a, b = WriterLock(tmp_path), WriterLock(tmp_path)
     a.acquire()
-    assert a.held and json.loads((tmp_path / LOCK_FILE).read_text())["pid"] == os.getpid()
+    assert a.held and json.loads((tmp_path / LOCK).read_text())["pid"] == os.getpid()
     with pytest.raises(MemoryBusyError, match="another Memory object in this process"):
         b.acquire()
     t0 = time.monotonic()
@@ -35,14 +36,14 @@ def test_one_holder_per_folder_even_within_a_process(tmp_path: Path) -> None:
     b.acquire(wait=False)
     assert b.held and not a.held
     b.release()
-    assert (tmp_path / LOCK_FILE).read_text() == ""  # nobody to name any more
+    assert (tmp_path / LOCK).read_text() == ""  # nobody to name any more
     with pytest.raises(ValueError):
         a.acquire(wait=-1)
 
 
 def test_a_killed_holder_frees_the_lock_and_is_named_while_alive(tmp_path: Path) -> None:
     code = (
-        "import sys, time; from ravenmem.lock import WriterLock; "
+        "import sys, time; from ravenmem.memory.lock import WriterLock; "
         "lk = WriterLock(sys.argv[1]); lk.acquire(); print('held', flush=True); time.sleep(600)"
     )
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"))

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from ravenmem.errors import InputError
-from ravenmem.manifest import FORMAT_VERSION, Manifest, confine, store_for_create, store_kind
+from ravenmem.memory.manifest import FORMAT_VERSION, Manifest, confine, store_for_create, store_kind
 
 
 def test_round_trip_keeps_unknown_keys(tmp_path: Path):

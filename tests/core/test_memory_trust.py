@@ -13,7 +13,7 @@ from PIL import Image
 import ravenmem
 from ravenmem.embed.base import EMBEDDERS
 from ravenmem.errors import EmbedderMismatchError, InputError
-from ravenmem.manifest import Manifest
+from ravenmem.memory.manifest import Manifest
 from ravenmem.store.base import STORES
 from ravenmem.types import Frame, Pose
 from tests.conftest import ColorEmbedder, solid

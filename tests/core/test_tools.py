@@ -8,7 +8,8 @@ import pytest
 
 import ravenmem
 from ravenmem.errors import InputError
-from ravenmem.tools import MAX_K, TOOLS, check_k, get_tool, hit_json
+from ravenmem.memory.protocol import MAX_K, check_k
+from ravenmem.tools import TOOLS, get_tool, hit_json
 from ravenmem.types import Frame, Pose
 from tests.conftest import solid
 

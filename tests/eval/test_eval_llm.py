@@ -190,7 +190,7 @@ def test_scores_study_with_a_preset_against_the_scripted_model(scoring_root: Pat
             tmp_path,
             vlm="scripted",
             vlm_base_url=srv.base_url,
-            method_opts={"preset": "raven-qa"},
+            method_opts={"preset": "raven-qa-human"},
             seeds=2,
         )
         doc = option_study(
@@ -203,7 +203,7 @@ def test_scores_study_with_a_preset_against_the_scripted_model(scoring_root: Pat
         )
         requests = list(srv.requests)
     assert len(requests) == 2 * 3 * 2 * 2  # settings x questions x seeds x (search, answer)
-    assert {b["temperature"] for b in requests} == {0.0} and {b.get("seed") for b in requests} == {0, 1}
+    assert {b["temperature"] for b in requests} == {0.0001} and {b.get("seed") for b in requests} == {0, 1}
     tool_texts = [m["content"] for b in requests for m in b["messages"] if m["role"] == "tool"]
     assert all(len(re.findall(r"^\[m\d+\]", t, re.M)) == 5 for t in tool_texts)  # the preset's k
     with_scores = [t for t in tool_texts if "score " in t]
@@ -213,5 +213,5 @@ def test_scores_study_with_a_preset_against_the_scripted_model(scoring_root: Pat
     rows = read_rows(tmp_path / "scores")
     assert {r["variant"] for r in rows} == {"show_scores=on", "show_scores=off"}
     assert {(r["ran"]["method"], r["ran"]["model"], r["answer"]["preset"]) for r in rows} == {
-        ("raven", "scripted", "raven-qa")
+        ("raven", "scripted", "raven-qa-human")
     }

@@ -36,7 +36,10 @@ def test_navqa_human_qa_clips(tmp_path: Path) -> None:
 
 
 def test_navqa_csv_only_uses_local_time_and_poses(tmp_path: Path) -> None:
-    (ep,) = load_dataset(f"navqa:{write_navqa(tmp_path / 'navqa', with_human_qa=False)}")
+    root = write_navqa(tmp_path / "navqa", with_human_qa=False)
+    with pytest.raises(InputError, match="does not say which release wrote them: give --tz"):
+        load_dataset(f"navqa:{root}")  # our flat layout names no release, and no text says the zone
+    (ep,) = load_dataset(f"navqa:{root}", tz="America/Chicago")
     q = {x.id: x for x in ep.questions}
     assert len(ep.frame_times) == 20
     # 9:55:11 America/Chicago = T0 + 11 s: the pose there is y = 22

@@ -119,7 +119,7 @@ def test_option_studies_table_curve_and_cost(scoring_root: Path, tmp_path: Path)
         f"raven-qa:{scoring_root / 'sim' / 'simple'}",
         ["oracle"],
         tmp_path,
-        method_opts={"preset": "raven-qa"},
+        method_opts={"preset": "raven-qa-human"},
     )
     doc = option_study(
         base,
@@ -130,7 +130,7 @@ def test_option_studies_table_curve_and_cost(scoring_root: Path, tmp_path: Path)
         embedder=CountingColorEmbedder(),
         **QUIET,
     )
-    assert {o["top_k"] for o in seen} == {1, 5, 10} and all(o["preset"] == "raven-qa" for o in seen)
+    assert {o["top_k"] for o in seen} == {1, 5, 10} and all(o["preset"] == "raven-qa-human" for o in seen)
     assert [p["value"] for p in doc["points"]] == [1, 5, 10]
     assert [p["alpha"]["mean"] for p in doc["points"]] == pytest.approx([1 / 40, 5 / 40, 10 / 40])
     assert sorted(p.name for p in (tmp_path / "topk").iterdir()) == [
@@ -143,7 +143,7 @@ def test_option_studies_table_curve_and_cost(scoring_root: Path, tmp_path: Path)
     text = write_report(tmp_path / "topk", tmp_path / "topk" / "report.md").read_text()
     assert "## Top-k study" in text and "| top_k | Method | Accuracy |" in text
     assert line_of(text, "| 10 | oracle |").startswith(
-        "| 10 | oracle | 100.0 | 100.0 | 100.0 | 0.250 ± 0.000 | 10.0"
+        "| 10 | oracle | 100.0 [100.0, 100.0] | 100.0 [100.0, 100.0] | 100.0 [100.0, 100.0] | 0.250 ± 0.000 | 10.0"
     )
     figs = tmp_path / "topk" / "report_figs"
     assert (figs / "study_top-k_0.png").read_bytes()[:8] == PNG
@@ -219,17 +219,20 @@ def test_navqa_per_horizon_and_findingdory_relaxed_reports(tmp_path: Path) -> No
         **QUIET,
     ).run()
     text = write_report(tmp_path / "nav", tmp_path / "nav.md").read_text()
-    assert "## Per horizon: accuracy and errors (NaVQA)" in text
+    assert "## Per horizon: NaVQA's table" in text
     head = line_of(text, "| Method | Embedder | VLM | Horizon |")
     assert (
-        "| Position acc. | Pos. err (m) | Time acc. | Time err (min) |" in head and "| Binary acc. |" in head
+        "| Descriptive acc. | Pos. err (m) | Pos. acc. ≤ 15 m | Temporal err (min) | Temporal acc. ≤ 0.5 min |"
+        in head
     )
     short = dict(zip(cells(head), cells(line_of(text, "| embedder-only | test-color-eval | - | short |"))))
-    assert (
-        short["Position acc."] == "100.0" and short["Time acc."] == "100.0" and short["Binary acc."] == "n/a"
-    )
+    assert short["Pos. acc. ≤ 15 m"].startswith("100.0 [") and short["Pos. acc. ≤ 15 m"].endswith("(n=1)")
+    assert short["Temporal acc. ≤ 0.5 min"].startswith("100.0") and short["Descriptive acc."] == "n/a"
+    assert short["Pos. err (m)"] == "2.00 ± 0.00"  # the first blue frame, 2 m before the answer's
     long = dict(zip(cells(head), cells(line_of(text, "| embedder-only | test-color-eval | - | long |"))))
-    assert long["Position acc."] == "n/a" and long["Binary acc."] != "n/a"  # long: binary, duration, text
+    # long: binary and text (not judged: not counted) are descriptive, duration temporal
+    assert long["Pos. acc. ≤ 15 m"] == "n/a" and long["Descriptive acc."].endswith("(n=1)")
+    assert long["Temporal acc. ≤ 0.5 min"] == "0.0 [0.0, 0.0] (n=1)"  # embedder-only gives no duration
     fd = write_findingdory(tmp_path / "fd")
     Runner(
         run_cfg(f"findingdory:{fd}", ["embedder-only"], tmp_path, out="fdrun"),
@@ -252,7 +255,7 @@ def test_keyframes_default_to_every_frame() -> None:
 
 
 def test_top_k_option() -> None:
-    from ravenmem.cli.eval import parse_top_k
+    from ravenmem.agent.presets import parse_top_k
 
     assert parse_top_k("7") == 7
     assert parse_top_k("time=200,text=30,position=1") == {"time": 200, "text": 30, "position": 1}
@@ -282,7 +285,7 @@ def test_eval_command_run_report_study_and_errors(scoring_root: Path, tmp_path: 
         "--out",
         str(run),
         "--preset",
-        "raven-qa",
+        "raven-qa-human",
         "--pos-threshold",
         "real_world=3",
         "--json",
@@ -295,9 +298,9 @@ def test_eval_command_run_report_study_and_errors(scoring_root: Path, tmp_path: 
         g["embedder-only"]["frame_accuracy"]["mean"] == 1.0 and g["random"]["frame_accuracy"]["mean"] <= 0.2
     )
     rows = read_rows(run)
-    assert len(rows) == 36 and {r["pos_threshold"] for r in rows} == {2.0, 3.0}
+    assert len(rows) == 36 and {r["score"]["threshold_m"] for r in rows} == {2.0, 3.0}
     doc = json.loads((run / "config.json").read_text())
-    assert doc["method_opts"] == {"preset": "raven-qa"} and doc["config"]["methods"]["names"] == [
+    assert doc["method_opts"] == {"preset": "raven-qa-human"} and doc["config"]["methods"]["names"] == [
         "embedder-only",
         "random",
     ]
@@ -343,13 +346,25 @@ def test_eval_command_run_report_study_and_errors(scoring_root: Path, tmp_path: 
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "--method raven needs a VLM and none is configured" in r.stderr
     assert not (tmp_path / "novlm" / "answers.jsonl").exists()
+    r = rm("eval", "--help", env={"COLUMNS": "250"})
+    for flag in (
+        "--dataset",
+        "--pos-threshold",
+        "--scoring",
+        "--caption-encoder",
+        "--replay",
+        "--time-mode",
+        "--tz",
+    ):
+        assert flag in r.stdout, flag  # the typed config's options, on the command
     for args, msg in (
         (["--dataset", "nosuch:/x", "--method", "offline"], "unknown dataset 'nosuch'"),
         ([*common, "--method", "oracle"], "--method: unknown oracle"),
         (
-            ["--dataset", f"navqa:{scoring_root}", "--method", "offline", "--pos-threshold", "a=1"],
-            "is for raven-qa datasets",
+            [*common, "--method", "offline", "--pos-threshold", "real_world=3,sim_world=1"],
+            "--pos-threshold: no subset named sim_world in this dataset (its subsets: real_world, sim)",
         ),
+        ([*common, "--method", "offline", "--scoring", "strict"], "--scoring: one of paper, release"),
         ([*common, "--method", "offline", "--time-mode", "sideways"], "--time-mode: one of forward, centred"),
     ):
         r = rm("eval", *args, "--out", str(tmp_path / "bad"), site=site)

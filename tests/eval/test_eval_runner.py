@@ -12,7 +12,15 @@ import pytest
 from ravenmem.agent.schema import Answer, Evidence
 from ravenmem.errors import InputError
 from ravenmem.eval.config import DatasetConfig, RunConfig
-from ravenmem.eval.runner import AnswerLog, Runner, agent_takes, check_methods, method_names, read_rows
+from ravenmem.eval.runner import (
+    AnswerLog,
+    Runner,
+    agent_takes,
+    check_methods,
+    method_names,
+    preset_notes,
+    read_rows,
+)
 from tests.eval.eval_helpers import CountingColorEmbedder, no_vlm_env, run_cfg, write_raven_video
 
 
@@ -248,11 +256,54 @@ def test_unknown_methods_and_options_the_agent_lacks(raven_root: Path, tmp_path:
             with pytest.raises(InputError, match=f"this version's raven method does not take {option}"):
                 check_methods(c)
     check_methods(cfg(raven_root, tmp_path, methods=["offline"], method_opts={"show_scores": False}))
-    with pytest.raises(InputError, match="--time-mode: one of forward, centred"):
+    with pytest.raises(InputError, match="--time-mode: one of forward, centred, nearest"):
         cfg(raven_root, tmp_path, method_opts={"time_mode": "backward"})
-    with pytest.raises(InputError, match="--preset: one of raven-qa, navqa, findingdory"):
+    with pytest.raises(
+        InputError, match="--preset: one of raven-qa-human, raven-qa-robot, raven-qa-robot-open, navqa"
+    ):
         cfg(raven_root, tmp_path, method_opts={"preset": "paper"})
+    with pytest.raises(InputError, match="--preset raven-qa: the paper's table has one per kind of video"):
+        cfg(raven_root, tmp_path, method_opts={"preset": "raven-qa"})
     with pytest.raises(InputError, match="--top-k"):
         cfg(raven_root, tmp_path, method_opts={"top_k": 0})
     with pytest.raises(InputError, match="expected NAME:PATH"):
         DatasetConfig("raven-qa")
+
+
+def test_a_preset_setting_the_agent_cannot_take_is_said(raven_root: Path, tmp_path: Path) -> None:
+    """The paper's presets ask for exactly k memories (diverse=False); an agent version that has
+    no such option yet is told so in the run's log instead of dropping it silently."""
+    c = cfg(raven_root, tmp_path, methods=["raven"], method_opts={"preset": "navqa"})
+    expected = (
+        []
+        if agent_takes("diverse")
+        else ["preset navqa: diverse=False not applied (this version's raven agent takes no 'diverse')"]
+    )
+    assert preset_notes(c) == expected
+    assert preset_notes(cfg(raven_root, tmp_path, methods=["offline"], method_opts={"preset": "navqa"})) == []
+
+
+def test_run_options_are_the_typed_configs_fields() -> None:
+    """Every option of the typed config is a command-line option (one declaration, no table)."""
+    from ravenmem.cli.eval import option_fields
+    from ravenmem.eval.config import SECTIONS, build_run_config, options_of
+
+    declared = {f.metadata["flag"].split()[0] for cls in SECTIONS.values() for f in options_of(cls)}
+    declared |= {f.metadata["flag"].split()[0] for f in options_of(RunConfig)}
+    assert {f.metadata["flag"].split()[0] for _, _, f in option_fields()} == declared
+    assert {"--pos-threshold", "--scoring", "--caption-encoder", "--time-mode", "--top-k"} <= declared
+    c = build_run_config(
+        {
+            "dataset": "raven-qa:/d",
+            "method": "raven, offline",
+            "top_k": "time=9",
+            "time_threshold": 1.5,
+            "pos_threshold": "irs=1",
+        }
+    )
+    assert c.methods.names == ["raven", "offline"] and c.methods.top_k == {"time": 9}
+    assert c.thresholds.time_s == 90.0 and c.thresholds.position_m == {"irs": 1.0} and c.seeds == 1
+    again = build_run_config({"seeds": 3}, base=c)  # over a recorded run's settings
+    assert again.seeds == 3 and again.methods.top_k == {"time": 9} and again.dataset.spec == "raven-qa:/d"
+    with pytest.raises(InputError, match="--dataset NAME:PATH is required"):
+        build_run_config({"method": "offline"})

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import ravenmem
-from ravenmem.lifelong.consolidate import plan
+from ravenmem.memory.lifelong.consolidate import plan
 from ravenmem.timeparse import fmt_time
 from tests.cli.helpers import assert_one_line_error
 from tests.conftest import ColorEmbedder
@@ -156,7 +156,7 @@ def test_the_latest_mode_counts_what_a_representative_stands_for(tmp_path: Path)
 
 
 def test_the_agent_reads_what_a_representative_stands_for(walk: Path) -> None:
-    from ravenmem.agent.tools import ToolRunner, WorkingMemory
+    from ravenmem.agent.tool_calls import ToolRunner, WorkingMemory
 
     rm_json("consolidate", "-m", str(walk), "--max-similarity", "0.95")
     with ravenmem.open(walk) as m:

@@ -25,7 +25,8 @@ import pytest
 
 import ravenmem
 from ravenmem.fsio import is_temp_file
-from ravenmem.lifelong.groups import FILE, GroupTable
+from ravenmem.memory.folder import GROUPS
+from ravenmem.memory.groups import GroupTable
 from tests.lifelong.lifelong_helpers import (
     T0,
     assert_consistent,
@@ -115,7 +116,7 @@ def test_consolidate_killed_at_a_random_moment(big: Path, tmp_path: Path, round_
     writer_open(mem)
     assert {r.id for r in records(mem)} == ids and _represented(mem)[1] == 2000, f"seed {seed}"
     assert_consistent(mem, f"seed {seed} ({how})")
-    with sqlite3.connect(mem / FILE) if (mem / FILE).exists() else _none() as conn:
+    with sqlite3.connect(mem / GROUPS) if (mem / GROUPS).exists() else _none() as conn:
         if conn is not None:
             assert conn.execute("SELECT COUNT(*) FROM batches").fetchone()[0] == 0, f"seed {seed}"
             assert conn.execute("SELECT COUNT(*) FROM pending").fetchone()[0] == 0, f"seed {seed}"
@@ -179,7 +180,7 @@ def test_group_protocol_crash_points(big: Path, tmp_path: Path) -> None:
     with ravenmem.open(a) as m:
         assert m.group(rep) is None
     writer_open(a)  # the next writer drops the batch
-    with sqlite3.connect(a / FILE) as conn:
+    with sqlite3.connect(a / GROUPS) as conn:
         assert conn.execute("SELECT COUNT(*) FROM batches").fetchone()[0] == 0
         assert conn.execute("SELECT COUNT(*) FROM groups").fetchone()[0] == 0
     assert len(records(a)) == 2000
@@ -192,7 +193,7 @@ def test_group_protocol_crash_points(big: Path, tmp_path: Path) -> None:
     with ravenmem.open(b) as m:
         assert m.group(rep) == (50, T0, T0 + 490) and m.time_span()[0] == T0
     writer_open(b)  # the next writer commits it, and deletes the merged memories' thumbnails
-    with sqlite3.connect(b / FILE) as conn:
+    with sqlite3.connect(b / GROUPS) as conn:
         assert conn.execute("SELECT COUNT(*) FROM batches").fetchone()[0] == 0
         assert conn.execute("SELECT rep, count FROM groups").fetchall() == [(rep, 50)]
     # the thumbnails of the deleted memories are still there: no journal was written in this

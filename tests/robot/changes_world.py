@@ -8,11 +8,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import ravenmem
-from ravenmem.embed.base import EMBEDDERS
 from ravenmem.robot.explore import ExploreConfig, ExploreReport
 from ravenmem.robot.mission import explore_into
 from ravenmem.sim.synthetic import SyntheticEnv
-from tests.robot.box_embedder import BoxEmbedder
+from tests.box_embedder import BoxEmbedder
 
 T0 = 1_700_000_000.0
 DAY = 86_400.0
@@ -20,11 +19,6 @@ RED, BLUE, GREEN = 0, 1, 2  # object ids of rooms_world()
 A = (3.0, 4.5)  # where the red box starts (room 1)
 B = (14.5, 1.0)  # where it is moved (room 2, out of sight from room 1 through the doorway)
 CFG = ExploreConfig(steps=700, resolution=0.2, keyframe_dist=1.0)
-
-
-@EMBEDDERS.register("test-boxes")
-def _boxes(spec: str = "", **_: object) -> BoxEmbedder:
-    return BoxEmbedder()
 
 
 @dataclass

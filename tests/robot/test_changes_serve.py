@@ -15,7 +15,7 @@ pytest.importorskip("mcp", reason="the service needs the serve extra: pip instal
 from mcp import Client  # noqa: E402
 
 import ravenmem  # noqa: E402
-from tests.robot.box_embedder import BoxEmbedder  # noqa: E402
+from tests.box_embedder import BoxEmbedder  # noqa: E402
 from tests.robot.changes_world import World  # noqa: E402
 from tests.server.conftest import serve_memory  # noqa: E402
 

@@ -15,7 +15,7 @@ from typing import Any
 
 from ravenmem.agent import Agent, VLMConfig
 from ravenmem.agent.offline import OfflineReasoner
-from ravenmem.changes import ChangeHit
+from ravenmem.memory.places import ChangeHit
 from ravenmem.timeparse import fmt_time
 from ravenmem.tools import TOOLS
 from tests.agent.scripted_server import ScriptedModel, answer, tool

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -18,6 +19,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -147,3 +149,22 @@ def serve_subprocess(
             time.sleep(0.1)
     proc.kill()
     raise AssertionError("the service did not answer /health")
+
+
+def stop(proc: subprocess.Popen[str]) -> None:
+    """Stop a service as Ctrl-C does (SIGINT); killed when it has not exited within 60 s."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def running_service(mem_path: Path, *extra: str, **kw: Any) -> Iterator[str]:
+    """`serve_subprocess` for a fixture: yields its URL, stops it afterwards."""
+    proc, url = serve_subprocess(mem_path, *extra, **kw)
+    try:
+        yield url
+    finally:
+        stop(proc)

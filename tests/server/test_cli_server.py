@@ -22,7 +22,7 @@ from ravenmem.tools import TOOLS, hit_json
 from tests.agent.conftest import T0
 from tests.cli.helpers import run_cli
 from tests.conftest import ColorEmbedder
-from tests.server.conftest import make_memory, serve_subprocess
+from tests.server.conftest import make_memory, running_service, serve_subprocess
 
 rm = partial(run_cli, timeout=300, unset=("RAVENMEM_SERVER", "RAVENMEM_TOKEN"))
 
@@ -36,14 +36,7 @@ def scene(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def service(scene: Path) -> Iterator[str]:
-    proc, url = serve_subprocess(scene, "--read-only")
-    yield url
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    yield from running_service(scene, "--read-only")
 
 
 def local(scene: Path) -> ravenmem.Memory:

@@ -12,7 +12,8 @@ import pytest
 from PIL import Image
 
 from ravenmem.agent import VLMConfig
-from ravenmem.tools import MAX_K, TOOLS
+from ravenmem.memory.protocol import MAX_K
+from ravenmem.tools import TOOLS
 from tests.agent.conftest import SCENE, T0
 from tests.agent.scripted_server import ScriptedModel, answer, tool
 from tests.server.conftest import Served, serve_memory

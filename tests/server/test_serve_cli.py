@@ -6,7 +6,6 @@ run does. The same paths with the instant test embedder run in the default suite
 from __future__ import annotations
 
 import json
-import signal
 import time
 from collections.abc import Iterator
 from functools import partial
@@ -56,7 +55,7 @@ def local(desk: Path, embedder):
 
 @pytest.fixture(scope="module")
 def service(desk: Path) -> Iterator[str]:
-    from tests.server.conftest import serve_subprocess
+    from tests.server.conftest import serve_subprocess, stop
 
     proc, url = serve_subprocess(desk, colour=False)
     # models are loaded before the port answers: the first request is already warm
@@ -64,12 +63,7 @@ def service(desk: Path) -> Iterator[str]:
     assert httpx.get(url + "/search/text", params={"q": "a keyboard", "k": 1}, timeout=60).status_code == 200
     assert time.perf_counter() - t < 5
     yield url
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    stop(proc)
 
 
 def strip_images(rows: list[dict]) -> list[dict]:

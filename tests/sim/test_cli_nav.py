@@ -35,7 +35,7 @@ def test_explore_then_navigate_by_text_and_by_position(tmp_path) -> None:
             "--steps",
             "500",
             "--embedder",
-            "test-colour",
+            "test-boxes",
             "--keyframe-dist",
             "1.0",
             "--png",
@@ -81,24 +81,24 @@ def test_explore_then_navigate_by_text_and_by_position(tmp_path) -> None:
     assert counts["kind"] == "explored" and counts["free"] > 1000 and counts["occupied"] > 100
 
 
-def test_navigate_needs_a_map(tmp_path, colour_embedder) -> None:
+def test_navigate_needs_a_map(tmp_path, box_embedder) -> None:
     import ravenmem
 
     app, runner = _app(), CliRunner()
-    ravenmem.create(tmp_path / "m", embedder=colour_embedder, ocr=False).close()
+    ravenmem.create(tmp_path / "m", embedder=box_embedder, ocr=False).close()
     r = runner.invoke(app, ["navigate", "--memory", str(tmp_path / "m"), "--to", "1,2"])
     assert r.exit_code != 0
     assert "no map.npz" in str(r.exception)
 
 
-def test_demo_on_the_synthetic_world(tmp_path, colour_embedder) -> None:
+def test_demo_on_the_synthetic_world(tmp_path, box_embedder) -> None:
     from ravenmem.demo import DemoConfig, run_demo
 
     cfg = DemoConfig(
         maps=["synthetic:rooms"],
         out=str(tmp_path / "demo"),
         steps=600,
-        embedder=colour_embedder,
+        embedder=box_embedder,
         text_method="embedder-only",
         keyframe_dist=1.0,
         keyframe_turn=0.5,

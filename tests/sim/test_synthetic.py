@@ -43,9 +43,9 @@ def test_controller_reaches_waypoints_and_reports_bumps() -> None:
     assert not res.reached and res.reason == "stuck"
 
 
-def test_exploration_covers_the_rooms_and_maps_the_walls(tmp_path, colour_embedder) -> None:
+def test_exploration_covers_the_rooms_and_maps_the_walls(tmp_path, box_embedder) -> None:
     env = create_env("synthetic:rooms", start_time=1.7e9)
-    mem = ravenmem.create(tmp_path / "rooms.mem", embedder=colour_embedder, ocr=False)
+    mem = ravenmem.create(tmp_path / "rooms.mem", embedder=box_embedder, ocr=False)
     grid, rep = explore_into(env, mem, ExploreConfig(steps=700, resolution=0.2, keyframe_dist=1.0))
     assert rep.stop_reason == "no reachable frontier left"
     assert rep.coverage[-1][3] > 0.9

@@ -1,6 +1,6 @@
 """A memory whose store is a Milvus server: `create --store` records the server as the user's
 own, so the memory opens again; the same memory.json for a user who never gave that server is
-refused before any connection (`ravenmem.manifest.check_trusted`)."""
+refused before any connection (`ravenmem.memory.manifest.check_trusted`)."""
 
 from __future__ import annotations
 

@@ -9,14 +9,15 @@ navqa = create_method("raven", mem, preset="navqa", vlm=vlm)   # a method, with 
 
 from __future__ import annotations
 
+from ..memory.protocol import MemoryLike
 from .ask import AskRequest, AskResult, MethodOptions, QuestionFailed, ask, build_method, create_method
-from .base import METHODS, MemoryLike, Method
+from .base import METHODS, Method
 from .baselines import EmbedderOnly, RandomBaseline, VLMOnly
 from .captions import CaptionAgent, CaptionIndex, caption_memories
 from .client import VLMClient, VLMError
 from .config import VLMConfig
 from .loop import Agent
-from .offline import OfflineReasoner, OfflineSettings
+from .offline import OfflineReasoner, OfflineReasonerConfig
 from .presets import PRESETS, Preset, get_preset, parse_top_k
 from .schema import Answer, Cost, Evidence, QuestionType
 
@@ -38,7 +39,7 @@ __all__ = [
     "MemoryLike",
     "Method",
     "OfflineReasoner",
-    "OfflineSettings",
+    "OfflineReasonerConfig",
     "PRESETS",
     "Preset",
     "QuestionType",

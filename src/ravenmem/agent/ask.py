@@ -26,7 +26,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..errors import InputError, RavenmemError
-from .base import METHODS, MemoryLike, Method, needs_vlm
+from ..memory.protocol import MemoryLike
+from .base import METHODS, Method, needs_vlm
 from .client import NO_MODEL, VLMClient
 from .config import VLMConfig
 from .presets import Preset, apply_preset, get_preset
@@ -43,12 +44,14 @@ class MethodOptions:
 
     method: raven | offline | embedder-only | vlm-only | caption | random (or a plugin's name).
     Budgets: `max_tool_calls`, `max_reasks`, `top_k` (N, or {tool: N}). Sampling: `temperature`,
-    `seed`. What the model is shown: `show_scores`, `time_mode` (forward | centred),
+    `seed`. What the model is shown: `show_scores`, `time_mode` (forward | centred | nearest),
     `image_max_side` (px, 0 = as stored), `frames` (vlm-only). `max_position_offset`: metres
     from every memory shown beyond which a model's position is unsupported. The caption
     baseline: `encoder` (its text embedder, None = MiniLM), `captioner`, `auto_caption`,
-    `segment_frames`. `offline_settings` tunes the offline reasoner; `trace_path` keeps the
-    model's requests and replies."""
+    `segment_frames`, `segment_s`. `diverse`: whether the text and image tools drop
+    near-duplicate hits when the model's call does not say (None: the preset's, False, else
+    the tools' own default, True). `offline_config` tunes the offline reasoner; `trace_path`
+    keeps the model's requests and replies."""
 
     method: str = DEFAULT_METHOD
     vlm: VLMConfig | VLMClient | None = None
@@ -63,11 +66,13 @@ class MethodOptions:
     image_max_side: int | None = None
     max_position_offset: float | None = None
     frames: int | None = None
+    diverse: bool | None = None
     segment_frames: int | None = None
+    segment_s: float | None = None
     encoder: Any = None
     captioner: VLMConfig | VLMClient | None = None
     auto_caption: bool | None = None
-    offline_settings: Any = None
+    offline_config: Any = None
     trace_path: str | Path | None = None
 
     @classmethod
@@ -98,17 +103,20 @@ class MethodOptions:
         return self
 
     def with_preset(self) -> MethodOptions:
-        """The preset's budget, k per tool, temperature and seed filled in where left None."""
+        """The preset's budget, k per tool, temperature, seed, frame cap and `diverse` filled in
+        where left None."""
         if self.preset is None:
             return self
-        given = {k: getattr(self, k) for k in ("top_k", "max_tool_calls", "temperature", "seed")}
-        merged = apply_preset(self.preset, given)
+        names = ("top_k", "max_tool_calls", "temperature", "seed", "frames", "diverse")
+        m = apply_preset(self.preset, {k: getattr(self, k) for k in names}).get
         return replace(
             self,
-            top_k=merged.get("top_k"),
-            max_tool_calls=merged.get("max_tool_calls"),
-            temperature=merged.get("temperature"),
-            seed=merged.get("seed"),
+            top_k=m("top_k"),
+            max_tool_calls=m("max_tool_calls"),
+            temperature=m("temperature"),
+            seed=m("seed"),
+            frames=m("frames"),
+            diverse=m("diverse"),
         )
 
 

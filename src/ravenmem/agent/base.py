@@ -1,125 +1,18 @@
-"""What every reasoning method needs from a memory, and what it must offer the evaluator.
+"""What a reasoning method is, and the registry the evaluator and the front ends find them in.
 
-Methods depend only on the Memory's public query surface (this Protocol), so they run on any
-object that offers it: the real `ravenmem.Memory`, or a small one in a test.
+Methods depend only on the memory's public query surface (`ravenmem.memory.MemoryLike`), so
+they run on any object that offers it: the real `ravenmem.Memory`, or a small one in a test.
 """
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable, Sequence
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
+from collections.abc import Callable
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
-from ..embed.base import Embedder
 from ..registry import Registry
-from ..types import Hit, MemoryRecord
 from .schema import Answer
-
-if TYPE_CHECKING:
-    from ..changes import ChangeSettings, Whereabouts
-
-TimeLike = float | int | str | None
-Near = tuple[float, float, float]
-
-
-@runtime_checkable
-class MemoryLike(Protocol):
-    """Everything the methods use of a memory: the four searches, records, images and clock.
-
-    `ravenmem.Memory` offers all of it; `image_file` must return only files inside `path`
-    (the agent checks again before it sends a picture)."""
-
-    path: Path
-
-    @property
-    def embedder(self) -> Embedder: ...
-
-    @property
-    def ocr_enabled(self) -> bool: ...
-
-    def search_text(
-        self,
-        query: str,
-        k: int = 5,
-        after: TimeLike = None,
-        before: TimeLike = None,
-        near: Near | None = None,
-        diverse: bool = True,
-    ) -> list[Hit]: ...
-
-    def search_texts(
-        self,
-        queries: Sequence[str],
-        k: int = 5,
-        after: TimeLike = None,
-        before: TimeLike = None,
-        near: Near | None = None,
-        ocr: bool = True,
-        diverse: bool = True,
-    ) -> list[list[Hit]]: ...
-
-    def search_image(
-        self,
-        image: np.ndarray | str | os.PathLike[str] | None = None,
-        k: int = 5,
-        after: TimeLike = None,
-        before: TimeLike = None,
-        near: Near | None = None,
-        memory_id: int | None = None,
-        diverse: bool = True,
-    ) -> list[Hit]: ...
-
-    def search_time(
-        self,
-        t: TimeLike,
-        k: int = 5,
-        after: TimeLike = None,
-        before: TimeLike = None,
-        near: Near | None = None,
-        centred: bool = False,
-    ) -> list[Hit]: ...
-
-    def search_position(
-        self,
-        x: float,
-        y: float,
-        z: float | None = None,
-        k: int = 5,
-        radius: float | None = None,
-        after: TimeLike = None,
-        before: TimeLike = None,
-    ) -> list[Hit]: ...
-
-    def get(self, ids: Sequence[int]) -> list[MemoryRecord]: ...
-
-    def all_records(self) -> list[MemoryRecord]: ...
-
-    def image_file(self, rec: MemoryRecord) -> Path | None: ...
-
-    def load_image(self, rec: MemoryRecord) -> np.ndarray | None: ...
-
-    def count(self) -> int: ...
-
-    def time_span(self) -> tuple[float, float]: ...
-
-    def parse_time(self, expr: TimeLike) -> float: ...
-
-    def last_seen(
-        self,
-        query: str | None = None,
-        *,
-        image: np.ndarray | str | os.PathLike[str] | None = None,
-        memory_id: int | None = None,
-        vector: np.ndarray | None = None,
-        after: TimeLike = None,
-        before: TimeLike = None,
-        near: Near | None = None,
-        min_score: float | None = None,
-        settings: ChangeSettings | None = None,
-    ) -> Whereabouts: ...
 
 
 @runtime_checkable

@@ -4,7 +4,8 @@
 - `random`: a uniformly random memory (seeded): the floor every method must beat.
 - `vlm-only`: the WHOLE history in one prompt, no tools: every memory when they fit, else
   `frames` (the most images the model's context takes) sampled uniformly in time, so its alpha
-  is frames / memories and the model's context, not retrieval, decides what it sees.
+  is frames / memories and the model's context, not retrieval, decides what it sees. The default
+  cap is the release's (1,500 frames; the findingdory preset 3,000, raven-qa-robot-open 20).
 """
 
 from __future__ import annotations
@@ -16,18 +17,18 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..memory.protocol import MemoryLike
 from ..timeparse import fmt_time
 from ..types import Hit, MemoryRecord
-from .base import MemoryLike
 from .client import VLMClient
 from .config import VLMConfig
 from .loop import Agent, _Run
 from .parse import evidence_of
 from .questions import classify_question
 from .schema import Answer, Cost
-from .tools import Shown, describe, record_image
+from .tool_calls import Shown, describe, record_image
 
-DEFAULT_FRAMES = 32
+DEFAULT_FRAMES = 1500  # the RAVEN release's VLM-only cap (non_agent_max_image_len)
 
 
 def _record_answer(

@@ -1,13 +1,17 @@
-"""The caption baseline, as ReMEmbR builds it: a VLM captions short segments of consecutive
-keyframes, the captions are embedded with a sentence model, and the same agent loop answers
-over text only (its text tool searches the captions; time and position tools list memories
-with their segment's caption; no image reaches the answering model).
+"""The caption baseline, as ReMEmbR builds it and the RAVEN paper ran it: a VLM captions short
+segments of the recording (about 3 s each, all the segment's keyframes in one request, with a
+detailed description asked for), the captions are embedded with a sentence model (MiniLM by
+default, offline; `encoder="mixedbread-ai/mxbai-embed-large-v1"` as in the paper's ReMEmbR rows),
+and the same agent loop answers over text only (its text tool searches the captions; time and
+position tools list memories with their segment's caption; no image reaches the answering
+model, and, as in ReMEmbR, no similarity score either unless `show_scores=True`).
 
 Captions live beside the memory in `captions.sqlite`: one row per segment (its memories, the
 memory that stands for it, its caption, the captioning model, the text embedding), one
 transaction per batch, so an interrupted run keeps what it wrote and a re-run only captions
-segments that are new or grew. The segment length is stored with the captions; opening them
-with another length is an error rather than a silent mix.
+segments that are new or grew. The segment length (seconds, or a number of keyframes when
+`segment_frames` is given) is stored with the captions; opening them with another length is an
+error rather than a silent mix.
 """
 
 from __future__ import annotations
@@ -22,22 +26,25 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, NotFoundError
+from ..memory.folder import CAPTIONS
+from ..memory.protocol import MemoryLike, TimeLike
 from ..types import Hit, MemoryRecord
-from .base import MemoryLike, TimeLike
 from .client import VLMClient
 from .config import VLMConfig
 from .images import data_url, record_jpeg
 from .loop import Agent
-from .tools import ToolRunner
+from .tool_calls import ToolRunner
 
-CAPTION_FILE = "captions.sqlite"
 SEGMENT_FRAMES = 3  # consecutive keyframes per caption (ReMEmbR captions a few seconds of video)
 CAPTION_PROMPT = (
-    "These are {n} consecutive views from a robot's camera, in time order. Describe them in one to "
-    "three sentences: the main objects and their colours, the kind of place, and any readable "
-    "text. Reply with the description only."
+    "These are {n} consecutive views from a robot's camera over a few seconds, in time order. "
+    "Describe in detail what the robot sees: each object you can make out, with its colour, size "
+    "and where it is relative to other things; the kind of place and its fixed features (doors, "
+    "stairs, furniture, signs); any people and what they are doing; and any text you can read. "
+    "Be specific and stick to what is visible. Reply with the description only."
 )
+SEGMENT_S = 3.0  # seconds of recording per caption, by default (ReMEmbR's and the paper's NaVQA setting)
 TextEncoder = Callable[[Sequence[str]], np.ndarray]
 Row = tuple[
     int, list[int], int, float, float, float, str, str
@@ -63,25 +70,83 @@ class MiniLMEncoder:
         return np.asarray(out, dtype=np.float32)
 
 
-def segments(mem: MemoryLike, n: int) -> list[list[MemoryRecord]]:
-    """The memory's keyframes in time order, cut into runs of `n` (the last may be shorter)."""
+class SentenceEncoder:
+    """A sentence-transformers model by hub name or local folder (e.g.
+    mixedbread-ai/mxbai-embed-large-v1), loaded on first use, L2-normalised rows."""
+
+    def __init__(self, name: str) -> None:
+        if not name.strip():
+            raise InputError("caption encoder: give minilm, a sentence-transformers name or a model folder")
+        self.name = name.strip()
+        self._model: Any = None
+        self._lock = threading.Lock()
+
+    def __call__(self, texts: Sequence[str]) -> np.ndarray:
+        with self._lock:
+            if self._model is None:
+                from ..errors import require
+
+                st: Any = require("sentence_transformers", "hf")
+                try:
+                    self._model = st.SentenceTransformer(self.name, device="cpu")
+                except (OSError, ValueError) as e:
+                    raise InputError(f"caption encoder {self.name!r} cannot be loaded: {e}") from e
+        out = self._model.encode(list(texts), normalize_embeddings=True, convert_to_numpy=True)
+        return np.asarray(out, dtype=np.float32)
+
+
+def text_encoder(spec: TextEncoder | str | None) -> TextEncoder:
+    """The captions' text encoder: a callable as given, `None` / "minilm" for the bundled
+    MiniLM (offline), else a sentence-transformers model by name or folder."""
+    if spec is None or (
+        isinstance(spec, str) and spec.strip().lower() in ("", "minilm", MiniLMEncoder.name.lower())
+    ):
+        return MiniLMEncoder()
+    if isinstance(spec, str):
+        return SentenceEncoder(spec)
+    return spec
+
+
+def segments(mem: MemoryLike, n: int | None = None, seconds: float = SEGMENT_S) -> list[list[MemoryRecord]]:
+    """The memory's keyframes in time order, cut into runs of `n` keyframes when n is given,
+    else into runs that each span less than `seconds` from their first keyframe."""
     recs = mem.all_records()
-    return [recs[i : i + n] for i in range(0, len(recs), n)]
+    if n is not None:
+        return [recs[i : i + n] for i in range(0, len(recs), n)]
+    out: list[list[MemoryRecord]] = []
+    for rec in recs:
+        if out and rec.t - out[-1][0].t < seconds:
+            out[-1].append(rec)
+        else:
+            out.append([rec])
+    return out
+
+
+def _segment_label(frames: int | None, seconds: float) -> str:
+    return f"{frames} keyframes" if frames is not None else f"{seconds:g} s"
 
 
 class CaptionIndex:
     """Segment captions of one memory and their text embeddings; cosine search with the tools' filters."""
 
     def __init__(
-        self, mem: MemoryLike, encoder: TextEncoder | None = None, segment_frames: int = SEGMENT_FRAMES
+        self,
+        mem: MemoryLike,
+        encoder: TextEncoder | str | None = None,
+        segment_frames: int | None = None,
+        segment_s: float = SEGMENT_S,
     ) -> None:
-        if segment_frames < 1:
+        if segment_frames is not None and segment_frames < 1:
             raise InputError(f"segment_frames must be >= 1, got {segment_frames}")
+        if not segment_s > 0:
+            raise InputError(f"segment_s must be > 0 seconds, got {segment_s}")
         self.mem = mem
-        self.encoder: TextEncoder = encoder or MiniLMEncoder()
+        self.segment_s = segment_s
+        self.segment = _segment_label(segment_frames, segment_s)
+        self.encoder: TextEncoder = text_encoder(encoder)
         self.encoder_name = str(getattr(self.encoder, "name", type(self.encoder).__name__))
         self.segment_frames = segment_frames
-        self.path = Path(mem.path) / CAPTION_FILE
+        self.path = Path(mem.path) / CAPTIONS
         self._db = sqlite3.connect(self.path, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute(
@@ -96,10 +161,13 @@ class CaptionIndex:
             raise InputError(
                 f"{self.path}: captions were embedded with {meta['encoder']!r}, not {self.encoder_name!r}"
             )
-        if meta.get("segment_frames") not in (None, str(segment_frames)):
+        stored = meta.get("segment") or (
+            f"{meta['segment_frames']} keyframes" if meta.get("segment_frames") else None
+        )
+        if stored not in (None, self.segment):
             raise InputError(
-                f"{self.path}: captions were made for segments of {meta['segment_frames']} keyframes, "
-                f"not {segment_frames}; pass segment_frames={meta['segment_frames']}"
+                f"{self.path}: captions were made for segments of {stored}, not {self.segment}; "
+                "open them with that segment length (segment_frames= for keyframes, segment_s= for seconds)"
             )
         self._matrix: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._by_member: dict[int, str] | None = None
@@ -113,7 +181,7 @@ class CaptionIndex:
         Captions of segments that no longer exist (their memories were forgotten or merged by
         `ravenmem forget` / `consolidate`, so the segments were cut anew) are deleted here."""
         stored = {int(i): json.loads(m) for i, m in self._db.execute("SELECT id, members FROM segments")}
-        current = segments(self.mem, self.segment_frames)
+        current = segments(self.mem, self.segment_frames, self.segment_s)
         firsts = {seg[0].id for seg in current}
         stale = [(i,) for i in stored if i not in firsts]
         if stale:
@@ -140,9 +208,7 @@ class CaptionIndex:
         emb = np.asarray(self.encoder([r[6] for r in rows]), dtype=np.float32)
         with self._db:
             self._db.execute("INSERT OR REPLACE INTO meta VALUES ('encoder', ?)", (self.encoder_name,))
-            self._db.execute(
-                "INSERT OR REPLACE INTO meta VALUES ('segment_frames', ?)", (str(self.segment_frames),)
-            )
+            self._db.execute("INSERT OR REPLACE INTO meta VALUES ('segment', ?)", (self.segment,))
             self._db.executemany(
                 "INSERT OR REPLACE INTO segments VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 [(r[0], json.dumps(r[1]), *r[2:], e.tobytes(), time.time()) for r, e in zip(rows, emb)],
@@ -194,7 +260,7 @@ class CaptionIndex:
                 break
             try:
                 (rec,) = self.mem.get([int(reps[i])])
-            except KeyError:  # its memory was forgotten since it was captioned: skip it
+            except NotFoundError:  # its memory was forgotten since it was captioned: skip it
                 continue
             hits.append(Hit(memory=rec, score=float(scores[i])))
         return hits
@@ -206,12 +272,13 @@ class CaptionIndex:
 def caption_memories(
     mem: MemoryLike,
     vlm: VLMConfig | VLMClient | None = None,
-    encoder: TextEncoder | None = None,
+    encoder: TextEncoder | str | None = None,
     batch: int = 16,
     prompt: str = CAPTION_PROMPT,
     progress: Callable[[int, int], None] | None = None,
-    segment_frames: int = SEGMENT_FRAMES,
+    segment_frames: int | None = None,
     image_max_side: int = 0,
+    segment_s: float = SEGMENT_S,
 ) -> int:
     """Caption every segment that has no caption yet (one request per segment, its keyframes'
     images in time order); returns how many segments were captioned now."""
@@ -220,7 +287,7 @@ def caption_memories(
         if isinstance(vlm, VLMClient)
         else VLMClient(vlm if isinstance(vlm, VLMConfig) else VLMConfig.resolve())
     )
-    index = CaptionIndex(mem, encoder, segment_frames)
+    index = CaptionIndex(mem, encoder, segment_frames, segment_s)
     try:
         todo = index.todo()
         rows: list[Row] = []
@@ -254,7 +321,9 @@ class CaptionAgent(Agent):
     """The agent loop over segment captions only: no image is ever sent to the answering model.
 
     The model gets the text, time and position tools (ReMEmbR's three); the text tool searches
-    the captions. `segment_frames` is the number of consecutive keyframes per caption."""
+    the captions. A caption covers `segment_s` seconds of keyframes (or `segment_frames`
+    keyframes when given); `encoder` is the captions' text encoder (a callable, "minilm" or a
+    sentence-transformers name); similarity scores are hidden unless `show_scores=True`."""
 
     name = "caption"
     attach_images = False
@@ -263,20 +332,27 @@ class CaptionAgent(Agent):
         self,
         memory: MemoryLike,
         vlm: VLMConfig | VLMClient | None = None,
-        encoder: TextEncoder | None = None,
+        encoder: TextEncoder | str | None = None,
         captioner: VLMConfig | VLMClient | None = None,
         auto_caption: bool = True,
-        segment_frames: int = SEGMENT_FRAMES,
+        segment_frames: int | None = None,
+        segment_s: float = SEGMENT_S,
+        show_scores: bool = False,
         **kw: Any,
     ) -> None:
-        super().__init__(memory, vlm=vlm, **kw)
-        self.index = CaptionIndex(memory, encoder, segment_frames)
+        super().__init__(memory, vlm=vlm, show_scores=show_scores, **kw)
+        self.index = CaptionIndex(memory, encoder, segment_frames, segment_s)
         if auto_caption and self.index.todo():
+            enc = self.index.encoder
             caption_memories(
-                memory, captioner or self.client, encoder=self.index.encoder, segment_frames=segment_frames
+                memory,
+                captioner or self.client,
+                encoder=enc,
+                segment_frames=segment_frames,
+                segment_s=segment_s,
             )
             self.index.close()
-            self.index = CaptionIndex(memory, self.index.encoder, segment_frames)
+            self.index = CaptionIndex(memory, enc, segment_frames, segment_s)
         if len(self.index) == 0:
             raise InputError(
                 f"{memory.path} has no captions: run `ravenmem caption --memory {memory.path}` first"

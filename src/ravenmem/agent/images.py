@@ -19,7 +19,7 @@ from ..imageio import resize_max_side
 from ..types import MemoryRecord
 
 if TYPE_CHECKING:
-    from .base import MemoryLike
+    from ..memory.protocol import MemoryLike
 
 MAX_FILE_BYTES = 32 * 1024 * 1024  # a memory's thumbnail is ~20 KB; anything this big is not one
 MAX_PIXELS = 40_000_000  # refuse decompression bombs before decoding them

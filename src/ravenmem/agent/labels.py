@@ -15,8 +15,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..memory.protocol import MemoryLike
 from ..types import MemoryRecord
-from .base import MemoryLike
 
 TOP_LABELS = 3
 _BANKS: dict[tuple[str, tuple[str, ...]], np.ndarray] = {}  # (embedder name, vocabulary) -> vectors

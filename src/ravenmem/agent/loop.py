@@ -34,7 +34,7 @@ from pydantic import ValidationError
 from ..errors import InputError
 from ..fsio import atomic_write
 from ..imageio import read_image
-from .base import MemoryLike
+from ..memory.protocol import MemoryLike
 from .client import NO_MODEL, ChatReply, ImagesRejectedError, ToolsRejectedError, VLMClient, VLMError
 from .config import VLMConfig
 from .images import data_url, jpeg_of_array
@@ -45,7 +45,7 @@ from .prompts import NO_PICTURES, budget_spent, reask, system_prompt
 from .questions import classify_question
 from .replies import answer_schema, response_format, step_schema, strip_thinking, text_tool_calls
 from .schema import Answer, Cost
-from .tools import (
+from .tool_calls import (
     DEFAULT_K,
     ToolRunner,
     WorkingMemory,
@@ -130,8 +130,11 @@ class Agent:
         temperature: float | None = None,
         seed: int | None = None,
         preset: str | Preset | None = None,
+        diverse: bool | None = None,
     ) -> None:
         p = get_preset(preset)
+        if diverse is None and p is not None:
+            diverse = p.diverse  # the paper's top-k: exactly k, near-duplicates included
         if p is not None:
             top_k = merge_top_k(p.top_k, top_k)
         elif top_k is None:
@@ -160,6 +163,7 @@ class Agent:
         self.show_scores = bool(show_scores)
         self.time_mode = check_time_mode(time_mode)
         self.preset = p.name if p else None
+        self.diverse = diverse
         self.trace_path = Path(trace_path) if trace_path else None
         self.last_trace: dict[str, Any] | None = None
         if isinstance(vlm, VLMClient):
@@ -225,6 +229,7 @@ class Agent:
             image_max_side=self.image_max_side,
             show_scores=self.show_scores,
             time_mode=self.time_mode,
+            diverse=self.diverse,
             attach_images=not self.text_only,
             labels=FrameLabels(self.memory) if self.text_only else None,
         )

@@ -13,11 +13,12 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from ..errors import InputError
+from ..memory.protocol import MemoryLike
 from .ask import create_method
-from .base import METHODS, MemoryLike, Method, needs_vlm, vlm_method
+from .base import METHODS, Method, needs_vlm, vlm_method
 from .client import NO_MODEL
 from .config import VLMConfig
-from .tools import per_tool_k
+from .tool_calls import per_tool_k
 
 if TYPE_CHECKING:
     from .ask import MethodOptions
@@ -44,6 +45,7 @@ def _agent_args(o: MethodOptions) -> dict[str, Any]:
         temperature=o.temperature,
         seed=o.seed,
         preset=o.preset,
+        diverse=o.diverse,
     )
 
 
@@ -64,7 +66,7 @@ def _raven(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
 def _offline(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .offline import OfflineReasoner
 
-    return OfflineReasoner(memory, **_given(top_k=_text_k(options.top_k), settings=options.offline_settings))
+    return OfflineReasoner(memory, **_given(top_k=_text_k(options.top_k), config=options.offline_config))
 
 
 @METHODS.register("embedder-only")
@@ -99,6 +101,7 @@ def _caption(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
         captioner=options.captioner,
         auto_caption=options.auto_caption,
         segment_frames=options.segment_frames,
+        segment_s=options.segment_s,
     )
     return CaptionAgent(memory, max_tool_calls=options.max_tool_calls, **extra, **_agent_args(options))
 

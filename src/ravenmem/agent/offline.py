@@ -34,14 +34,15 @@ import numpy as np
 
 from ..embed.ocr import OCR_WEIGHT, STOPWORDS
 from ..errors import InputError
+from ..memory.folder import OFFLINE_CALIBRATION
+from ..memory.protocol import MemoryLike
 from ..timeparse import fmt_time
 from ..types import Hit, MemoryRecord
-from .base import MemoryLike
 from .questions import Order, classify_question, fmt_duration, subject_phrase, temporal_order
 from .schema import Answer, Cost, Evidence, PlaceChange
 
 if TYPE_CHECKING:
-    from ..changes import Place, Whereabouts
+    from ..memory.places import Place, Whereabouts
 
 AFFORDANCES: dict[str, list[str]] = {
     r"\bsit\b|\bseat\b|\bsitting\b": ["chair", "sofa", "bench", "stool"],
@@ -127,8 +128,7 @@ DECOYS = (
 _DEICTIC = re.compile(
     r"^(this|that|it|these|those|this thing|this object|this place|here|there)$", re.IGNORECASE
 )
-CALIBRATION_FILE = "offline_calibration.json"
-# questions about the present: answered from the latest sightings and the revisits (ravenmem.changes)
+# questions about the present: answered from the latest sightings and the revisits (ravenmem.memory.changes)
 _NOW = re.compile(
     r"\b(now|currently|current|still|any ?more|at the moment|at present|these days|nowadays)\b", re.IGNORECASE
 )
@@ -137,7 +137,7 @@ _START = re.compile(r"\b(?:at|in) the (?:start|beginning)\b|\bat first\b|\bto be
 
 
 @dataclass
-class OfflineSettings:
+class OfflineReasonerConfig:
     """Defaults were chosen on the TUM fr1_rpy question set of benchmarks/bench_reasoner.py."""
 
     pool: int = 200  # memories scored per rewritten query
@@ -207,10 +207,12 @@ class OfflineReasoner:
 
     name = "offline"
 
-    def __init__(self, memory: MemoryLike, top_k: int = 5, settings: OfflineSettings | None = None) -> None:
+    def __init__(
+        self, memory: MemoryLike, top_k: int = 5, config: OfflineReasonerConfig | None = None
+    ) -> None:
         self.memory = memory
         self.top_k = top_k
-        self.s = settings or OfflineSettings()
+        self.s = config or OfflineReasonerConfig()
         self._decoy_support: dict[str, float] | None = None
 
     # ------------------------------------------------------------------ scoring
@@ -299,7 +301,7 @@ class OfflineReasoner:
     def _load_calibration(self) -> dict[str, float] | None:
         """Decoy scores cached in the memory folder, valid while the memory and settings are unchanged."""
         try:
-            data = json.loads((Path(self.memory.path) / CALIBRATION_FILE).read_text(encoding="utf-8"))
+            data = json.loads((Path(self.memory.path) / OFFLINE_CALIBRATION).read_text(encoding="utf-8"))
             if data.get("key") == self._calibration_key():
                 return {str(k): float(v) for k, v in data["decoys"].items()}
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
@@ -320,7 +322,7 @@ class OfflineReasoner:
             from ..fsio import atomic_write
 
             text = json.dumps({"key": self._calibration_key(), "decoys": out}, indent=1)
-            atomic_write(Path(self.memory.path) / CALIBRATION_FILE, text)
+            atomic_write(Path(self.memory.path) / OFFLINE_CALIBRATION, text)
         except OSError:  # a read-only memory still answers; it just calibrates again next time
             pass
         return out
@@ -479,7 +481,7 @@ class OfflineReasoner:
         return np.asarray(emb.embed_images([image])[0], np.float32)
 
     def _whereabouts(self, vector: np.ndarray, thr: float, notes: list[str]) -> Whereabouts | None:
-        """The thing's places and verdicts (`ravenmem.changes`), or None (with a note) when the
+        """The thing's places and verdicts (`ravenmem.memory.changes`), or None (with a note) when the
         memory cannot give them or no sighting stands out."""
         w = self.memory.last_seen(vector=vector, min_score=thr)
         if not w.places:
@@ -489,7 +491,7 @@ class OfflineReasoner:
 
     def _answer_now(self, ans: Answer, qtype: str, subject: str, w: Whereabouts, notes: list[str]) -> None:
         """A question about the present ("now", "still", "currently"): the answer comes from the
-        latest sightings and what later visits of their places showed (`ravenmem.changes`)."""
+        latest sightings and what later visits of their places showed (`ravenmem.memory.changes`)."""
         notes.append(f"latest mode: status {w.status} over {len(w.places)} place(s)")
         ans.changes = [
             PlaceChange.model_validate({**p.as_dict(), "query": subject, "status": w.status})

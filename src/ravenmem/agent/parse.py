@@ -17,12 +17,12 @@ from typing import Annotated, Any
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
 
 from ..errors import RavenmemError
+from ..memory.protocol import MemoryLike
 from ..timeparse import parse_duration
 from ..types import MemoryRecord
-from .base import MemoryLike
 from .questions import classify_question
 from .schema import Answer, Evidence, QuestionType
-from .tools import Shown, WorkingMemory
+from .tool_calls import Shown, WorkingMemory
 
 MAX_REPLY_CHARS = 200_000  # a JSON answer is a few hundred characters; a longer reply is malformed
 MAX_DECODE_ATTEMPTS = 32

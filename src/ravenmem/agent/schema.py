@@ -53,7 +53,7 @@ class Cost(BaseModel):
 
 
 class PlaceChange(BaseModel):
-    """What the memory knows about a place where the thing was seen (`ravenmem.changes`): when
+    """What the memory knows about a place where the thing was seen (`ravenmem.memory.changes`): when
     it was last seen there, whether the robot looked at the place again later without it, and
     the verdict. `status` is the thing's own ("gone" when even its newest place, or a view of
     it on the same pass, was looked at again without it)."""

@@ -33,7 +33,9 @@ TimeoutOpt = Annotated[
 RetriesOpt = Annotated[int | None, typer.Option("--max-retries", help="retries on 429/5xx/timeouts")]
 SegmentOpt = Annotated[
     int | None,
-    typer.Option("--segment-frames", help="caption: consecutive keyframes per caption (default 3)"),
+    typer.Option(
+        "--segment-frames", help="caption: keyframes per caption (default: the keyframes of each 3 s)"
+    ),
 ]
 ProviderOpt = Annotated[
     str | None,
@@ -56,7 +58,9 @@ def ask(
     ] = None,
     preset: Annotated[
         str | None,
-        typer.Option(help="raven-qa | navqa | findingdory: the paper's budget, top-k, temperature, seed"),
+        typer.Option(
+            help="raven-qa-human | raven-qa-robot | raven-qa-robot-open | navqa | findingdory: the paper's settings"
+        ),
     ] = None,
     base_url: BaseUrlOpt = None,
     model: ModelOpt = None,
@@ -388,8 +392,8 @@ def caption(
     re-running captions only new segments."""
     import ravenmem
     from ravenmem.agent import VLMConfig, caption_memories
-    from ravenmem.agent.captions import CAPTION_FILE, SEGMENT_FRAMES
     from ravenmem.agent.methods import require_model
+    from ravenmem.memory.folder import CAPTIONS
 
     vlm = VLMConfig.resolve(
         config_path=config,
@@ -400,7 +404,7 @@ def caption(
         max_retries=max_retries,
     )
     require_model("caption", vlm)
-    seg = SEGMENT_FRAMES if segment_frames is None else segment_frames
+    seg = segment_frames  # None: segments of 3 s
     with ravenmem.open(memory) as mem:
         n = caption_memories(mem, vlm, segment_frames=seg, image_max_side=image_max_side or 0)
         total = mem.count()
@@ -408,13 +412,13 @@ def caption(
         "captioned_now": n,
         "memories": total,
         "segment_frames": seg,
-        "file": str(Path(memory) / CAPTION_FILE),
+        "file": str(Path(memory) / CAPTIONS),
     }
     if json_out:
         sys.stdout.write(json.dumps(out, indent=2) + "\n")
     else:
         Console().print(
-            f"captioned {n} segments of {seg} keyframes ({total} memories); captions in {esc(out['file'])}",
+            f"captioned {n} segments of {f'{seg} keyframes' if seg else '3 s'} ({total} memories); captions in {esc(out['file'])}",
             highlight=False,
         )
 

@@ -8,9 +8,10 @@ ravenmem eval study top-k --dataset ... --method raven --vlm ... --values 1,3,5,
 ravenmem eval study embedders --labels benchmarks/data/tum_labels.json --images DIR/rgb --embedders offline,hf:PATH
 ravenmem eval judge runs/2026-11-21/navqa_raven --judge gpt-4o-mini
 
-Every command that runs questions takes the same run options (`RUN_OPTIONS`, declared once and
-added to each command by `run_options`), and `build_run_config` turns them into the typed
-`RunConfig` in one place.
+Every command that runs questions takes the same run options. They are not declared here: each
+is a field of the typed configuration (`ravenmem.eval.config`, declared with `option(...)`), and
+`with_options` turns those fields into the command's options; `build_run_config` turns the values
+given back into the `RunConfig`.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import functools
 import inspect
 import json
 import sys
+import typing
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
@@ -27,8 +29,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ..agent.presets import parse_top_k
 from ..errors import InputError
+from ..eval.config import SECTIONS, RunConfig, build_run_config, option_name, options_of, thresholds_from
 from ._console import esc, out_console
 
 eval_app = typer.Typer(
@@ -44,167 +46,80 @@ eval_app.add_typer(study_app, name="study")
 console = Console(stderr=True)
 
 F = TypeVar("F", bound=Callable[..., Any])
+RUN_SECTIONS = ("dataset", "methods", "models", "memory", "thresholds", "run")
+_SIMPLE = (bool, int, float, str)
 
 
-def _opt(*names: str, help: str) -> Any:
-    return typer.Option(*names, help=help)
+def _section(name: str) -> type:
+    return RunConfig if name == "run" else SECTIONS[name]
 
 
-# name, type, default, typer option: the options of every command that runs questions
-RUN_OPTIONS: list[tuple[str, Any, Any, Any]] = [
-    (
-        "dataset",
-        str | None,
-        None,
-        _opt(
-            "--dataset",
-            "-d",
-            help="NAME:PATH, NAME = raven-qa | navqa | findingdory | tum | video | folder | rosbag | memory | queries",
-        ),
-    ),
-    (
-        "method",
-        str | None,
-        None,
-        _opt("--method", help="comma-separated: raven, offline, embedder-only, vlm-only, caption, random"),
-    ),
-    (
-        "queries",
-        Path | None,
-        None,
-        _opt("--queries", help="our questions.json for tum:/video:/folder:/rosbag:/memory: datasets"),
-    ),
-    ("embedder", str, "offline", _opt("--embedder", help="offline | open_clip:MODEL/TAG | hf:NAME_OR_PATH")),
-    (
-        "vlm",
-        str | None,
-        None,
-        _opt("--vlm", help="VLM model name (endpoint from --vlm-base-url / RAVENMEM_VLM_BASE_URL)"),
-    ),
-    ("vlm_base_url", str | None, None, _opt("--vlm-base-url", help="OpenAI-compatible endpoint for the VLM")),
-    ("seeds", int, 1, _opt("--seeds", help="repeat every question with seeds 0..N-1 (mean ± std)")),
-    (
-        "cache_dir",
-        Path,
-        Path(".ravenmem-cache/eval"),
-        _opt("--cache-dir", help="where memories and embeddings are cached"),
-    ),
-    ("workers", int, 4, _opt("--workers", help="questions answered in parallel")),
-    (
-        "keyframes",
-        str | None,
-        None,
-        _opt("--keyframes", help="e.g. 'stride=5,fps=2,max_similarity=0.95' (default: all frames)"),
-    ),
-    (
-        "ocr",
-        bool,
-        False,
-        _opt("--ocr/--no-ocr", help="read text in keyframes while building memories (slower)"),
-    ),
-    ("thumb_size", int, 320, _opt("--thumb-size", help="thumbnail longer side (px) in built memories")),
-    (
-        "image_max_side",
-        int | None,
-        None,
-        _opt("--image-max-side", help="longest side in px of images sent to the model (default: as stored)"),
-    ),
-    (
-        "top_k",
-        str | None,
-        None,
-        _opt("--top-k", help="memories per tool call: N, or per tool 'time=200,text=30,position=1'"),
-    ),
-    (
-        "max_tool_calls",
-        int | None,
-        None,
-        _opt("--max-tool-calls", help="tool calls before the model must answer"),
-    ),
-    ("frames", int | None, None, _opt("--frames", help="vlm-only: frames sampled over the history")),
-    (
-        "preset",
-        str | None,
-        None,
-        _opt("--preset", help="the paper's settings per dataset: raven-qa | navqa | findingdory"),
-    ),
-    ("temperature", float | None, None, _opt("--temperature", help="the VLM's sampling temperature")),
-    (
-        "show_scores",
-        bool | None,
-        None,
-        _opt("--show-scores/--hide-scores", help="similarity scores shown to the model"),
-    ),
-    (
-        "time_mode",
-        str | None,
-        None,
-        _opt("--time-mode", help="time tool: forward (from the time on) | centred (around it)"),
-    ),
-    (
-        "pos_threshold",
-        str | None,
-        None,
-        _opt("--pos-threshold", help="metres: one number, or per RAVEN-QA subset 'real_world=3,sim=1'"),
-    ),
-    ("time_threshold", float | None, None, _opt("--time-threshold", help="minutes (default 0.5)")),
-    ("duration_threshold", float | None, None, _opt("--duration-threshold", help="minutes (default 0.5)")),
-    (
-        "frame_tolerance",
-        float | None,
-        None,
-        _opt("--frame-tolerance", help="seconds either side of an accepted frame"),
-    ),
-    ("planar", bool, False, _opt("--planar", help="position error in x, y only")),
-    ("judge", str | None, None, _opt("--judge", help="LLM judge model for text answers")),
-    (
-        "judge_base_url",
-        str | None,
-        None,
-        _opt("--judge-base-url", help="endpoint of the judge (default: the VLM's)"),
-    ),
-    (
-        "rate",
-        float | None,
-        None,
-        _opt("--rate", help="raven-qa: frames per second where no timestamps are given"),
-    ),
-    ("tz", str | None, None, _opt("--tz", help="navqa: time zone of data.csv timestamps (America/Chicago)")),
-    ("split", str | None, None, _opt("--split", help="findingdory: split name (validation)")),
-    ("limit", int | None, None, _opt("--limit", help="only the first N questions (smoke runs)")),
-    ("episodes", str | None, None, _opt("--episodes", help="only episodes whose id matches this glob")),
-    (
-        "retry_failed",
-        bool,
-        False,
-        _opt("--retry-failed", help="answer again the questions whose method failed"),
-    ),
-]
+def _cli_type(cls: type, f: Any) -> Any:
+    """The type the command line takes for a config field: the option's `cli`, else the
+    field's own simple type; always optional, so that "not given" is None."""
+    typ = f.metadata.get("cli")
+    if typ is None:
+        hint = typing.get_type_hints(cls)[f.name]
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        typ = hint if hint in _SIMPLE else (args[0] if len(args) == 1 and args[0] in _SIMPLE else None)
+        if typ is None:
+            raise TypeError(f"{cls.__name__}.{f.name}: give option(cli=...) for the type {hint}")
+    return typ | None
 
 
-def run_options(fn: F) -> F:
-    """Give a command the run options: its own parameters stay, the run options are added, and
-    the command receives them as one `cfg: RunConfig` (built by `build_run_config`)."""
-    own = [p for p in inspect.signature(fn, eval_str=True).parameters.values() if p.name != "cfg"]
-    shared = [
-        inspect.Parameter(
-            name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=Annotated[typ, option]
+def option_fields(sections: tuple[str, ...] = RUN_SECTIONS) -> list[tuple[str, str, Any]]:
+    """(parameter name, section, field) of every option of these config sections."""
+    out = [(option_name(f), sec, f) for sec in sections for f in options_of(_section(sec))]
+    names = [n for n, _, _ in out]
+    if len(set(names)) != len(names):
+        raise TypeError(
+            f"two options share a parameter name: {sorted(n for n in names if names.count(n) > 1)}"
         )
-        for name, typ, default, option in RUN_OPTIONS
-    ]
-    names = [name for name, *_ in RUN_OPTIONS]
+    return out
 
-    @functools.wraps(fn)
-    def wrapper(**kw: Any) -> Any:
-        if getattr(kw.get("ctx"), "invoked_subcommand", None) is not None:
-            return None  # `eval report ...`: the group's callback has nothing to run
-        run = {n: kw.pop(n) for n in names}
-        return fn(cfg=build_run_config(**run), **kw)
 
-    params = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in own] + shared
-    wrapper.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
-    wrapper.__annotations__ = {p.name: p.annotation for p in params}
-    return wrapper  # type: ignore[return-value]
+def with_options(*sections: str) -> Callable[[F], F]:
+    """Give a command the options of these config sections (`RUN_SECTIONS` by default). Its own
+    parameters stay; the options' values reach it as `cfg: RunConfig` (built by
+    `build_run_config`), or, when it has a `given` parameter, as that dict (None = not given)."""
+    chosen = tuple(sections) or RUN_SECTIONS
+
+    def deco(fn: F) -> F:
+        sig = inspect.signature(fn, eval_str=True)
+        raw = "given" in sig.parameters
+        own = [p for p in sig.parameters.values() if p.name not in ("cfg", "given")]
+        opts = option_fields(chosen)
+        shared = [
+            inspect.Parameter(
+                name,
+                inspect.Parameter.KEYWORD_ONLY,
+                default=None,
+                annotation=Annotated[
+                    _cli_type(_section(sec), f),
+                    typer.Option(*f.metadata["flag"].split(), help=f.metadata["help"]),
+                ],
+            )
+            for name, sec, f in opts
+        ]
+
+        @functools.wraps(fn)
+        def wrapper(**kw: Any) -> Any:
+            if getattr(kw.get("ctx"), "invoked_subcommand", None) is not None:
+                return None  # `eval report ...`: the group's callback has nothing to run
+            values = {name: kw.pop(name) for name, _, _ in opts}
+            if raw:
+                return fn(given=values, **kw)
+            return fn(cfg=build_run_config(values), **kw)
+
+        params = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in own] + shared
+        wrapper.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+        wrapper.__annotations__ = {p.name: p.annotation for p in params}
+        return wrapper  # type: ignore[return-value]
+
+    return deco
+
+
+run_options = with_options()
 
 
 def _split_list(text: str | None, what: str) -> list[str]:
@@ -228,73 +143,6 @@ def _floats(text: str, what: str) -> list[float]:
         raise InputError(f"{what}: expected comma-separated numbers, got {text!r}") from None
 
 
-def _pos_threshold(text: str | None) -> tuple[float | None, dict[str, float] | None]:
-    """'2.5' -> (2.5, None); 'real_world=3,sim=1' -> (None, {'real_world': 3.0, 'sim': 1.0})."""
-    if not text:
-        return None, None
-    if "=" not in text:
-        return _floats(text, "--pos-threshold")[0], None
-    per = {}
-    for part in _split_list(text, "--pos-threshold"):
-        k, _, v = part.partition("=")
-        per[k.strip()] = _floats(v, "--pos-threshold")[0]
-    return None, per
-
-
-def build_run_config(**o: Any) -> Any:
-    """The RunConfig from the run options' values: the one place CLI values become a config."""
-    from ..eval.config import DatasetConfig, MemoryConfig, MethodConfig, ModelConfig, RunConfig, Thresholds
-
-    if not o["dataset"]:
-        raise InputError("--dataset NAME:PATH is required (e.g. raven-qa:/data/RAVEN_QA/real_world)")
-    pos_m, pos_per = _pos_threshold(o["pos_threshold"])
-    minutes = {k: o[k] * 60.0 for k in ("time_threshold", "duration_threshold") if o[k] is not None}
-    thresholds = Thresholds(
-        position_m=pos_m,
-        time_s=minutes.get("time_threshold", 30.0),
-        duration_s=minutes.get("duration_threshold", 30.0),
-        frame_s=o["frame_tolerance"],
-        planar=o["planar"],
-    )
-    return RunConfig(
-        dataset=DatasetConfig(
-            spec=o["dataset"],
-            queries=str(o["queries"]) if o["queries"] else None,
-            rate=o["rate"],
-            tz=o["tz"],
-            split=o["split"],
-            pos_threshold=pos_per,
-            episodes=o["episodes"],
-            limit=o["limit"],
-        ),
-        methods=MethodConfig(
-            names=_split_list(o["method"], "--method"),
-            top_k=parse_top_k(o["top_k"]),
-            max_tool_calls=o["max_tool_calls"],
-            frames=o["frames"],
-            show_scores=o["show_scores"],
-            time_mode=o["time_mode"],
-            preset=o["preset"],
-            temperature=o["temperature"],
-            image_max_side=o["image_max_side"],
-        ),
-        models=ModelConfig(
-            embedder=o["embedder"],
-            vlm=o["vlm"],
-            vlm_base_url=o["vlm_base_url"],
-            judge=o["judge"],
-            judge_base_url=o["judge_base_url"],
-        ),
-        memory=MemoryConfig(
-            keyframes=o["keyframes"], ocr=o["ocr"], thumb_size=o["thumb_size"], cache_dir=str(o["cache_dir"])
-        ),
-        thresholds=thresholds,
-        seeds=o["seeds"],
-        workers=o["workers"],
-        retry_failed=o["retry_failed"],
-    )
-
-
 def _log(msg: str) -> None:
     console.print(esc(msg), highlight=False)
 
@@ -303,7 +151,7 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
     if json_out:
         sys.stdout.write(json.dumps(summary, indent=2, default=str) + "\n")
         return
-    from ..eval.report import _num, _pct
+    from ..eval.report import fmt_num, fmt_pct
 
     table = Table(title=esc(f"{summary['rows']} answers in {summary.get('run_dir', '')}"))
     cols = [
@@ -325,15 +173,15 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
             esc(g["embedder"]),
             esc(g["vlm"]),
             str(g["questions"]),
-            _pct(g["accuracy"]),
-            _pct(g.get("frame_accuracy")),
-            _pct(g.get("position_accuracy")),
-            _num(g["pos_error_m"]),
-            _num(g["time_error_min"]),
-            _num(g["alpha"], 3),
-            _num(g["images_per_q"], 1),
-            _num(g["tokens_per_q"], 0),
-            _num(g["seconds_per_q"], 2),
+            fmt_pct(g["accuracy"]),
+            fmt_pct(g.get("frame_accuracy")),
+            fmt_pct(g.get("position_accuracy")),
+            fmt_num(g["pos_error_m"]),
+            fmt_num(g["time_error_min"]),
+            fmt_num(g["alpha"], 3),
+            fmt_num(g["images_per_q"], 1),
+            fmt_num(g["tokens_per_q"], 0),
+            fmt_num(g["seconds_per_q"], 2),
         )
     out_console().print(table)
     for g in summary["groups"]:
@@ -347,22 +195,35 @@ def _print_summary(summary: dict[str, Any], json_out: bool) -> None:
 @run_options
 def eval_main(
     ctx: typer.Context,
-    cfg: Any = None,
+    given: Any = None,
     out: Annotated[
         Path | None, typer.Option("--out", "-o", help="run folder (default runs/<date>/<name>)")
     ] = None,
     name: Annotated[str | None, typer.Option("--name", help="run name under runs/<date>/")] = None,
     runs_dir: Annotated[Path, typer.Option("--runs-dir", help="parent of dated run folders")] = Path("runs"),
+    replay: Annotated[
+        Path | None,
+        typer.Option(
+            "--replay",
+            help="re-score a finished run folder from its recorded answers and model replies, with no "
+            "model; its settings are the defaults, and a changed setting that needs new replies is refused",
+        ),
+    ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="print the summary as JSON")] = False,
 ) -> None:
     """Evaluate methods on a benchmark: one JSONL row per answer in the run folder, then a summary."""
     from ..eval.config import OutputConfig
+    from ..eval.replay import replay_run
     from ..eval.runner import Runner
 
-    cfg.output = OutputConfig(out=str(out) if out else None, runs_dir=str(runs_dir), name=name)
-    summary = Runner(cfg, log=_log).run()
+    if replay is not None:
+        summary = replay_run(replay, given, out=out, log=_log)
+    else:
+        cfg = build_run_config(given)
+        cfg.output = OutputConfig(out=str(out) if out else None, runs_dir=str(runs_dir), name=name)
+        summary = Runner(cfg, log=_log).run()
     _print_summary(summary, json_out)
-    if not json_out:
+    if not json_out and summary.get("run_dir"):
         run_dir = summary["run_dir"]
         console.print(
             esc(
@@ -372,31 +233,22 @@ def eval_main(
 
 
 @eval_app.command("report")
+@with_options("thresholds")
 def report_cmd(
     run_dir: Annotated[
         Path, typer.Argument(help="a run folder, or a folder of runs (e.g. runs/2026-11-21/)")
     ],
+    given: Any = None,
     out: Annotated[
         Path, typer.Option("--out", "-o", help="markdown file; PNGs go to <stem>_figs/ beside it")
     ] = Path("report.md"),
-    pos_threshold: Annotated[
-        float | None, typer.Option("--pos-threshold", help="re-score with this position threshold (m)")
-    ] = None,
-    time_threshold: Annotated[
-        float | None, typer.Option("--time-threshold", help="re-score with this time threshold (min)")
-    ] = None,
 ) -> None:
-    """Markdown tables (method x embedder x VLM, per category, split, horizon, cost) and PNG plots."""
-    from dataclasses import replace
-
+    """Markdown tables (method x embedder x VLM, per category, split, horizon, cost) and PNG plots;
+    the threshold options re-score the answers (default: the run's own)."""
     from ..eval.report import write_report
     from ..eval.runner import run_thresholds
 
-    thr = run_thresholds(run_dir)
-    if pos_threshold is not None:
-        thr = replace(thr, position_m=pos_threshold)
-    if time_threshold is not None:
-        thr = replace(thr, time_s=60.0 * time_threshold)
+    thr = thresholds_from(given, run_thresholds(run_dir))
     path = write_report(run_dir, out, thresholds=thr)
     console.print(esc(f"wrote {path} (figures in {path.parent / (path.stem + '_figs')})"))
 
@@ -412,9 +264,11 @@ def judge_cmd(
     """Judge the text answers of a finished run that were not judged yet."""
     from ..agent.config import VLMConfig
     from ..eval.judge import Judge
+    from ..eval.recording import MODEL_IO, ModelLog, RecordingClient
     from ..eval.runner import rejudge
 
-    n = rejudge(run_dir, Judge(VLMConfig.resolve(model=judge, base_url=judge_base_url)))
+    jc = VLMConfig.resolve(model=judge, base_url=judge_base_url)
+    n = rejudge(run_dir, Judge(jc, client=RecordingClient(jc, ModelLog(Path(run_dir) / MODEL_IO))))
     console.print(esc(f"judged {n} text answer(s) in {run_dir}"))
 
 
@@ -425,7 +279,7 @@ StudyOut = Annotated[
 
 
 def _print_study(doc: dict[str, Any], out: Path) -> None:
-    from ..eval.report import _num, _pct
+    from ..eval.report import fmt_num, fmt_pct
 
     first = {"compression": "stride", "coverage": "coverage", "consolidation": "strategy / budget"}.get(
         doc["study"], doc.get("option", "value")
@@ -452,13 +306,13 @@ def _print_study(doc: dict[str, Any], out: Path) -> None:
             esc(value),
             str(p.get("memories", "")),
             esc(p["method"]),
-            _pct(p["accuracy"]),
-            _pct(p.get("frame_accuracy")),
-            _pct(p.get("position_accuracy")),
-            _num(p["alpha"], 3),
-            _num(p["images_per_q"], 1),
-            _num(p["tokens_per_q"], 0),
-            _num(p["tool_calls_per_q"], 1),
+            fmt_pct(p["accuracy"]),
+            fmt_pct(p.get("frame_accuracy")),
+            fmt_pct(p.get("position_accuracy")),
+            fmt_num(p["alpha"], 3),
+            fmt_num(p["images_per_q"], 1),
+            fmt_num(p["tokens_per_q"], 0),
+            fmt_num(p["tool_calls_per_q"], 1),
         )
     out_console().print(table)
     console.print(
@@ -552,8 +406,9 @@ def scores_cmd(out: StudyOut, cfg: Any = None) -> None:
 @study_app.command("time-mode")
 @run_options
 def time_mode_cmd(out: StudyOut, cfg: Any = None) -> None:
-    """Accuracy with the time tool looking forward from the asked time, and centred on it."""
-    _option_study("time-mode", cfg, ["forward", "centred"], out)
+    """The ordering study: accuracy with the time tool looking forward from the asked time,
+    centred on it, and listing the memories nearest to it first (the paper's three orderings)."""
+    _option_study("time-mode", cfg, ["forward", "centred", "nearest"], out)
 
 
 @study_app.command("tool-calls")

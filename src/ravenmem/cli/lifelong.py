@@ -52,7 +52,7 @@ def forget(
     """Remove memories for good (index, metadata, thumbnails). Selectors combine: a memory goes
     when it matches every one given. Crash-safe: a kill leaves all of them or none."""
     from ravenmem.cli.main import parse_floats
-    from ravenmem.lifelong.forget import parse_ids
+    from ravenmem.memory.lifelong.forget import parse_ids
 
     disc = parse_floats(region, (3,), "--region") if region is not None else None
     id_list = parse_ids(ids) if ids is not None else None

@@ -22,7 +22,10 @@ from rich.table import Table
 
 from ..errors import InputError, RavenmemError
 from ..timeparse import fmt_time
+from ..tools import TextArgs
 from ._console import esc, out_console, print_error, print_warning
+
+DIVERSE_HELP = TextArgs.model_fields["diverse"].description  # the tools table says what it does
 
 os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")  # model-loading bars are noise in a CLI
 os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
@@ -171,7 +174,7 @@ def ingest(
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
-    from ravenmem.manifest import MANIFEST
+    from ravenmem.memory.folder import MANIFEST
 
     if keyframes is not None:
         cfg = parse_keyframes(keyframes)
@@ -284,13 +287,9 @@ def search(
     near: Annotated[str | None, typer.Option(help="only memories within x,y,r (metres)")] = None,
     radius: Annotated[float | None, typer.Option(help="with --position: max distance (m)")] = None,
     server: ServerOpt = None,
-    all_hits: Annotated[
-        bool,
-        typer.Option(
-            "--all-hits",
-            help="text/image: allow several hits of one moment and place (within 2 s, 0.5 m, 30 deg)",
-        ),
-    ] = False,
+    diverse: Annotated[
+        bool, typer.Option("--diverse/--no-diverse", help=f"text/image: {DIVERSE_HELP}")
+    ] = True,
     latest: Annotated[
         bool,
         typer.Option(
@@ -307,8 +306,9 @@ def search(
     """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
     import ravenmem
     from ravenmem.imageio import read_image
+    from ravenmem.memory.protocol import check_k
     from ravenmem.server.client import ServerClient, resolve_server
-    from ravenmem.tools import check_k, get_tool, hit_json
+    from ravenmem.tools import get_tool, hit_json
 
     given = {"text": text, "image": image if image is not None else like, "time": time, "position": position}
     modes = [m for m, v in given.items() if v is not None]
@@ -326,6 +326,10 @@ def search(
         raise InputError(f"--latest applies to text and image searches only, not to --{mode}")
     if latest:
         args["latest"] = True
+    if mode in ("text", "image"):
+        args["diverse"] = diverse
+    elif not diverse:
+        raise InputError(f"--no-diverse applies to text and image searches only, not to --{mode}")
     query_image = None
     if mode == "text":
         args["query"] = text
@@ -347,10 +351,6 @@ def search(
     }.get(mode, str(given[mode]))
     url = resolve_server(server, memory)
     if url:
-        if all_hits:
-            raise InputError(
-                "--all-hits applies to a local memory (--memory); the service returns diverse hits"
-            )
         with ServerClient(url) as remote:
             rows = remote.search(tool, call, k, image)["results"]
             if sheet is not None:
@@ -365,7 +365,7 @@ def search(
     else:
         assert memory is not None
         with ravenmem.open(memory) as mem:
-            hits = tool.run(mem, call, k, image=query_image, diverse=not all_hits)
+            hits = tool.run(mem, call, k, image=query_image)
             t0 = mem.time_span()[0]
 
             def image_file(rec: Any) -> str | None:

@@ -87,7 +87,8 @@ def map_cmd(
     """Build (if missing) or refresh the memory's occupancy map, draw it, export it for Nav2."""
     import ravenmem
     from ravenmem.errors import InputError
-    from ravenmem.nav.grid import MAP_FILE, OccupancyGrid
+    from ravenmem.memory.folder import MAP_GRID
+    from ravenmem.nav.grid import OccupancyGrid
     from ravenmem.nav.mapping import map_counts, recording_config
     from ravenmem.nav.nav2 import export_map_server, import_map_server
     from ravenmem.nav.render import draw_map
@@ -98,11 +99,11 @@ def map_cmd(
     out_json: dict[str, Any] = {"memory": str(memory)}
     with ravenmem.open(memory) as mem:
         if import_nav2 is not None:
-            if (memory / MAP_FILE).exists() and not overwrite:
+            if (memory / MAP_GRID).exists() and not overwrite:
                 raise InputError(f"{memory} already has a map; pass --overwrite to replace it")
             grid = import_map_server(import_nav2)
             grid.save(memory)
-        elif rebuild or refresh or from_ or not (memory / MAP_FILE).exists():
+        elif rebuild or refresh or from_ or not (memory / MAP_GRID).exists():
             cfg = None
             if rebuild:
                 base = recording_config()

@@ -26,7 +26,10 @@ TopKOpt = Annotated[
     typer.Option("--top-k", help="default memories per tool call: N, or per tool 'text=30,time=200'"),
 ]
 PresetOpt = Annotated[
-    str | None, typer.Option(help="default preset for questions: raven-qa | navqa | findingdory")
+    str | None,
+    typer.Option(
+        help="default preset for questions: raven-qa-human | raven-qa-robot | raven-qa-robot-open | navqa | findingdory"
+    ),
 ]
 
 

@@ -32,10 +32,11 @@ def import_cmd(
     """Import precomputed embeddings plus metadata (chunked, crash-safe; rerun to resume)."""
     import ravenmem
     from ravenmem.errors import InputError
+    from ravenmem.memory.folder import is_memory
     from ravenmem.store.files import import_key, read_batches
 
     n, dim, batches = read_batches(vectors, meta, chunk)
-    if (memory / "memory.json").exists():
+    if is_memory(memory):
         mem = ravenmem.open(memory)
     else:
         mem = ravenmem.create(memory, embedder=embedder, store=store, thumb_size=0, ocr=False)

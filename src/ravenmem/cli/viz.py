@@ -42,7 +42,7 @@ def view(
 
     import ravenmem
     from ravenmem.errors import require
-    from ravenmem.tools import check_k
+    from ravenmem.memory.protocol import check_k
 
     require("rerun", "view")
     from ravenmem.viz.rerun import record

@@ -17,6 +17,7 @@ from pydantic import BaseModel, ValidationError
 
 from ..agent.client import VLMClient, VLMError
 from ..agent.config import VLMConfig
+from .recording import RecordingClient
 
 SYSTEM = (
     "You grade answers of a robot that answers questions about what it saw. Decide whether the "
@@ -49,16 +50,18 @@ def parse_verdict(text: str) -> Verdict | None:
 class Judge:
     """Grades text answers; thread-safe (the runner judges from its worker threads)."""
 
-    def __init__(self, config: VLMConfig) -> None:
+    def __init__(self, config: VLMConfig, client: VLMClient | None = None) -> None:
         self.config = config
-        self.client = VLMClient(config)
+        self.client = client or VLMClient(config)
         self._lock = threading.Lock()
 
     @property
     def name(self) -> str:
         return str(self.config.model)
 
-    def grade(self, question: str, references: list[str], candidate: str) -> dict[str, Any]:
+    def grade(
+        self, question: str, references: list[str], candidate: str, context: str = ""
+    ) -> dict[str, Any]:
         """{'correct': bool | None, 'reason': str, 'model': str}; None when the judge's reply is unusable."""
         if not candidate.strip():
             return {"correct": False, "reason": "empty answer", "model": self.name}
@@ -67,6 +70,8 @@ class Judge:
         msgs = [{"role": "system", "content": SYSTEM}, {"role": "user", "content": user}]
         try:
             with self._lock:
+                if isinstance(self.client, RecordingClient):
+                    self.client.context = context  # the row it judges, in the run's model_io.jsonl
                 reply = self.client.chat(msgs)
                 self.client.events.clear()
         except VLMError as e:

@@ -16,6 +16,16 @@ can be re-scored with other thresholds without the dataset or the memory.
 Besides its type's criterion, every question whose truth names frames is also scored by frame
 (`frame_correct`) and every one with positions by position (`pos_correct`): RAVEN-QA's headline
 is frame accuracy with position accuracy beside it, swept over thresholds by `position_sweep`.
+
+Scoring rules (`Thresholds.scoring`): "paper" is the above. "release" applies the RAVEN-QA
+release scorer's own rule to RAVEN-QA rows: an answer's time is right when it is within 2 s
+(whole seconds) of the time the release gives an accepted frame (questions whose answer frames
+have no timestamp are left out, as that scorer leaves them out), and a position is right when its
+x, y distance to an accepted position is under the threshold. FindingDory's official scorer and
+NaVQA's are the paper rule already (frame rounded to the nearest, in its goal's set; errors).
+
+Every accuracy comes with a 95 % bootstrap interval over questions (`BOOTSTRAP` resamples with a
+fixed seed, so the same rows always give the same interval) and the number of questions scored.
 """
 
 from __future__ import annotations
@@ -30,13 +40,25 @@ from typing import Any
 import numpy as np
 
 from ..agent.schema import Answer
-from .config import Thresholds
+from .config import RAVEN_QA, Thresholds
 from .types import Episode, Question
 
 DEFAULT_POS_M = 1.0  # when neither the question, the dataset nor the user gives a threshold
 SWEEP_M = (0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 15.0, 25.0)  # the position-threshold sweep (metres)
 BREAKDOWNS = ("type", "category", "horizon", "subset", "split")
 NOT_JUDGED = "text answer not judged (no LLM judge configured)"
+BOOTSTRAP = 1000  # resamples of the questions behind each 95 % interval
+BOOTSTRAP_SEED = 20
+RELEASE_TIME_S = 2.0  # the RAVEN-QA release scorer: |predicted - true| < 2 s, in whole seconds
+NO_STAMP = "the release gives no timestamp for this answer's frames (its scorer leaves the question out)"
+# NaVQA's tables group question types: descriptive (binary + text), positional, temporal (time + duration)
+KINDS = {
+    "binary": "descriptive",
+    "text": "descriptive",
+    "position": "positional",
+    "time": "temporal",
+    "duration": "temporal",
+}
 
 
 def goal_times(q: Question, ep: Episode) -> list[list[float]]:
@@ -80,6 +102,20 @@ def parse_frame_lists(text: str) -> list[list[int]] | None:
     return None
 
 
+_GOAL_TIMES = re.compile(r"goal\s+times?\s*[:=]\s*((?:\d{1,2}:\d{2}(?::\d{2}(?:\.\d+)?)?[\s,;]*)+)", re.I)
+_HMS = re.compile(r"\b(\d{1,2}):(\d{2})(?::(\d{2}(?:\.\d+)?))?\b")
+
+
+def parse_goal_times(text: str) -> list[float] | None:
+    """The goal times an answer lists ('Goal times: 06:00:43 06:09:36'; H:MM reads as HH:MM:00,
+    FindingDory's normalisation) as seconds after midnight, in order; None when it lists none."""
+    m = _GOAL_TIMES.search(text or "")
+    if not m:
+        return None
+    out = [int(h) * 3600 + int(mi) * 60 + float(sec or 0) for h, mi, sec in _HMS.findall(m.group(1))]
+    return out or None
+
+
 def parse_yes(text: str) -> bool | None:
     w = (text or "").strip().lower()
     if re.match(r"^(yes|yeah|yep|true)\b", w):
@@ -98,15 +134,22 @@ def prediction(a: Answer, q: Question, ep: Episode) -> dict[str, Any]:
             seq.append(float(e.t))
     k = max(1, len(q.truth.frames))
     lists = parse_frame_lists(a.text) if q.type == "frame" else None
+    listed = parse_goal_times(a.text) if q.type == "frame" and ep.frame_times else None
     if lists is not None and ep.frame_times:
         goals = [[ep.frame_times[i] if 0 <= i < len(ep.frame_times) else -1.0 for i in g] for g in lists]
         none = lists == [[-1]]
+    elif listed is not None:  # every goal's time, as the question asked for them
+        day = math.floor(ep.frame_times[0] / 86400.0) * 86400.0
+        goals = [[day + sod] for sod in listed]
+        seq = [g[0] for g in goals] + [x for x in seq if all(abs(x - g[0]) > 1e-6 for g in goals)]
+        none = False
     else:
         goals = [[s] for s in seq[:k]]
         none = False
     frames = [ep.nearest_frame(s) for s in seq[:k]] if ep.frame_times else []
     out: dict[str, Any] = {
         "position": a.position,
+        "yaw": a.yaw,  # radians, as Answer.yaw (and ROS) has it
         "time": a.time,
         "duration": a.duration,
         "yes": yes,
@@ -149,15 +192,44 @@ def _frame_tol(row: dict[str, Any], thr: Thresholds) -> float:
     return float(row["truth"].get("time_tol") or row.get("frame_tol") or 0.5)
 
 
-def _position_part(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
-    """Position accuracy of an answer: within the threshold of an accepted position."""
+def rule_of(row: dict[str, Any], thr: Thresholds) -> str:
+    """The scoring rule this row is scored by: "release" only for RAVEN-QA rows (the other
+    releases' scorers are the paper's rule already)."""
+    kind = str(row.get("dataset", "")).partition(":")[0]
+    return "release" if thr.scoring == "release" and kind in RAVEN_QA else "paper"
+
+
+def _position_part(row: dict[str, Any], thr: Thresholds, rule: str) -> dict[str, Any]:
+    """Position accuracy of an answer: within the threshold of an accepted position (the
+    release rule: x, y distance strictly under it)."""
     t, p, failed = row["truth"], row["pred"], row["answer"].get("failed")
-    tol = t.get("pos_tol") or thr.position_m or row.get("pos_threshold") or DEFAULT_POS_M
+    subset = row["question"].get("subset") or ""
+    tol = t.get("pos_tol") or thr.position_for(subset) or row.get("pos_threshold") or DEFAULT_POS_M
     out: dict[str, Any] = {"threshold_m": tol, "pos_correct": False}
     if p.get("position") is not None:
-        out["pos_error_m"] = min(_dist(p["position"], g, thr.planar) for g in t["positions"])
-        out["pos_correct"] = out["pos_error_m"] <= tol and not failed
+        planar = thr.planar or rule == "release"
+        out["pos_error_m"] = min(_dist(p["position"], g, planar) for g in t["positions"])
+        within = out["pos_error_m"] < tol if rule == "release" else out["pos_error_m"] <= tol
+        out["pos_correct"] = within and not failed
     return out
+
+
+def _release_time_part(row: dict[str, Any]) -> dict[str, Any]:
+    """The RAVEN-QA release scorer's time rule: the answer's time within 2 s (whole seconds)
+    of a time the release gives an accepted frame."""
+    t, p = row["truth"], row["pred"]
+    if not t.get("times"):
+        return {"skipped": NO_STAMP}
+    pt = p.get("time")
+    if pt is None and p.get("goal_times") and p["goal_times"][0]:
+        pt = p["goal_times"][0][0]
+    if pt is None:
+        return {"frame_correct": False}
+    err = min(abs(math.floor(pt) - math.floor(x)) for x in t["times"])
+    return {
+        "frame_correct": err < RELEASE_TIME_S and not row["answer"].get("failed"),
+        "frame_error_s": float(err),
+    }
 
 
 def _frame_part(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
@@ -182,9 +254,14 @@ def score_row(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
     t = row["truth"]
     p = row["pred"]
     failed = bool(row["answer"].get("failed"))
-    s: dict[str, Any] = {"correct": None}
-    if row["question"].get("meta", {}).get("unscorable"):
-        s["skipped"] = row["question"]["meta"]["unscorable"]
+    rule = rule_of(row, thr)
+    s: dict[str, Any] = {"correct": None, "rule": rule}
+    meta = row["question"].get("meta", {})
+    if meta.get("truth_error"):
+        s["skipped"] = s["truth_error"] = meta["truth_error"]
+        return s
+    if meta.get("unscorable"):
+        s["skipped"] = meta["unscorable"]
         return s
     if failed:
         s["correct"] = False
@@ -193,12 +270,16 @@ def score_row(row: dict[str, Any], thr: Thresholds) -> dict[str, Any]:
         s["correct"] = not p.get("found", True) and not failed
         return s
     if t.get("positions"):
-        s.update(_position_part(row, thr))
+        s.update(_position_part(row, thr, rule))
     if t.get("goal_times"):
-        s.update(_frame_part(row, thr))
+        s.update(_release_time_part(row) if rule == "release" else _frame_part(row, thr))
     if qtype == "position":
         s["correct"] = bool(s.get("pos_correct"))
     elif qtype == "frame":
+        if rule == "release" and "frame_correct" not in s:
+            s["skipped"] = s.get("skipped") or NO_STAMP
+            s["correct"] = None
+            return s
         if not t.get("goal_times"):
             s["skipped"] = "no accepted frame could be placed in time"
             s["correct"] = None
@@ -254,17 +335,53 @@ def _with_median(vals: list[float]) -> dict[str, Any]:
     return out
 
 
+def bootstrap_ci(table: np.ndarray, resamples: int = BOOTSTRAP) -> tuple[float, float] | None:
+    """95 % interval of the accuracy over questions x seeds (NaN = not scored), by resampling the
+    questions with replacement: each resample's accuracy is the mean over seeds of the per-seed
+    means, as the point estimate is. A fixed seed makes it a function of the rows alone."""
+    if table.size == 0 or not np.isfinite(table).any():
+        return None
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    idx = rng.integers(0, table.shape[0], size=(resamples, table.shape[0]))
+    scored_all = np.isfinite(table)
+    values = np.where(scored_all, table, 0.0)
+    parts = []
+    for chunk in np.array_split(idx, max(1, resamples // 100)):  # bounded memory on large datasets
+        sums = values[chunk].sum(axis=1)  # resamples x seeds
+        counts = scored_all[chunk].sum(axis=1)
+        parts.append(np.where(counts > 0, sums / np.maximum(counts, 1), np.nan))
+    per_seed = np.concatenate(parts)
+    usable = np.isfinite(per_seed).any(axis=1)
+    if not usable.any():
+        return None
+    accs = np.nanmean(per_seed[usable], axis=1)
+    lo, hi = np.percentile(accs, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
 def seed_accuracy(rows: list[dict[str, Any]], key: str = "correct") -> dict[str, Any]:
-    """Accuracy per seed, then mean +- std over seeds (n = scored rows over all seeds)."""
+    """Accuracy per seed, then mean +- std over seeds (n = scored rows over all seeds), with the
+    questions scored and a 95 % bootstrap interval over questions (`ci`)."""
     per_seed: dict[int, list[float]] = defaultdict(list)
+    cells: dict[tuple[str, int], float] = {}
     for r in rows:
         c = r["score"].get(key)
         if c is not None:
             per_seed[int(r["seed"])].append(float(c))
+            cells[(str(r["qid"]), int(r["seed"]))] = float(c)
     accs = [float(np.mean(v)) for v in per_seed.values() if v]
     out = mean_std(accs)
     out["n"] = sum(len(v) for v in per_seed.values())
     out["seeds"] = len(accs)
+    qids = sorted({q for q, _ in cells})
+    seeds = sorted(per_seed)
+    out["questions"] = len(qids)
+    table = np.full((len(qids), len(seeds)), np.nan)
+    qi, si = {q: i for i, q in enumerate(qids)}, {s: j for j, s in enumerate(seeds)}
+    for (q, sd), v in cells.items():
+        table[qi[q], si[sd]] = v
+    ci = bootstrap_ci(table)
+    out["ci"] = list(ci) if ci is not None else None
     return out
 
 
@@ -286,6 +403,10 @@ def stats(rows: list[dict[str, Any]]) -> dict[str, Any]:
     )
     out["duration_error_min"] = mean_std(
         r["score"]["duration_error_s"] / 60 for r in rows if "duration_error_s" in r["score"]
+    )
+    # NaVQA's temporal error: time and duration errors together (minutes)
+    out["temporal_error_min"] = mean_std(
+        r["score"][k] / 60 for r in rows for k in ("time_error_s", "duration_error_s") if k in r["score"]
     )
     return out
 
@@ -331,6 +452,10 @@ def _breakdowns(rs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
         "subset_split", lambda q: f"{q['subset']}/{q['split']}" if q.get("subset") and q.get("split") else ""
     )
     part("horizon_type", lambda q: f"{q['horizon']}/{q['type']}" if q.get("horizon") else "")
+    part(
+        "horizon_kind",
+        lambda q: f"{q['horizon']}/{KINDS[q['type']]}" if q.get("horizon") and q["type"] in KINDS else "",
+    )
     return by
 
 
@@ -340,6 +465,7 @@ def summarize(
     """Per (method, embedder, VLM, variant): `stats` overall and broken down by type, category,
     horizon, subset and split; the position-threshold sweep; retrieval cost per question."""
     thr = thr or Thresholds()
+    thr.check_subsets({str(r["question"].get("subset") or "") for r in rows})
     if rescore:
         for r in rows:
             r["score"] = score_row(r, thr)
@@ -381,16 +507,32 @@ def summarize(
         g["tool_calls_per_q"] = mean_std(c.get("tool_calls") for c in costs)
         g["seconds_per_q"] = mean_std(r.get("wall_s") for r in rs)
         g["not_judged"] = sum(1 for r in rs if r["score"].get("skipped") == NOT_JUDGED)
-        g["unscorable"] = sum(1 for r in rs if r["score"].get("correct") is None) - g["not_judged"]
+        g["truth_errors"] = sorted(
+            {(str(r["qid"]), str(r["score"]["truth_error"])) for r in rs if r["score"].get("truth_error")}
+        )
+        reasons: dict[str, set[str]] = defaultdict(set)
+        for r in rs:
+            why = r["score"].get("skipped")
+            if (
+                r["score"].get("correct") is None
+                and why not in (None, NOT_JUDGED)
+                and not r["score"].get("truth_error")
+            ):
+                reasons[str(why)].add(str(r["qid"]))
+        g["skipped"] = {why: len(q) for why, q in sorted(reasons.items())}
+        g["unscorable"] = sum(g["skipped"].values())
+        g["rules"] = sorted({str(r["score"].get("rule", "paper")) for r in rs})
         g["failed"] = sum(1 for r in rs if r["answer"].get("failed"))
         g["ran_other"] = sorted(
             {r["ran"]["method"] for r in rs if r.get("ran") and r["ran"]["method"] != method}
         )
         out.append(g)
     rules = sorted({(r.get("dataset", ""), r["time_rule"]) for r in rows if r.get("time_rule")})
+    notes = sorted({(r.get("dataset", ""), n) for r in rows for n in r.get("dataset_notes") or []})
     return {
         "thresholds": thr.to_dict(),
         "groups": out,
         "rows": len(rows),
         "time_rules": [{"dataset": d, "rule": rule} for d, rule in rules],
+        "dataset_notes": [{"dataset": d, "note": n} for d, n in notes],
     }

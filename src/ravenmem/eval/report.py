@@ -28,14 +28,22 @@ TYPE_COLS = ("position", "time", "duration", "frame", "binary", "text")
 HORIZONS = ("short", "medium", "long")
 
 
-def _pct(d: dict[str, Any] | None) -> str:
+def fmt_pct(d: dict[str, Any] | None, ci: bool = True, n: bool = False) -> str:
+    """An accuracy in %: mean (± std over seeds when several), its 95 % bootstrap interval over
+    questions in brackets, and (n=) the questions scored when asked for."""
     if not d or d.get("mean") is None:
         return "n/a"
     s = f"{100 * d['mean']:.1f}"
-    return s + (f" ± {100 * d['std']:.1f}" if d.get("seeds", 1) > 1 else "")
+    s += f" ± {100 * d['std']:.1f}" if d.get("seeds", 1) > 1 else ""
+    if ci and d.get("ci"):
+        s += f" [{100 * d['ci'][0]:.1f}, {100 * d['ci'][1]:.1f}]"
+    if n and d.get("questions") is not None:
+        s += f" (n={d['questions']})"
+    return s
 
 
-def _num(d: dict[str, Any] | None, digits: int = 2) -> str:
+def fmt_num(d: dict[str, Any] | None, digits: int = 2) -> str:
+    """A mean ± std (errors, costs)."""
     if not d or d.get("mean") is None:
         return "n/a"
     return f"{d['mean']:.{digits}f} ± {d['std']:.{digits}f}"
@@ -75,7 +83,7 @@ def _breakdown(
     keys = keys or sorted({k for g in groups for k in _by(g, attr)})
     if not keys or not any(metric in s for g in groups for s in _by(g, attr).values()):
         return None
-    body = [_ident(g) + [_pct(_by(g, attr).get(k, {}).get(metric)) for k in keys] for g in groups]
+    body = [_ident(g) + [fmt_pct(_by(g, attr).get(k, {}).get(metric), n=True) for k in keys] for g in groups]
     return _table(["Method", "Embedder", "VLM", *keys], body)
 
 
@@ -89,25 +97,33 @@ def _overall(groups: list[dict[str, Any]]) -> list[str]:
     head += [f"{t.capitalize()} Qs" for t in types] + ["Pos. err (m)", "Time err (min)"]
     body = []
     for g in groups:
-        line = _ident(g) + [str(g["questions"]), str(len(g["seeds"])), _pct(g["accuracy"])]
-        line += ([_pct(g.get("frame_accuracy"))] if frame else []) + (
-            [_pct(g.get("position_accuracy"))] if pos else []
+        line = _ident(g) + [str(g["questions"]), str(len(g["seeds"])), fmt_pct(g["accuracy"])]
+        line += ([fmt_pct(g.get("frame_accuracy"))] if frame else []) + (
+            [fmt_pct(g.get("position_accuracy"))] if pos else []
         )
-        line += [_pct(_by(g, "type").get(t, {}).get("accuracy")) for t in types]
-        line += [_num(g["pos_error_m"]), _num(g["time_error_min"])]
+        line += [fmt_pct(_by(g, "type").get(t, {}).get("accuracy")) for t in types]
+        line += [fmt_num(g["pos_error_m"]), fmt_num(g["time_error_min"])]
         body.append(line)
     out = ["## Overall", "", _table(head, body), ""]
-    notes = []
+    release = any("release" in g.get("rules", []) for g in groups)
+    notes = ["Accuracy: each question by its type's criterion (below)."]
     if frame:
         notes.append(
-            "Frame acc.: the answer names an accepted frame (RAVEN-QA's target retrieval accuracy, the headline "
-            "there), over every question whose truth names frames."
+            "Frame acc.: the answer names an accepted frame (the paper's target retrieval accuracy, RAVEN-QA's "
+            "headline), over every question whose truth names frames"
+            + (
+                "; release rule (RAVEN-QA rows): the answer's time within 2 s of the time the release gives an "
+                "accepted frame, over the questions whose frames it gives a time."
+                if release
+                else "."
+            )
         )
     if pos:
         thr = sorted({v for g in groups for v in g.get("pos_thresholds_m", [])})
         notes.append(
             f"Pos. acc.: the answer's position within {_metres(thr)} of an accepted position, over every "
-            "question with positions (the threshold sweep is below)."
+            "question with positions (the threshold sweep is below)"
+            + ("; release rule (RAVEN-QA rows): x, y distance under the threshold." if release else ".")
         )
     if types:
         names = ", ".join(f"{t.capitalize()} Qs" for t in types)
@@ -133,13 +149,13 @@ def _cost(groups: list[dict[str, Any]]) -> list[str]:
     body = [
         _ident(g)
         + [
-            _pct(g["accuracy"]),
-            _num(g["alpha"], 3),
-            _num(g["memories_shown"], 1),
-            _num(g["images_per_q"], 1),
-            _num(g["tokens_per_q"], 0),
-            _num(g["tool_calls_per_q"], 1),
-            _num(g["seconds_per_q"], 2),
+            fmt_pct(g["accuracy"]),
+            fmt_num(g["alpha"], 3),
+            fmt_num(g["memories_shown"], 1),
+            fmt_num(g["images_per_q"], 1),
+            fmt_num(g["tokens_per_q"], 0),
+            fmt_num(g["tool_calls_per_q"], 1),
+            fmt_num(g["seconds_per_q"], 2),
         ]
         for g in groups
     ]
@@ -191,37 +207,51 @@ def _same_as_accuracy(groups: list[dict[str, Any]], metric: str) -> bool:
     return all(g.get("is_accuracy", {}).get(metric, False) for g in groups)
 
 
-def _horizon_types(groups: list[dict[str, Any]]) -> list[str]:
-    """NaVQA's tables: per horizon, accuracy and error of each question type."""
-    hts = {k for g in groups for k in _by(g, "horizon_type")}
-    types = [t for t in TYPE_COLS if any(k.endswith("/" + t) for k in hts)]
-    horizons = [h for h in HORIZONS if any(k.startswith(h + "/") for k in hts)]
+def _horizon_types(groups: list[dict[str, Any]], thr: dict[str, Any]) -> list[str]:
+    """NaVQA's tables: per horizon, descriptive accuracy (binary and text questions together),
+    positional error and temporal error (time and duration together), and the paper's accuracy
+    conversions: a position within its threshold (NaVQA 15 m), a time within the time threshold."""
+    hks = {k for g in groups for k in _by(g, "horizon_kind")}
+    horizons = [h for h in HORIZONS if any(k.startswith(h + "/") for k in hks)]
     if len(horizons) < 2:  # one horizon: the overall table says it all
         return []
-    head = ["Method", "Embedder", "VLM", "Horizon"]
-    for t in types:
-        head.append(f"{t.capitalize()} acc.")
-        if t == "position":
-            head.append("Pos. err (m)")
-        if t in ("time", "frame"):
-            head.append("Time err (min)")
-        if t == "duration":
-            head.append("Duration err (min)")
+    pos_m = sorted({v for g in groups for v in g.get("pos_thresholds_m", [])})
+    head = [
+        "Method",
+        "Embedder",
+        "VLM",
+        "Horizon",
+        "Descriptive acc.",
+        "Pos. err (m)",
+        f"Pos. acc. ≤ {_metres(pos_m)}",
+        "Temporal err (min)",
+        f"Temporal acc. ≤ {thr['time_s'] / 60:g} min",
+    ]
     body = []
     for g in groups:
         for h in horizons:
-            line = _ident(g) + [h]
-            for t in types:
-                s = _by(g, "horizon_type").get(f"{h}/{t}", {})
-                line.append(_pct(s.get("accuracy")))
-                if t == "position":
-                    line.append(_num(s.get("pos_error_m")))
-                if t in ("time", "frame"):
-                    line.append(_num(s.get("time_error_min")))
-                if t == "duration":
-                    line.append(_num(s.get("duration_error_min")))
-            body.append(line)
-    return ["## Per horizon: accuracy and errors (NaVQA)", "", _table(head, body), ""]
+            by = _by(g, "horizon_kind")
+            d, p, t = (by.get(f"{h}/{k}", {}) for k in ("descriptive", "positional", "temporal"))
+            body.append(
+                _ident(g)
+                + [
+                    h,
+                    fmt_pct(d.get("accuracy"), n=True),
+                    fmt_num(p.get("pos_error_m")),
+                    fmt_pct(p.get("accuracy"), n=True),
+                    fmt_num(t.get("temporal_error_min")),
+                    fmt_pct(t.get("accuracy"), n=True),
+                ]
+            )
+    return [
+        "## Per horizon: NaVQA's table",
+        "",
+        "Descriptive: binary and text questions. Temporal: time and duration questions (the duration "
+        f"criterion is {thr['duration_s'] / 60:g} min). The accuracy columns are the paper's conversion of the errors.",
+        "",
+        _table(head, body),
+        "",
+    ]
 
 
 def _sweep(groups: list[dict[str, Any]]) -> list[str]:
@@ -229,7 +259,7 @@ def _sweep(groups: list[dict[str, Any]]) -> list[str]:
     if not gs:
         return []
     thr = gs[0]["pos_sweep"]["thresholds_m"]
-    body = [_ident(g) + [_pct(a) for a in g["pos_sweep"]["accuracy"]] for g in gs]
+    body = [_ident(g) + [fmt_pct(a) for a in g["pos_sweep"]["accuracy"]] for g in gs]
     return [
         "## Position accuracy against the threshold",
         "",
@@ -238,9 +268,23 @@ def _sweep(groups: list[dict[str, Any]]) -> list[str]:
     ]
 
 
+def _names(items: list[str], most: int = 10) -> str:
+    shown = "; ".join(items[:most])
+    return shown + (f"; and {len(items) - most} more" if len(items) > most else "")
+
+
 def _notes(groups: list[dict[str, Any]], summary: dict[str, Any]) -> list[str]:
     notes = [f"- `{r['dataset']}`: {r['rule']}." for r in summary.get("time_rules", [])]
+    notes += [f"- `{r['dataset']}`: {r['note']}." for r in summary.get("dataset_notes", [])]
     for g in groups:
+        errs = g.get("truth_errors") or []
+        if errs:
+            notes.append(
+                f"- {_label(g)}: {len(errs)} question(s) have a truth outside their recording and are not "
+                f"scored (truth errors): {_names([f'{q}: {why}' for q, why in errs])}."
+            )
+        for why, count in (g.get("skipped") or {}).items():
+            notes.append(f"- {_label(g)}: {count} question(s) not scored: {why}.")
         if g["not_judged"]:
             notes.append(
                 f"- {_label(g)}: {g['not_judged']} text answer(s) not scored: no LLM judge was configured "
@@ -249,10 +293,6 @@ def _notes(groups: list[dict[str, Any]], summary: dict[str, Any]) -> list[str]:
         if g["failed"]:
             notes.append(
                 f"- {_label(g)}: {g['failed']} answer(s) failed (counted wrong; see `error` in answers.jsonl)."
-            )
-        if g["unscorable"] > 0:
-            notes.append(
-                f"- {_label(g)}: {g['unscorable']} question(s) without usable ground truth were not scored."
             )
         if g.get("ran_other"):
             notes.append(
@@ -320,15 +360,15 @@ def _study(st: dict[str, Any]) -> list[str]:
             line += [str(p["memories"])]
         line += [
             p["method"],
-            _pct(p["accuracy"]),
-            _pct(p.get("frame_accuracy")),
-            _pct(p.get("position_accuracy")),
+            fmt_pct(p["accuracy"]),
+            fmt_pct(p.get("frame_accuracy")),
+            fmt_pct(p.get("position_accuracy")),
         ]
         line += [
-            _num(p["alpha"], 3),
-            _num(p["images_per_q"], 1),
-            _num(p["tokens_per_q"], 0),
-            _num(p["tool_calls_per_q"], 1),
+            fmt_num(p["alpha"], 3),
+            fmt_num(p["images_per_q"], 1),
+            fmt_num(p["tokens_per_q"], 0),
+            fmt_num(p["tool_calls_per_q"], 1),
         ]
         body.append(line)
     return [f"{title} (`{st.get('dataset', '')}`)", "", _table(head, body), ""]
@@ -347,12 +387,23 @@ def markdown(
             f"{len(rows)} answers, {len({r['qid'] for r in rows})} questions, dataset(s): "
             + ", ".join(f"`{d}`" for d in datasets),
             "",
-            "Accuracy in % (mean ± std over seeds where there are several); errors mean ± std over answered "
+            "Accuracy in % (mean ± std over seeds where there are several) with its 95 % bootstrap interval "
+            "over questions in brackets; n = questions scored; errors mean ± std over answered "
             f"questions. Position threshold(s): {_metres(used)}; time {thr['time_s'] / 60:g} min, "
-            f"duration {thr['duration_s'] / 60:g} min.",
+            f"duration {thr['duration_s'] / 60:g} min. Scoring rule: {thr.get('scoring', 'paper')}"
+            + (
+                " (the benchmark release's own scorer where it differs: RAVEN-QA)"
+                if thr.get("scoring") == "release"
+                else " (the papers' criteria)"
+            )
+            + ".",
+            "",
+            "Clock times: "
+            + "; ".join(sorted({str(r.get("zone") or "UTC (recording clock)") for r in rows}))
+            + ".",
             "",
         ]
-        lines += _overall(groups) + _cost(groups) + _breakdowns(groups) + _horizon_types(groups)
+        lines += _overall(groups) + _cost(groups) + _breakdowns(groups) + _horizon_types(groups, thr)
         lines += _sweep(groups) + _notes(groups, summary)
     for st in studies:
         lines += _study(st)

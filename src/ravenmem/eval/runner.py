@@ -1,7 +1,9 @@
 """The evaluation runner: dataset x methods x seeds -> one JSONL row per answer, resumable.
 
-A run folder (`runs/<date>/<name>/` by default) holds `config.json`, `answers.jsonl` (one row
-per question x method x seed, appended and flushed as each answer arrives) and `summary.json`.
+A run folder (`runs/<date>/<name>/` by default) holds `config.json`, `manifest.json` (what
+was evaluated and how, `ravenmem.eval.recording`), `answers.jsonl` (one row per question x
+method x seed, appended and flushed as each answer arrives), `model_io.jsonl` (every model
+request and reply) and `summary.json`.
 Running the same command again skips rows already present, so a crashed or interrupted run
 resumes where it stopped; a different configuration in the same folder is refused. Questions
 run in parallel on a bounded thread pool; each worker borrows its own method instance (the
@@ -13,7 +15,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import queue
 import sys
 import threading
@@ -39,6 +40,7 @@ from .cache import CachingEmbedder, build_memory
 from .config import IDENTITY, RunConfig, Thresholds
 from .datasets import load_dataset
 from .metrics import prediction, score_row, summarize, truth_row
+from .recording import MANIFEST, MODEL_IO, SETUP, ModelLog, RecordingClient, append_json_line, manifest
 from .types import Episode, Question, horizon_of
 
 # Options of the contract between the evaluator and the VLM agent: checked against the agent's
@@ -95,6 +97,20 @@ def check_methods(cfg: RunConfig) -> None:
         raise InputError(f"{flags}: this version's raven method does not take {', '.join(missing)}")
 
 
+def preset_notes(cfg: RunConfig) -> list[str]:
+    """What of the preset this version's agent cannot apply (said, never silently dropped)."""
+    from ..agent.presets import get_preset
+
+    p = get_preset(cfg.methods.preset)
+    if p is None or "raven" not in cfg.methods.names:
+        return []
+    return [
+        f"preset {p.name}: {k}={v} not applied (this version's raven agent takes no {k!r})"
+        for k, v in p.options().items()
+        if k in p.hooks and not agent_takes(k)
+    ]
+
+
 # ------------------------------------------------------------------------------------ rows on disk
 class AnswerLog:
     """answers.jsonl: append + flush + fsync per row; a torn last line (crash) is dropped on open."""
@@ -125,11 +141,8 @@ class AnswerLog:
         return list(out.values())
 
     def append(self, row: dict[str, Any]) -> None:
-        line = json.dumps(row, default=_json_default) + "\n"
-        with self._lock, open(self.path, "a", encoding="utf-8") as f:
-            f.write(line)
-            f.flush()
-            os.fsync(f.fileno())
+        with self._lock:
+            append_json_line(self.path, row, _json_default)
 
 
 def _json_default(o: Any) -> Any:
@@ -207,6 +220,7 @@ class Runner:
         self.dir = cfg.run_dir()
         self.judge: Any = None
         self.vlm_cfg: Any = None
+        self.model_log = ModelLog(self.dir / MODEL_IO)
 
     # -------------------------------------------------------------- setup
     def _open_dir(self) -> AnswerLog:
@@ -227,6 +241,18 @@ class Runner:
             doc["seeds"] = max(int(old.get("seeds", 1)), self.cfg.seeds)
         atomic_write_json(cfg_path, doc | {"updated": _now()}, indent=2, default=str)
         return log
+
+    def _write_manifest(self, eps: list[Episode]) -> None:
+        """manifest.json: written when the run starts; a resumed run keeps the first `created`."""
+        from ..agent.presets import get_preset
+
+        p = get_preset(self.cfg.methods.preset)
+        doc = manifest(self.cfg, eps, p.options() if p else None)
+        path = self.dir / MANIFEST
+        if path.exists():
+            doc["created"] = read_json(path).get("created", doc["created"])
+            doc["updated"] = _now()
+        atomic_write_json(path, doc, indent=2, default=str)
 
     def _make_embedder(self) -> CachingEmbedder:
         from ..embed.base import create_embedder
@@ -252,7 +278,7 @@ class Runner:
             from .judge import Judge
 
             jc = VLMConfig.resolve(model=models.judge, base_url=models.judge_base_url or models.vlm_base_url)
-            self.judge = Judge(jc)
+            self.judge = Judge(jc, client=RecordingClient(jc, self.model_log))
 
     def episodes(self) -> list[Episode]:
         ds = self.cfg.dataset
@@ -285,9 +311,16 @@ class Runner:
     ) -> dict[str, Any]:
         """Answer every pending (question, method, seed); write rows; return the summary."""
         self._setup_models()
-        log = self._open_dir()
-        done = {r["key"] for r in log.rows() if not (self.cfg.retry_failed and r["answer"].get("failed"))}
         eps = self.episodes()
+        self.thresholds.check_subsets({q.subset for e in eps for q in e.questions})
+        log = self._open_dir()
+        self._write_manifest(eps)
+        notes = {n for e in eps for n in e.meta.get("notes", [])} | {
+            str(e.meta["zone"]) for e in eps if e.meta.get("zone")
+        }
+        for note in sorted(notes) + preset_notes(self.cfg):
+            self.log(f"eval: {note}")
+        done = {r["key"] for r in log.rows() if not (self.cfg.retry_failed and r["answer"].get("failed"))}
         names, seeds = self.cfg.methods.names, range(self.cfg.seeds)
         todo = [
             (
@@ -362,7 +395,7 @@ class Runner:
                 for s in {s for _, mm, s in items if mm == m}:
                     pools[(m, s)] = queue.Queue()
                     if m != "random":  # build one up front: first-time work (captions) runs once, here
-                        pools[(m, s)].put(self._method(m, mem, s))
+                        pools[(m, s)].put(self._method(m, mem, s, f"{ep.id}|{SETUP}|{m}|{s}"))
             with ThreadPoolExecutor(max_workers=self.cfg.workers) as pool:
                 futs = [
                     pool.submit(self._answer_one, ep, q, m, s, mem, pools[(m, s)], mem_info)
@@ -374,10 +407,10 @@ class Runner:
         finally:
             mem.close()
 
-    def _method(self, name: str, mem: Any, seed: int) -> Any:
+    def _method(self, name: str, mem: Any, seed: int, context: str = "") -> Any:
         opts = self.cfg.methods.options() | {"seed": seed}
         if self.vlm_cfg is not None and _needs_vlm(name):
-            opts["vlm"] = self.vlm_cfg
+            opts["vlm"] = RecordingClient(self.vlm_cfg, self.model_log, context)  # one per instance
         try:
             return self.factory(name, mem, **opts)
         except TypeError as e:  # e.g. an option value of a shape this method does not take
@@ -411,8 +444,14 @@ class Runner:
         start = time.perf_counter()
         try:
             image = read_image(q.image) if q.image is not None else None
+            text = q.text
+            if q.instructions and _needs_vlm(method):  # how to answer, for the model
+                text = f"{q.text}\n{q.instructions}"
             with self._borrow(method, mem, seed, q.id, pool) as m:
-                ans = ask(mem, AskRequest(q.text, image=image), method=m).answer
+                client = getattr(m, "client", None)
+                if isinstance(client, RecordingClient):
+                    client.context = row_key(ep, q, method, seed)
+                ans = ask(mem, AskRequest(text, image=image), method=m).answer
             if not isinstance(ans, Answer):
                 raise TypeError(f"method {method} returned {type(ans).__name__}, not an Answer")
         except Exception as e:  # noqa: BLE001 - one failing question must not end the run; it is recorded
@@ -422,7 +461,9 @@ class Runner:
         wall = time.perf_counter() - start
         verdict = None
         if q.type == "text" and self.judge is not None and not ans.failed:
-            verdict = self.judge.grade(q.text, q.truth.text, ans.text)
+            verdict = self.judge.grade(
+                q.text, q.truth.text, ans.text, context=f"judge|{row_key(ep, q, method, seed)}"
+            )
         return build_row(
             ep,
             q,
@@ -492,6 +533,10 @@ def build_row(
     }
     if ep.meta.get("time_rule"):
         row["time_rule"] = ep.meta["time_rule"]
+    if ep.meta.get("notes"):
+        row["dataset_notes"] = list(ep.meta["notes"])
+    if ep.meta.get("zone"):
+        row["zone"] = ep.meta["zone"]
     if judge is not None:
         row["judge"] = judge
     row["score"] = score_row(row, thr)
@@ -542,7 +587,10 @@ def rejudge(run_dir: str | Path, judge: Any, thresholds: Thresholds | None = Non
         if (r.get("judge") or {}).get("correct") is not None:
             continue
         r["judge"] = judge.grade(
-            r["question"]["text"], r["truth"].get("text", []), r["answer"].get("text", "")
+            r["question"]["text"],
+            r["truth"].get("text", []),
+            r["answer"].get("text", ""),
+            context=f"judge|{r['key']}",
         )
         r["score"] = score_row(r, thr)
         n += 1

@@ -11,7 +11,8 @@
   memory: accuracy against memories kept (`consolidation_study`);
 - the agent ablations, one method option swept (`option_study`): `top-k` (memories per tool
   call), `scores` (similarity scores shown to the model or hidden), `time-mode` (the time tool
-  looking forward from the asked time, or centred on it) and `tool-calls` (the tool-call budget).
+  looking forward from the asked time, centred on it, or nearest in time first: the paper's ordering
+  study) and `tool-calls` (the tool-call budget).
 
 Every point is an ordinary run folder (`<out>/stride-5/`, `<out>/top_k-10/`, ...) with its rows
 labelled by a variant, and `<out>/study.json` lists the points with accuracy and retrieval cost;
@@ -30,6 +31,7 @@ from typing import Any
 from ..errors import InputError
 from ..fsio import atomic_write_json, publish_dir
 from ..ingest.keyframes import KeyframeConfig
+from ..memory.folder import LOCK, STUDY_DONE
 from .config import OutputConfig, RunConfig
 from .datasets import load_dataset
 from .datasets.frames import Subsampled
@@ -200,7 +202,6 @@ def option_study(
 
 
 STRATEGIES = ("consolidate", "uniform")
-_DONE = "study_memory.json"
 
 
 def _reduced_copy(base: Path, dest: Path, strategy: str, budget: int, max_distance: float) -> dict[str, Any]:
@@ -213,13 +214,13 @@ def _reduced_copy(base: Path, dest: Path, strategy: str, budget: int, max_distan
 
     import ravenmem
 
-    marker = dest / _DONE
+    marker = dest / STUDY_DONE
     if marker.exists():
         return dict(read_json(marker))
     if dest.exists():
         shutil.rmtree(dest)
     tmp = dest.with_name(f".{dest.name}.{uuid.uuid4().hex[:8]}")
-    shutil.copytree(base, tmp, ignore=shutil.ignore_patterns("writer.lock", ".*.tmp"))
+    shutil.copytree(base, tmp, ignore=shutil.ignore_patterns(LOCK, ".*.tmp"))
     info: dict[str, Any]
     with ravenmem.open(tmp, writable=True) as mem:
         n = mem.count()
@@ -232,7 +233,7 @@ def _reduced_copy(base: Path, dest: Path, strategy: str, budget: int, max_distan
             mem.forget(ids=[r.id for r in recs if r.id not in keep])
             info = {"kept": mem.count(), "budget_met": mem.count() <= budget}
     info |= {"strategy": strategy, "budget": budget, "memories_before": n}
-    atomic_write_json(tmp / _DONE, info)
+    atomic_write_json(tmp / STUDY_DONE, info)
     publish_dir(tmp, dest)
     return info
 

@@ -56,7 +56,11 @@ class Truth:
             self.rel_window = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: v for k, v in asdict(self).items() if v not in (None, [], False)}
+        """Every field that holds a value: a "no" (`yes=False`), a 0 s duration and 0 m tolerances
+        included; only unset (None) fields and empty lists are left out."""
+        return {
+            k: v for k, v in asdict(self).items() if v is not None and not (isinstance(v, list) and not v)
+        }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Truth:
@@ -76,6 +80,9 @@ class Question:
     image: Path | None = None  # query image ("where did I see this?")
     subset: str = ""  # RAVEN-QA: the recording's source (web, self-recorded, sim, real_world, ...)
     split: str = ""  # RAVEN-QA: simple / hard
+    # how to answer, for the methods that ask a model (e.g. FindingDory: every goal's time); the
+    # retrieval baselines search the question itself
+    instructions: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -89,6 +96,8 @@ class Question:
             "split": self.split,
             "image": str(self.image) if self.image else None,
         }
+        if self.instructions:
+            d["instructions"] = self.instructions
         if self.meta:
             d["meta"] = self.meta
         return d

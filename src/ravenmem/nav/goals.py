@@ -21,7 +21,6 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..errors import InputError
 from ..memory import Memory
 from ..types import Pose
 from .base import PlanResult
@@ -189,6 +188,6 @@ def _evidence_pose(mem: Memory | None, answer: AnswerLike) -> Pose | None:
         return None
     try:
         (rec,) = mem.get([int(ev_id)])
-    except (KeyError, ValueError, InputError):
+    except ValueError:  # not an id, or no such memory (NotFoundError is a ValueError)
         return None
     return rec.pose

@@ -26,12 +26,12 @@ from scipy import ndimage
 
 from ..errors import InputError
 from ..fsio import atomic_open, atomic_write_json
+from ..memory.folder import MAP_GRID, MAP_META
 from ..types import Intrinsics, Pose
 from .base import Cell
 from .frame import MapFrame
 
 FORMAT_VERSION = 2
-MAP_FILE, MAP_META = "map.npz", "map.json"
 _GROW = 32  # cells added at once when the map grows
 
 
@@ -456,7 +456,7 @@ class OccupancyGrid:
         metadata, for people and other tools) into a folder."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        npz = folder / MAP_FILE
+        npz = folder / MAP_GRID
         meta = self.metadata()
         with atomic_open(npz) as f:
             np.savez_compressed(
@@ -476,10 +476,10 @@ class OccupancyGrid:
         """The map saved in a folder (a memory folder). InputError, one line, when there is none
         or it is damaged."""
         folder = Path(folder)
-        meta_path, npz_path = folder / MAP_META, folder / MAP_FILE
+        meta_path, npz_path = folder / MAP_META, folder / MAP_GRID
         if not npz_path.is_file():
             raise InputError(
-                f"{folder}: no {MAP_FILE} (build one: `ravenmem ingest` a recording with depth, "
+                f"{folder}: no {MAP_GRID} (build one: `ravenmem ingest` a recording with depth, "
                 "`ravenmem map`, or `ravenmem explore` in a simulator)"
             )
         try:

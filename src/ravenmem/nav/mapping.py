@@ -34,9 +34,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
+from ..memory.folder import MAP_GRID
 from ..types import Frame, Intrinsics, Pose
 from .frame import MapFrame
-from .grid import MAP_FILE, MapConfig, OccupancyGrid
+from .grid import MapConfig, OccupancyGrid
 
 # The camera's optical frame (x right, y down, z forward) in two common pose frames.
 OPTICAL = np.eye(4)  # the pose is the optical frame itself (TUM ground truth, ROS *_optical_frame)
@@ -229,7 +230,7 @@ class MapBuilder:
         if self._opened:
             return
         self._opened = True
-        if (self.folder / MAP_FILE).is_file() and not self._rebuild:
+        if (self.folder / MAP_GRID).is_file() and not self._rebuild:
             grid = OccupancyGrid.load(self.folder)
             if grid.kind != "recorded":
                 self.note = f"the memory's map was made by {grid.kind!r}; depth frames leave it as it is"

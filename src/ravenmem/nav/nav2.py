@@ -29,6 +29,7 @@ from PIL import Image, UnidentifiedImageError
 
 from ..errors import InputError
 from ..fsio import atomic_write
+from ..types import yaw_of
 from .frame import MapFrame
 from .grid import MapConfig, OccupancyGrid
 
@@ -160,5 +161,4 @@ def read_pose_stamped(msg: dict[str, Any]) -> tuple[float, float, float, str]:
         frame = str(msg["header"]["frame_id"])
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"not a PoseStamped: missing or bad field {e}") from None
-    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-    return x, y, yaw, frame
+    return x, y, yaw_of(qx, qy, qz, qw), frame

@@ -19,7 +19,8 @@ from ..ingest.depth import parse_intrinsics
 from ..ingest.identity import source_identity
 from ..ingest.sources import open_source
 from ..memory import Memory
-from ..nav.grid import MAP_FILE, MapConfig, OccupancyGrid
+from ..memory.folder import MAP_GRID
+from ..nav.grid import MapConfig, OccupancyGrid
 from ..nav.mapping import MapBuilder
 
 
@@ -77,7 +78,7 @@ def build_map(
         builder.close()
         first = first and builder.grid is None  # a rebuild starts over once, with the first map made
         report["recordings"][path] = builder.summary()
-    if not (folder / MAP_FILE).is_file():
+    if not (folder / MAP_GRID).is_file():
         why = "; ".join(
             f"{p}: {v if isinstance(v, str) else _why(v)}" for p, v in report["recordings"].items()
         )

@@ -15,14 +15,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..fsio import atomic_write_json
+from ..memory.folder import EXPLORE
 from ..nav.base import PlanResult
 from ..nav.grid import OccupancyGrid
 from ..nav.planning import plan_path
 from ..sim.base import Environment, Observation
 from ..sim.control import ControlConfig, follow_waypoints
 from .explore import ExploreConfig, Explorer, ExploreReport
-
-EXPLORE_FILE = "explore.json"
 
 
 def coverage_reference(env: Environment, resolution: float) -> Callable[[OccupancyGrid], float] | None:
@@ -55,15 +54,15 @@ def explore_into(
     explorer.grid.meta = {"kind": "explored", "env": env.name}
     explorer.grid.save(folder)
     meta = {"env": env.name, "robot": env.robot.__dict__, "config": cfg.__dict__, "report": report.as_dict()}
-    atomic_write_json(folder / EXPLORE_FILE, meta)
+    atomic_write_json(folder / EXPLORE, meta)
     return explorer.grid, report
 
 
 def load_exploration(folder: str | Path) -> dict[str, Any]:
     """The `explore.json` written by Phase I (environment name, robot, trajectory, coverage)."""
-    p = Path(folder) / EXPLORE_FILE
+    p = Path(folder) / EXPLORE
     if not p.is_file():
-        raise InputError(f"{folder}: no {EXPLORE_FILE}; build this memory with `ravenmem explore` first")
+        raise InputError(f"{folder}: no {EXPLORE}; build this memory with `ravenmem explore` first")
     try:
         meta = json.loads(p.read_text())
         meta["env"]  # noqa: B018 - required key

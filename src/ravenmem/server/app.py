@@ -24,15 +24,15 @@ from starlette.exceptions import HTTPException
 from starlette.routing import Route
 
 from ..agent.ask import AskResult
-from ..errors import InputError
-from ..tools import MAX_K
+from ..errors import InputError, NotFoundError
+from ..memory.protocol import MAX_K
 from ..types import MemoryRecord, Pose
 from .events import StreamRefused
 from .http_errors import add_error_handlers
 from .images import decode_base64_image, decode_depth, decode_image
 from .search_routes import add_search_routes
 from .security import DOCS_STATIC, Guard
-from .service import NotFound, Service
+from .service import Service
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -234,7 +234,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         rec = await blocking(lambda: service.record(memory_id))
         path = service.image_file(rec)
         if path is None:
-            raise NotFound(f"memory {memory_id} has no picture stored in the memory folder")
+            raise NotFoundError(f"memory {memory_id} has no picture stored in the memory folder")
         return FileResponse(path, headers={"Cache-Control": "private, max-age=3600"})
 
     @app.get("/trajectory", tags=["memories"])
@@ -252,7 +252,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         `resolution` (m per cell) and the URL of its picture (north up); 404 without a map."""
         found = await blocking(service.occupancy_map)
         if found is None:
-            raise NotFound("this memory has no occupancy map (exploration writes one)")
+            raise NotFoundError("this memory has no occupancy map (exploration writes one)")
         return {**found[1], "image": f"{str(request.base_url).rstrip('/')}/map.png"}
 
     @app.get("/map.png", tags=["memories"], response_class=Response)
@@ -260,7 +260,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         """The occupancy map: unknown grey, free white, explored light blue, occupied black."""
         found = await blocking(service.occupancy_map)
         if found is None:
-            raise NotFound("this memory has no occupancy map (exploration writes one)")
+            raise NotFoundError("this memory has no occupancy map (exploration writes one)")
         return Response(found[0], media_type="image/png", headers={"Cache-Control": "no-cache"})
 
     @app.get("/events", tags=["memories"], response_class=StreamingResponse)

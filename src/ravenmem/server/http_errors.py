@@ -11,9 +11,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
-from ..errors import RavenmemError
+from ..errors import NotFoundError, RavenmemError
 from .live import BusyError
-from .service import NotFound
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +43,8 @@ def add_error_handlers(app: FastAPI, folder: Path) -> None:
     async def user_error(request: Request, exc: RavenmemError) -> JSONResponse:
         return reply(400, private(str(exc)))
 
-    @app.exception_handler(NotFound)
-    async def not_found(request: Request, exc: NotFound) -> JSONResponse:
+    @app.exception_handler(NotFoundError)
+    async def not_found(request: Request, exc: NotFoundError) -> JSONResponse:
         return reply(404, str(exc))
 
     @app.exception_handler(RequestValidationError)

@@ -21,7 +21,8 @@ from mcp.server.lowlevel import Server
 from ..agent.base import METHODS
 from ..agent.presets import PRESETS
 from ..errors import RavenmemError
-from ..tools import MAX_K, TOOLS, Tool, check_k
+from ..memory.protocol import MAX_K, check_k
+from ..tools import TOOLS, Tool
 from ..types import MemoryRecord
 from .images import decode_base64_image
 from .service import MAX_CALLS, Service

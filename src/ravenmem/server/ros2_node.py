@@ -115,10 +115,11 @@ def main(argv: list[str] | None = None) -> None:
     import ravenmem
 
     from ..ingest.keyframes import parse_keyframes
+    from ..memory.folder import is_memory
     from .live import LiveWriter
 
     path = Path(args.memory)
-    mem = ravenmem.open(path) if (path / "memory.json").exists() else ravenmem.create(path)
+    mem = ravenmem.open(path) if is_memory(path) else ravenmem.create(path)
     mem.acquire_writer()
     writer = LiveWriter(mem, parse_keyframes(args.keyframes)).start()
     rclpy.init()

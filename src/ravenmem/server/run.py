@@ -79,15 +79,16 @@ def serve(
     uvicorn = require("uvicorn", "serve")
     import ravenmem
 
+    from ..memory.folder import MANIFEST, is_memory
     from .app import create_app
 
     cfg = cfg or ServiceConfig()
     sock = listen(host, port)
     try:
-        exists = (Path(memory) / "memory.json").exists()
+        exists = is_memory(Path(memory))
         if not exists and create is None:
             if Path(memory).is_dir() and any(Path(memory).iterdir()):
-                raise InputError(f"{memory} is not a memory (no memory.json in it)")
+                raise InputError(f"{memory} is not a memory (no {MANIFEST} in it)")
             raise InputError(f"memory {memory} does not exist (pass --create to start an empty one)")
         if exists:
             mem = ravenmem.open(memory, writable=cfg.writable, wait=wait or False)

@@ -15,7 +15,8 @@ from pydantic import BaseModel, Field, create_model, model_validator
 from starlette.concurrency import run_in_threadpool
 
 from ..errors import InputError
-from ..tools import MAX_K, TOOLS, Tool, ToolArgs
+from ..memory.protocol import MAX_K
+from ..tools import TOOLS, Tool, ToolArgs
 from ..types import MemoryRecord
 from .images import decode_image
 from .service import Service

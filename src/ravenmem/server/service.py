@@ -28,9 +28,11 @@ from ..agent.presets import PRESETS
 from ..agent.schema import Answer
 from ..errors import EmptyMemoryError, InputError
 from ..ingest.keyframes import KeyframeConfig
-from ..manifest import confine
 from ..memory import Memory
-from ..tools import TOOLS, Tool, ToolArgs, check_k, hit_json
+from ..memory.folder import MAP_GRID, MAP_META
+from ..memory.manifest import confine
+from ..memory.protocol import check_k
+from ..tools import TOOLS, Tool, ToolArgs, hit_json
 from ..types import Hit, Intrinsics, MemoryRecord
 from .events import EventBus
 from .live import AddResult, LiveWriter
@@ -109,10 +111,6 @@ def check_calls(calls: object) -> int | None:
 
 
 LIVE_MAP_SAVE_EVERY = 30  # live depth frames between saves of the map (the page and /map read it)
-
-
-class NotFound(InputError):
-    """A memory id that the memory does not hold (HTTP 404)."""
 
 
 class Service:
@@ -196,10 +194,7 @@ class Service:
         return [hit_json(h, i + 1, t0, image_url) for i, h in enumerate(hits)]
 
     def record(self, memory_id: int) -> MemoryRecord:
-        try:
-            return self.mem.get([memory_id])[0]
-        except KeyError:
-            raise NotFound(f"memory {memory_id}: no such memory") from None
+        return self.mem.get([memory_id])[0]  # NotFoundError: HTTP 404
 
     def record_json(self, rec: MemoryRecord, image_url: ImageUrl) -> dict[str, Any]:
         """One memory in the hit shape, without the fields that only a search gives."""
@@ -244,7 +239,7 @@ class Service:
         """The memory's occupancy map (`map.json` + `map.npz`, written by exploration) as a PNG,
         north up, and the rectangle it covers in metres; None when the memory has no map.
         Rendered again only when the map file changes."""
-        files = [confine(self.mem.path, name) for name in ("map.json", "map.npz")]
+        files = [confine(self.mem.path, name) for name in (MAP_META, MAP_GRID)]
         if any(f is None or not f.is_file() for f in files):  # absent, or a link leading out
             return None
         try:
@@ -335,12 +330,7 @@ class Service:
         """The answer as `ravenmem ask --json` gives it, evidence images as URLs (no paths)."""
         data = ans.model_dump(mode="json")
         ids = [ev["id"] for ev in data["evidence"]]
-        recs = {}
-        if ids:
-            try:
-                recs = {r.id: r for r in self.mem.get(ids)}
-            except KeyError:
-                recs = {}
+        recs = {r.id: r for r in self.mem.stored(ids)}  # evidence forgotten since: no picture
         for ev in data["evidence"]:
             ev.pop("image_path", None)
             rec = recs.get(ev["id"])

@@ -1,8 +1,8 @@
-"""Input checks and OCR-text scoring shared by the store backends.
+"""Record columns, input checks and OCR-text scoring shared by the store backends.
 
 Both backends must answer the same test suite, so everything that defines *behaviour* (what
-counts as bad input, how an OCR match is scored) lives here, and the backends only differ in
-how they fetch candidates.
+counts as bad input, how an OCR match is scored, which columns a record is stored as) lives
+here, and the backends only differ in how they fetch candidates.
 """
 
 from __future__ import annotations
@@ -11,14 +11,69 @@ import math
 import re
 import unicodedata
 from collections.abc import Iterable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..errors import EmbedderMismatchError, InputError
-from ..types import Filter, MemoryRecord
+from ..types import Filter, MemoryRecord, Pose
 
 DIM_KEY = "store.dim"
 _WORD = re.compile(r"[^\W_]+")
+
+# A record as columns, in this order: what the SQLite table, the Milvus collection and the
+# import/export files (`files`) hold besides the id and the vector. The quaternion is all four
+# or none (None: the pose has only a yaw).
+RECORD_COLUMNS = (
+    "t",
+    "x",
+    "y",
+    "z",
+    "yaw",
+    "qx",
+    "qy",
+    "qz",
+    "qw",
+    "source",
+    "frame_index",
+    "image_path",
+    "ocr_text",
+)
+QUAT_COLUMNS = RECORD_COLUMNS[5:9]
+
+
+def record_values(r: MemoryRecord) -> tuple[object, ...]:
+    """A record's values in `RECORD_COLUMNS` order."""
+    p = r.pose
+    q = p.quat or (None, None, None, None)
+    return (
+        float(r.t),
+        p.x,
+        p.y,
+        p.z,
+        p.yaw,
+        *q,
+        r.source,
+        int(r.frame_index),
+        r.image_path,
+        r.ocr_text or "",
+    )
+
+
+def record_from(rid: int, values: Sequence[Any], embedding: np.ndarray | None = None) -> MemoryRecord:
+    """The record stored as `values` (in `RECORD_COLUMNS` order; an empty image path is none)."""
+    t, x, y, z, yaw, qx, qy, qz, qw, source, frame_index, image_path, ocr_text = values
+    quat = None if qx is None else (float(qx), float(qy), float(qz), float(qw))
+    return MemoryRecord(
+        id=int(rid),
+        t=float(t),
+        pose=Pose(float(x), float(y), float(z), float(yaw), quat),
+        source=str(source),
+        frame_index=int(frame_index),
+        image_path=str(image_path) if image_path else None,
+        ocr_text=str(ocr_text),
+        embedding=embedding,
+    )
 
 
 Batch = tuple[Sequence[MemoryRecord], np.ndarray]
@@ -54,7 +109,9 @@ def check_dim(where: str, stored: str | None, dim: int) -> None:
         )
 
 
-def check_k(k: int) -> int:
+def check_limit(k: int) -> int:
+    """How many rows a store call may return: any whole number >= 0 (the store serves exports
+    too; the searches' bound is `ravenmem.memory.check_k`)."""
     if not isinstance(k, (int, np.integer)) or isinstance(k, bool) or k < 0:
         raise InputError(f"k: expected a non-negative integer, got {k!r}")
     return int(k)

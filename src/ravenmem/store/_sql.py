@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from ..types import Filter, MemoryRecord, Pose
-from ._common import norm_text
+from ..types import Filter, MemoryRecord
+from ._common import RECORD_COLUMNS, norm_text, record_from, record_values
 
-COLS = "id, t, x, y, z, yaw, qx, qy, qz, qw, source, frame_index, image_path, ocr_text"
+COLS = ", ".join(("id", *RECORD_COLUMNS))  # the `memories` table's columns, as SCHEMA creates them
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS memories (
@@ -94,21 +94,7 @@ def migrate(conn: sqlite3.Connection) -> None:
 
 
 def record_row(rid: int, r: MemoryRecord) -> tuple[object, ...]:
-    p = r.pose
-    q = p.quat or (None, None, None, None)
-    return (
-        rid,
-        float(r.t),
-        p.x,
-        p.y,
-        p.z,
-        p.yaw,
-        *q,
-        r.source,
-        int(r.frame_index),
-        r.image_path,
-        r.ocr_text or "",
-    )
+    return (rid, *record_values(r))
 
 
 def insert(
@@ -123,7 +109,7 @@ def insert(
     conn.execute("BEGIN IMMEDIATE")
     try:
         conn.executemany(
-            f"INSERT INTO memories ({COLS}) VALUES ({', '.join('?' * 14)})",
+            f"INSERT INTO memories ({COLS}) VALUES ({', '.join('?' * (1 + len(RECORD_COLUMNS)))})",
             [record_row(i, r) for i, r in zip(ids, records, strict=True)],
         )
         conn.executemany(
@@ -195,18 +181,7 @@ def fetch_vectors(conn: sqlite3.Connection, ids: Sequence[int] | np.ndarray) -> 
 
 
 def to_record(row: Sequence[Any], emb: bytes | None = None) -> MemoryRecord:
-    rid, t, x, y, z, yaw, qx, qy, qz, qw, source, frame_index, image_path, ocr_text = row
-    quat = None if qx is None else (float(qx), float(qy), float(qz), float(qw))
-    return MemoryRecord(
-        id=int(rid),
-        t=float(t),
-        pose=Pose(float(x), float(y), float(z), float(yaw), quat),
-        source=str(source),
-        frame_index=int(frame_index),
-        image_path=None if image_path is None else str(image_path),
-        ocr_text=str(ocr_text),
-        embedding=None if emb is None else np.frombuffer(emb, np.float32).copy(),
-    )
+    return record_from(row[0], row[1:], None if emb is None else np.frombuffer(emb, np.float32).copy())
 
 
 def where(filt: Filter | None, alias: str = "") -> tuple[str, list[float]]:

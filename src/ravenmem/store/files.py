@@ -29,23 +29,8 @@ import numpy as np
 
 from ..errors import InputError, require
 from ..types import MemoryRecord, Pose
+from ._common import QUAT_COLUMNS, RECORD_COLUMNS
 
-COLUMNS = (
-    "t",
-    "x",
-    "y",
-    "z",
-    "yaw",
-    "qx",
-    "qy",
-    "qz",
-    "qw",
-    "source",
-    "frame_index",
-    "image_path",
-    "ocr_text",
-)
-_QUAT = ("qx", "qy", "qz", "qw")
 Batch = tuple[list[MemoryRecord], np.ndarray]
 
 
@@ -139,7 +124,7 @@ def _column_chunks(path: Path, chunk: int) -> Iterator[dict[str, list[Any]]]:
     if kind == "parquet":
         pq: Any = require("pyarrow.parquet", "eval")
         pf = pq.ParquetFile(path)
-        names = [c for c in pf.schema_arrow.names if c in COLUMNS]
+        names = [c for c in pf.schema_arrow.names if c in RECORD_COLUMNS]
         _need(names, path)
         for batch in pf.iter_batches(batch_size=chunk, columns=names):
             yield {c: batch.column(c).to_pylist() for c in names}
@@ -184,7 +169,7 @@ def _need(names: list[str], path: Path) -> None:
 
 def _columns_of(rows: list[dict[str, Any]]) -> dict[str, list[Any]]:
     present = set().union(*(r.keys() for r in rows)) | {"t", "x", "y"}
-    return {c: [r.get(c) for r in rows] for c in COLUMNS if c in present}
+    return {c: [r.get(c) for r in rows] for c in RECORD_COLUMNS if c in present}
 
 
 def _records(cols: dict[str, list[Any]], m: int, start: int, path: Path) -> list[MemoryRecord]:
@@ -206,7 +191,7 @@ def _records(cols: dict[str, list[Any]], m: int, start: int, path: Path) -> list
         raw = cols[name][i] if name in cols else None
         return None if raw is None else str(raw)
 
-    has_quat = all(q in cols for q in _QUAT)
+    has_quat = all(q in cols for q in QUAT_COLUMNS)
     out = []
     for i in range(m):
         x, y, z = num("x", i), num("y", i), num("z", i, 0.0)

@@ -38,7 +38,7 @@ from ._common import (
     check_dim,
     check_filter,
     check_ids,
-    check_k,
+    check_limit,
     check_point,
     check_query,
     import_key,
@@ -420,7 +420,7 @@ class LocalStore:
         """Top-k (id, cosine). The IVF's 8-bit codes only pick candidates: the best
         `rerank` x k are scored again with their exact vectors from SQLite. `exact=True` is the
         ground truth (a scan of every vector the filter accepts; slow on big stores)."""
-        q, k, filt = check_query(query, self.dim), check_k(k), check_filter(filt)
+        q, k, filt = check_query(query, self.dim), check_limit(k), check_filter(filt)
         with self._lock:
             self._check_open()
             if k == 0 or self._count == 0:
@@ -476,7 +476,7 @@ class LocalStore:
 
     def search_text(self, text: str, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:
         """Top-k (id, score in [0, 1]) over OCR text: FTS5 finds candidates, `ocr_score` ranks."""
-        k, filt = check_k(k), check_filter(filt)
+        k, filt = check_limit(k), check_filter(filt)
         words = query_words(text or "")
         if not words or k == 0:
             return []
@@ -503,7 +503,7 @@ class LocalStore:
 
     def by_time(self, t: float, k: int, filt: Filter | None = None) -> list[MemoryRecord]:
         """The k memories with timestamp >= t, oldest first (ties by id)."""
-        k, filt = check_k(k), check_filter(filt)
+        k, filt = check_limit(k), check_filter(filt)
         if not _finite(t) and t not in (float("inf"), float("-inf")):
             raise InputError(f"t: expected a timestamp in seconds, got {t!r}")
         cond, args = _sql.where(filt)
@@ -527,7 +527,7 @@ class LocalStore:
         filt: Filter | None = None,
     ) -> list[tuple[int, float]]:
         """The k spatially nearest (id, metres), nearest first; planar when z is None."""
-        k, filt = check_k(k), check_filter(filt)
+        k, filt = check_limit(k), check_filter(filt)
         check_point(x, y, z, radius)
         with self._lock:
             self._check_open()

@@ -24,20 +24,24 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, StoreUnavailableError, require
-from ..types import Filter, MemoryRecord, Pose
+from ..types import Filter, MemoryRecord
 from ._common import (
     DIM_KEY,
+    QUAT_COLUMNS,
+    RECORD_COLUMNS,
     check_add,
     check_dim,
     check_filter,
     check_ids,
-    check_k,
+    check_limit,
     check_point,
     check_query,
     import_key,
     norm_text,
     query_words,
     rank_text,
+    record_from,
+    record_values,
     skip_rows,
 )
 from .base import STORES, SourceFrames
@@ -45,23 +49,7 @@ from .base import STORES, SourceFrames
 log = logging.getLogger(__name__)
 
 _MAXQ = 16384  # Milvus' cap on limit (and offset + limit) per query or search
-_FIELDS = [
-    "id",
-    "t",
-    "x",
-    "y",
-    "z",
-    "yaw",
-    "has_quat",
-    "qx",
-    "qy",
-    "qz",
-    "qw",
-    "source",
-    "frame_index",
-    "image_path",
-    "ocr_text",
-]
+_FIELDS = ["id", *RECORD_COLUMNS, "has_quat"]  # what a record is read back from
 _STATE = "store.state"  # JSON: next id and an over-approximation of the time span and extent
 _LIMITS = {"source": 1024, "image_path": 4096, "ocr_text": 16384}
 _INSERT_ROWS = 5000  # rows per insert request: Milvus caps the size of one gRPC message
@@ -317,22 +305,16 @@ class MilvusStore:
         return np.array(sorted(int(r["id"]) for r in rows if _in_region(r, filt)), np.int64)
 
     def _row(self, r: MemoryRecord, e: np.ndarray) -> dict[str, Any]:
-        row: dict[str, Any] = {
-            "v": e.tolist(),
-            "t": float(r.t),
-            "x": r.pose.x,
-            "y": r.pose.y,
-            "z": r.pose.z,
-            "yaw": r.pose.yaw,
-            "has_quat": r.pose.quat is not None,
-            "frame_index": int(r.frame_index),
-            "source": r.source or "",
-            "image_path": r.image_path or "",
-            "ocr_text": r.ocr_text or "",
-            "ocr_norm": norm_text(r.ocr_text or ""),
-            "has_ocr": bool(r.ocr_text),
-        }
-        row.update(zip(("qx", "qy", "qz", "qw"), r.pose.quat or (0.0, 0.0, 0.0, 0.0), strict=True))
+        row: dict[str, Any] = dict(zip(RECORD_COLUMNS, record_values(r), strict=True))
+        row.update(zip(QUAT_COLUMNS, r.pose.quat or (0.0, 0.0, 0.0, 0.0), strict=True))  # no NULLs
+        row.update(
+            v=e.tolist(),
+            has_quat=r.pose.quat is not None,
+            source=r.source or "",
+            image_path=r.image_path or "",
+            ocr_norm=norm_text(r.ocr_text or ""),
+            has_ocr=bool(r.ocr_text),
+        )
         for f, n in _LIMITS.items():
             if len(row[f].encode()) > n:
                 raise InputError(f"record.{f}: longer than the {n} bytes the milvus store keeps")
@@ -343,7 +325,7 @@ class MilvusStore:
         self, query: np.ndarray, k: int, filt: Filter | None = None, exact: bool = False
     ) -> list[tuple[int, float]]:
         """Top-k (id, cosine); a region filter oversamples, then falls back to an exact scan."""
-        q, k, filt = check_query(query, self.dim), check_k(k), check_filter(filt)
+        q, k, filt = check_query(query, self.dim), check_limit(k), check_filter(filt)
         if k == 0:
             return []
         expr = _expr(filt)
@@ -385,7 +367,7 @@ class MilvusStore:
 
     def search_text(self, text: str, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:
         """Top-k (id, score in [0, 1]) over OCR text, scored like the local store."""
-        k, filt = check_k(k), check_filter(filt)
+        k, filt = check_limit(k), check_filter(filt)
         words = query_words(text or "")
         if not words or k == 0:
             return []
@@ -406,7 +388,7 @@ class MilvusStore:
 
     def by_time(self, t: float, k: int, filt: Filter | None = None) -> list[MemoryRecord]:
         """The k memories with timestamp >= t, oldest first: query a growing time window."""
-        k, filt = check_k(k), check_filter(filt)
+        k, filt = check_limit(k), check_filter(filt)
         if not isinstance(t, (int, float, np.floating)) or math.isnan(t):
             raise InputError(f"t: expected a timestamp in seconds, got {t!r}")
         with self._lock:
@@ -439,7 +421,7 @@ class MilvusStore:
         filt: Filter | None = None,
     ) -> list[tuple[int, float]]:
         """The k nearest (id, metres): query a growing box, exact distances in Python."""
-        k, filt = check_k(k), check_filter(filt)
+        k, filt = check_limit(k), check_filter(filt)
         check_point(x, y, z, radius)
         with self._lock:
             self._check_open()
@@ -506,18 +488,8 @@ class MilvusStore:
 
     @staticmethod
     def _record(r: dict[str, Any]) -> MemoryRecord:
-        quat = (r["qx"], r["qy"], r["qz"], r["qw"]) if r["has_quat"] else None
-        emb = np.asarray(r["v"], np.float32) if "v" in r else None
-        return MemoryRecord(
-            id=int(r["id"]),
-            t=float(r["t"]),
-            pose=Pose(r["x"], r["y"], r["z"], r["yaw"], quat),
-            source=r["source"],
-            frame_index=int(r["frame_index"]),
-            image_path=r["image_path"] or None,
-            ocr_text=r["ocr_text"],
-            embedding=emb,
-        )
+        values = [None if c in QUAT_COLUMNS and not r["has_quat"] else r[c] for c in RECORD_COLUMNS]
+        return record_from(r["id"], values, np.asarray(r["v"], np.float32) if "v" in r else None)
 
     def count(self) -> int:
         with self._lock:

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from ..errors import InputError
+from ..errors import InputError, NotFoundError
 from ..fsio import atomic_open
 from ..timeparse import fmt_time
 
@@ -242,7 +242,7 @@ def answer_sheet(mem: Any, answer: dict[str, Any], out: str | Path) -> SheetLayo
     ev = list(answer.get("evidence") or [])
     try:
         recs = {r.id: r for r in mem.get([e["id"] for e in ev])} if ev else {}
-    except KeyError:  # evidence naming a memory that is gone: drawn without its picture
+    except NotFoundError:  # evidence naming a memory that is gone: drawn without its picture
         recs = {}
     t0 = mem.time_span()[0] if mem.count() else None
 

@@ -13,13 +13,21 @@ Frame i of a video is at in-game time 06:00 + i / 4.168 minutes (the benchmark r
 frames per in-game minute); memories get that time of day on 2000-01-01 UTC, so questions that
 name in-game times ("between 08:00 and 10:00") resolve against the memory's own clock. Videos
 carry no poses: frames are stored at the origin and only frame answers are scored.
-Multi-goal answers are scored in order (goal j against the j-th predicted frame).
+
+Questions get the normalisations the RAVEN release applies before asking: the "The robot's goal
+is: " prefix is dropped and clock times written H:MM become HH:MM:SS. Multi-goal answers are
+several times, one per goal in order (the release's scorer splits its answer's time on spaces):
+the methods that ask a model are told to list every goal's time as "Goal times: HH:MM:SS
+HH:MM:SS" (`INSTRUCTIONS`), and each goal is scored against its own accepted frames, in order
+(the scorer's rule: a goal is right when its time, rounded to the nearest frame, is one of them;
+all goals right for the answer to be right; `[[-1]]` right only when nothing is found).
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -33,6 +41,20 @@ from .frames import BASE_DAY, VideoSource, natural_key, video_frame_count
 FRAMES_PER_MINUTE = 4.168
 START_S = 6 * 3600.0  # 06:00 in-game
 TIME_RULE = f"frame i at in-game time 06:00 + i / {FRAMES_PER_MINUTE} min (frame = round((t - 06:00) x {FRAMES_PER_MINUTE}/min))"
+GOAL_PREFIX = "The robot's goal is: "
+_CLOCK = re.compile(r"(?<![\d:])([01]?\d|2[0-3]):([0-5]\d)(?![\d:])")  # H:MM, not HH:MM:SS
+INSTRUCTIONS = (
+    "Answer with the time of each goal the instruction names, in the order it names them: end your "
+    'answer text with "Goal times: HH:MM:SS HH:MM:SS ..." (one time for a single goal), and put '
+    'the first goal\'s time in "time".'
+)
+
+
+def normalise_question(text: str) -> str:
+    """The release's question normalisations: no "The robot's goal is: " prefix, and H:MM clock
+    times as HH:MM:00."""
+    text = text.replace(GOAL_PREFIX, "")
+    return _CLOCK.sub(lambda m: f"{int(m.group(1)):02d}:{int(m.group(2)):02d}:00", text).strip()
 
 
 def frame_time(i: int) -> float:
@@ -132,9 +154,10 @@ def load(path: str, split: str = "validation", **_: Any) -> list[Episode]:
             qs.append(
                 Question(
                     id=qid,
-                    text=str(row["question"]).strip(),
+                    text=normalise_question(str(row["question"])),
                     type="frame",
                     truth=truth,
+                    instructions=INSTRUCTIONS,
                     category=str(row.get("high_level_category") or "").lower(),
                     horizon=horizon_of(times[-1] - times[0] if n_frames > 1 else None),
                     meta={

@@ -1,25 +1,44 @@
-"""NaVQA (ReMEmbR's benchmark over CODa): `data.csv`, per-sequence `human_qa.json`, and frames.
+"""NaVQA (ReMEmbR's benchmark over CODa) in the layouts its two releases use, and ours.
 
-Layout (`navqa:PATH`):
+Layouts (`navqa:PATH`; PATH is the repository root or its data folder):
 
-    PATH/data.csv                          UUID, Seq ID, Question, Timestamp with answer, Type
-                                           (binary/position/time/text/duration), Text answer,
-                                           Parsable answer, Question Category
-    PATH/questions/<seq>/human_qa.json     (or PATH/<seq>/human_qa.json) {"data": [{id, length_category,
-                                           start_time, end_time, question, type, answers: {position |
-                                           time (minutes ago) | duration (minutes) | text: [...]}}]}
-    frames, from your CODa conversion, either
-    PATH/coda_data/<seq>/<unix time>.pkl   ReMEmbR's conversion: dict with cam0 (BGR image), position
-                                           [x, y, z], rotation [qx, qy, qz, qw], timestamp
-    PATH/frames/<seq>/poses.csv            ours: header with file,t,x,y,z[,qx,qy,qz,qw] (files relative
-                                           to that folder), the CSV the folder source reads
+    RAVEN release (github.com/princeton-prism/RAVEN; PATH = the repository or its data_vlm/):
+      data_vlm/questions/<seq>/human_qa.json   the questions with their answers, per sequence
+      data_vlm/navqa/data.csv                  the question table (clock times in UTC-5)
+      data_vlm/navqa/<seq>/qa_unfilled.json    the clips (start_time..end_time per question)
+      coda_data/<seq>/<unix time>.pkl          frames, at the repository root
+    ReMEmbR release (github.com/NVIDIA-AI-IOT/remembr; PATH = the repository, its remembr/ or data/):
+      remembr/data/navqa/data.csv              the question table (clock times in UTC-8)
+      remembr/data/navqa/<seq>/qa_unfilled.json the clips, about 30 per sequence, one per question
+      remembr/data/questions/<seq>/human_qa.json  when its form_question_jsons script was run
+      remembr/coda_data/<seq>/<unix time>.pkl  frames
+    ours: PATH/data.csv, PATH/questions/<seq>/human_qa.json (or PATH/<seq>/human_qa.json),
+      frames in PATH/coda_data/<seq>/*.pkl or PATH/frames/<seq>/poses.csv (file,t,x,y,z[,qx,qy,qz,qw])
 
-With `human_qa.json`, every question gets a memory of its own clip (start_time..end_time of
-the sequence) and its answers from there; `data.csv` adds categories. With `data.csv` alone,
-the memory is the whole sequence and answers come from the "Timestamp with answer" column
-(local time in `tz`, America/Chicago for CODa): positions are the pose at that time, times
-that instant, durations the parsable minutes. Pickles are read with an unpickler that only
-builds numpy arrays, so a tampered file cannot run code.
+data.csv: UUID, Seq ID, Question, Timestamp with answer (H:MM:SS, or two for a duration), Type
+(binary / position / time / text / duration), Text answer, Parsable answer, Question Category
+(matched by name, multi-line headers allowed). human_qa.json: {"data": [{id, length_category,
+start_time, end_time, question, type, answers: {position | time (minutes before end_time) |
+duration (minutes) | text: [...]}}]}. qa_unfilled.json: the same items without question and
+answers. A CODa frame pickle holds cam0 (BGR image), position, rotation (quaternion) and
+timestamp; it is read with an unpickler that only builds numpy arrays (a tampered file cannot
+run code).
+
+Episodes: every clip is an episode with a memory of its own window. With human_qa.json the
+answers come from it (as the release scorer reads them). With qa_unfilled.json and data.csv (the
+ReMEmbR release as shipped) the answers come from data.csv: positions are the sequence's pose at
+the timestamp, times that instant, durations the parsable minutes, yes/no the parsable answer.
+With data.csv alone a sequence is one episode.
+
+Clock times: data.csv's timestamps are local clock times, and each release wrote them in its own
+zone: the RAVEN release in UTC-5 (its human_qa.json texts say "You started moving at 10:55:32"
+for start_time 15:55:32 UTC), ReMEmbR's in UTC-8 (the same instant reads 7:59:00 there and
+10:59:00 in RAVEN's). The zone comes from `tz` when given, else from the release the layout
+identifies, else from the offset written in human_qa.json's texts; a layout that says neither
+needs `tz`. Every truth time must fall inside its episode's recording (within `MARGIN_S`): one
+that does not is a named truth error in the report (with the offsets that would fit), never moved
+to the nearest frame. A data.csv naming sequences whose frames are missing loads those present
+and says which are missing and how many questions that leaves out.
 """
 
 from __future__ import annotations
@@ -28,12 +47,13 @@ import csv
 import io
 import json
 import pickle
+import re
 from collections.abc import Callable
-from dataclasses import dataclass
-from datetime import datetime
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta, timezone, tzinfo
 from pathlib import Path
 from typing import Any, cast
-from zoneinfo import ZoneInfo
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import numpy as np
 
@@ -44,8 +64,10 @@ from ..types import Episode, EvalType, Question, Truth, horizon_of
 from . import DATASETS
 from .frames import FrameRef, RefSource, natural_key
 
-POS_THRESHOLD = 15.0  # metres, NaVQA's position criterion
+POS_THRESHOLD = 15.0  # metres, NaVQA's position criterion (the paper's accuracy conversion)
+MARGIN_S = 3.0  # a truth this close outside its recording still counts as inside (the releases' 3 s captions)
 TYPES = ("binary", "position", "time", "text", "duration")
+TIMED = ("position", "time", "duration")  # truths that are clock times (checked against the recording)
 _COLS = {
     "category": "category",
     "uuid": "uuid",
@@ -56,6 +78,114 @@ _COLS = {
     "parsable": "parsable",
     "question": "question",
 }  # first match wins, in order
+_STARTED = re.compile(r"You started moving at (\d{4}-\d{2}-\d{2} \d{1,2}:\d{2}:\d{2})")
+
+
+@dataclass(frozen=True)
+class Release:
+    """A published NaVQA release and the zone its data.csv clock times are written in."""
+
+    name: str
+    offset_h: int
+    about: str
+
+    @property
+    def zone(self) -> tzinfo:
+        return timezone(timedelta(hours=self.offset_h))
+
+
+RELEASES = {
+    "raven": Release("raven", -5, "the RAVEN release (its human_qa.json texts are UTC-5)"),
+    "remembr": Release("remembr", -8, "the ReMEmbR release (written on a UTC-8 clock)"),
+}
+
+
+@dataclass
+class Layout:
+    """Where one NaVQA copy keeps its files, and which release it is ("" when unknown)."""
+
+    release: str
+    data: Path
+    frame_roots: list[Path]
+    what: str
+
+    @property
+    def csv(self) -> Path | None:
+        for cand in (self.data / "navqa" / "data.csv", self.data / "data.csv"):
+            if cand.exists():
+                return cand
+        return None
+
+    def human_qa(self, seq: str) -> Path | None:
+        for cand in (
+            self.data / "questions" / seq / "human_qa.json",
+            self.data / seq / "human_qa.json",
+            self.data / "human_qa" / f"{seq}.json",
+        ):
+            if cand.exists():
+                return cand
+        return None
+
+    def clips(self, seq: str) -> Path | None:
+        cand = self.data / "navqa" / seq / "qa_unfilled.json"
+        return cand if cand.exists() else None
+
+    def sequences(self) -> set[str]:
+        found = {p.parent.name for p in self.data.glob("questions/*/human_qa.json")}
+        found |= {p.parent.name for p in self.data.glob("*/human_qa.json")}
+        found |= {p.parent.name for p in self.data.glob("navqa/*/qa_unfilled.json")}
+        return found
+
+
+def _release_of(repo: Path) -> str:
+    if (repo / "data_vlm").is_dir() or (repo / "raven").is_dir() or (repo / "raven_qa_run.py").exists():
+        return "raven"
+    if repo.name == "remembr" or (repo / "remembr" / "data").is_dir():
+        return "remembr"
+    return ""
+
+
+def find_layout(root: Path) -> Layout:
+    """Which layout (and release) a NaVQA path is (see the module docstring)."""
+    if (root / "data_vlm").is_dir():
+        return Layout("raven", root / "data_vlm", [root], "RAVEN repository (data_vlm/)")
+    if root.name == "data_vlm":
+        return Layout("raven", root, [root.parent, root], "RAVEN repository's data_vlm/")
+    if (root / "remembr" / "data" / "navqa").is_dir():
+        pkg = root / "remembr"
+        return Layout("remembr", pkg / "data", [pkg, root], "ReMEmbR repository (remembr/data/)")
+    if (root / "data" / "navqa").is_dir():
+        rel = _release_of(root)
+        return Layout(rel, root / "data", [root], f"{RELEASES[rel].name if rel else 'a'} repository (data/)")
+    if (root / "navqa").is_dir():
+        rel = _release_of(root.parent)
+        return Layout(rel, root, [root.parent, root], f"a repository's data folder ({root.name}/)")
+    return Layout("", root, [root], "flat (data.csv, questions/<seq>/human_qa.json)")
+
+
+def parse_zone(text: str) -> tzinfo:
+    """'UTC-5', 'UTC+05:30', '-05:00' or an IANA name such as America/Chicago."""
+    m = re.fullmatch(r"\s*(?:UTC|GMT)?\s*([+-])(\d{1,2})(?::?(\d{2}))?\s*", text, re.I)
+    if m:
+        sign = -1 if m.group(1) == "-" else 1
+        return timezone(sign * timedelta(hours=int(m.group(2)), minutes=int(m.group(3) or 0)))
+    if text.strip().upper() in ("UTC", "GMT", "Z"):
+        return timezone.utc
+    try:
+        return ZoneInfo(text.strip())
+    except (ZoneInfoNotFoundError, ValueError) as e:
+        raise InputError(
+            f"--tz: unknown time zone {text!r} (give e.g. UTC-5 or America/Chicago) ({e})"
+        ) from e
+
+
+def zone_label(zone: tzinfo) -> str:
+    if isinstance(zone, ZoneInfo):
+        return zone.key
+    off = zone.utcoffset(None)
+    assert off is not None
+    hours, rest = divmod(int(off.total_seconds()), 3600)
+    return "UTC" if not off else f"UTC{hours:+d}" + (f":{abs(rest) // 60:02d}" if rest else "")
 
 
 class _NumpyOnly(pickle.Unpickler):
@@ -109,47 +239,61 @@ class SeqFrames:
     def times(self) -> np.ndarray:
         return np.asarray([r.t for r in self.refs])
 
+    @property
+    def span(self) -> tuple[float, float]:
+        return self.refs[0].t, self.refs[-1].t
+
     def window(self, t0: float, t1: float) -> list[FrameRef]:
         return [r for r in self.refs if t0 <= r.t <= t1]
 
-    def pose_at(self, t: float) -> Pose:
+    def pose_at(self, t: float) -> Pose | None:
+        """The pose of the frame nearest in time to t; None when t is outside the sequence
+        (beyond MARGIN_S): a truth there has no position, it is never given the last one."""
+        lo, hi = self.span
+        if not lo - MARGIN_S <= t <= hi + MARGIN_S:
+            return None
         ts = self.times
         i = int(np.clip(np.searchsorted(ts, t), 0, len(ts) - 1))
         if i > 0 and abs(ts[i - 1] - t) < abs(ts[i] - t):
             i -= 1
-        pose = self.refs[i].pose
-        assert pose is not None
-        return pose
+        return self.refs[i].pose
 
 
-def load_frames(root: Path, seq: str) -> SeqFrames:
-    csv_path = root / "frames" / seq / "poses.csv"
+def frames_folder(roots: list[Path], seq: str) -> Path | None:
+    """Where a sequence's frames are: frames/<seq>/poses.csv or coda_data/<seq>/*.pkl."""
+    for root in roots:
+        if (root / "frames" / seq / "poses.csv").exists():
+            return root / "frames" / seq
+        pdir = root / "coda_data" / seq
+        if pdir.is_dir() and any(pdir.glob("*.pkl")):
+            return pdir
+    return None
+
+
+def load_frames(folder: Path) -> SeqFrames:
+    """A sequence's frames from its frames/<seq>/poses.csv or coda_data/<seq>/*.pkl folder."""
+    csv_path = folder / "poses.csv"
+    refs = []
     if csv_path.exists():
         table = read_pose_table(csv_path)
         if table.files is None or table.t is None:
             raise InputError(f"{csv_path}: needs a header with file and t columns")
-        refs = []
         for i in range(len(table)):
             q = table.quat[i] if table.quat is not None else None
             x, y, z = (float(v) for v in table.xyz[i])
             pose = Pose.from_quaternion(x, y, z, *map(float, q)) if q is not None else Pose(x, y, z)
-            refs.append(FrameRef(t=float(table.t[i]), pose=pose, path=csv_path.parent / table.files[i]))
-        refs.sort(key=lambda r: r.t)
+            refs.append(FrameRef(t=float(table.t[i]), pose=pose, path=folder / table.files[i]))
     else:
-        pdir = root / "coda_data" / seq
-        pkls = sorted(pdir.glob("*.pkl"), key=lambda p: natural_key(p.stem)) if pdir.is_dir() else []
-        if not pkls:
-            raise InputError(f"sequence {seq}: no frames (expected {csv_path} or {pdir}/*.pkl)")
-        refs = []
-        for p in pkls:
+        for p in sorted(folder.glob("*.pkl"), key=lambda p: natural_key(p.stem)):
             d = read_coda_pickle(p)
             pos = [float(v) for v in np.asarray(d["position"]).ravel()[:3]]
             rot = np.asarray(d.get("rotation", []), dtype=float).ravel()
             x, y, z = (pos + [0.0, 0.0, 0.0])[:3]
             pose = Pose.from_quaternion(x, y, z, *map(float, rot[:4])) if rot.size == 4 else Pose(x, y, z)
-            t = float(d.get("timestamp", p.stem))
-            refs.append(FrameRef(t=t, pose=pose, load=_loader(p)))
-        refs.sort(key=lambda r: r.t)
+            refs.append(FrameRef(t=float(d.get("timestamp", p.stem)), pose=pose, load=_loader(p)))
+    if not refs:
+        raise InputError(f"{folder}: no frames")
+    refs.sort(key=lambda r: r.t)
     for i, r in enumerate(refs):
         r.index = i
     return SeqFrames(refs)
@@ -186,17 +330,54 @@ def read_data_csv(path: Path) -> list[dict[str, str]]:
     return rows
 
 
-def _hms_times(stamp: str, day_of: float, tz: ZoneInfo, where: str) -> list[float]:
-    """'7:59:00' or '07:56:38,07:59:00' (local time on the sequence's day) -> Unix seconds."""
-    day = datetime.fromtimestamp(day_of, tz).date()
+def _hms_times(stamp: str, day_of: float, zone: tzinfo, where: str) -> list[float]:
+    """'7:59:00' or '07:56:38,07:59:00' (clock times on the recording's day in `zone`) -> Unix s."""
+    day = datetime.fromtimestamp(day_of, zone).date()
     out = []
-    for part in stamp.split(","):
+    for part in (p for p in stamp.split(",") if p.strip()):
         try:
             hms = datetime.strptime(part.strip(), "%H:%M:%S").time()
         except ValueError:
             raise InputError(f"{where}: timestamp {part.strip()!r} is not H:MM:SS") from None
-        out.append(datetime.combine(day, hms, tzinfo=tz).timestamp())
+        out.append(datetime.combine(day, hms, tzinfo=zone).timestamp())
     return out
+
+
+def _clock(t: float, zone: tzinfo) -> str:
+    return datetime.fromtimestamp(t, zone).strftime("%H:%M:%S")
+
+
+def fitting_offsets(times: list[float], t0: float, t1: float, offset_h: float) -> list[int]:
+    """Whole-hour UTC offsets under which these clock times (read at `offset_h`) would all fall
+    inside [t0, t1]: re-reading a clock time at offset o moves it by (offset_h - o) hours."""
+    out = []
+    for o in range(-12, 15):
+        shift = (offset_h - o) * 3600.0
+        if all(t0 - MARGIN_S <= t + shift <= t1 + MARGIN_S for t in times):
+            out.append(o)
+    return out
+
+
+def check_inside(times: list[float], t0: float, t1: float, zone: tzinfo, read_as_clock: bool) -> str | None:
+    """None when every truth time is inside the recording [t0, t1] (within MARGIN_S), else the
+    error: which time, how far outside, and (for clock times) which UTC offsets would fit."""
+    outside = [t for t in times if not t0 - MARGIN_S <= t <= t1 + MARGIN_S]
+    if not outside:
+        return None
+    t = outside[0]
+    side = f"{t - t1:.0f} s after it ends" if t > t1 else f"{t0 - t:.0f} s before it starts"
+    msg = (
+        f"truth time {_clock(t, zone)} ({zone_label(zone)}) is {side} "
+        f"(recording {_clock(t0, zone)}-{_clock(t1, zone)})"
+    )
+    if read_as_clock:
+        off = zone.utcoffset(datetime.fromtimestamp(t, zone))
+        offset_h = off.total_seconds() / 3600.0 if off is not None else 0.0
+        fits = fitting_offsets(times, t0, t1, offset_h)
+        msg += "; " + (
+            f"{', '.join(f'UTC{o:+d}' for o in fits)} would fit" if fits else "no whole-hour offset fits"
+        )
+    return msg
 
 
 def _horizon(qid: str, length_category: str | None) -> str:
@@ -211,12 +392,22 @@ def _yes(text: str) -> bool | None:
     return True if w.startswith("yes") else False if w.startswith("no") else None
 
 
-def _truth_from_csv(row: dict[str, str], frames: SeqFrames, tz: ZoneInfo, where: str) -> Truth:
+@dataclass
+class _Csv:
+    """A data.csv row's truth, read in the episode's zone from the sequence's frames."""
+
+    truth: Truth
+    stamps: list[float] = field(default_factory=list)
+
+
+def _truth_from_csv(row: dict[str, str], frames: SeqFrames, zone: tzinfo, where: str) -> _Csv:
     qtype = row["type"].lower()
     truth = Truth()
-    stamps = _hms_times(row["stamp"], float(frames.refs[0].t), tz, where) if row.get("stamp") else []
+    stamps = _hms_times(row["stamp"], frames.span[0], zone, where) if row.get("stamp") else []
+    out = _Csv(truth, stamps if qtype in TIMED else [])
     if qtype == "position" and stamps:
-        truth.positions = [list(frames.pose_at(t).xyz) for t in stamps]
+        poses = [frames.pose_at(t) for t in stamps]
+        truth.positions = [list(p.xyz) for p in poses if p is not None]
     elif qtype == "time" and stamps:
         truth.times = stamps
     elif qtype == "duration":
@@ -229,10 +420,10 @@ def _truth_from_csv(row: dict[str, str], frames: SeqFrames, tz: ZoneInfo, where:
         truth.yes = _yes(row.get("parsable", "") or row.get("text", ""))
     if row.get("text"):
         truth.text = [row["text"]]
-    return truth
+    return out
 
 
-def _truth_from_json(item: dict[str, Any], where: str) -> Truth:
+def _truth_from_json(item: dict[str, Any]) -> Truth:
     ans = item.get("answers") or {}
     qtype = str(item.get("type", "")).lower()
     truth = Truth(
@@ -265,120 +456,282 @@ def _scorable(qtype: str, t: Truth) -> bool:
     }.get(qtype, False)
 
 
-def _find_human_qa(root: Path, seq: str) -> Path | None:
-    for cand in (
-        root / "questions" / seq / "human_qa.json",
-        root / seq / "human_qa.json",
-        root / "human_qa" / f"{seq}.json",
-    ):
-        if cand.exists():
-            return cand
-    return None
-
-
 def _context(q: str, pose: Pose) -> str:
     return f"You are now at position [{pose.x:.2f}, {pose.y:.2f}, {pose.z:.2f}] (metres, map frame). {q}"
 
 
-def load(path: str, tz: str = "America/Chicago", context: bool = True, **_: Any) -> list[Episode]:
-    """NaVQA episodes: one per question clip with human_qa.json, else one per sequence."""
+def _read_items(path: Path, what: str) -> list[dict[str, Any]]:
+    try:
+        items = json.loads(path.read_text(encoding="utf-8"))["data"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"{path}: not a {what} ({e})") from e
+    if not isinstance(items, list):
+        raise InputError(f"{path}: 'data' must be a list")
+    return items
+
+
+def text_offset(items: list[dict[str, Any]]) -> int | None:
+    """The UTC offset (hours) human_qa.json's texts are written in: 'You started moving at
+    <clock time>' beside the item's start_time (Unix s). None when the texts do not say."""
+    for item in items:
+        m = _STARTED.search(str(item.get("question", "")))
+        if m and isinstance(item.get("start_time"), (int, float)):
+            local = datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S").replace(tzinfo=timezone.utc)
+            return round((local.timestamp() - float(item["start_time"])) / 3600.0)
+    return None
+
+
+@dataclass
+class _Clip:
+    """One question's clip: its window and what the question is, before the episode is made."""
+
+    qid: str
+    t0: float
+    t1: float
+    length: str | None
+    text: str
+    qtype: str
+    truth: Truth
+    category: str
+    stamps: list[float]
+    clock: bool  # the truth's times are data.csv clock times (read in a zone)
+
+
+@dataclass
+class _Ctx:
+    root: Path
+    layout: Layout
+    zone: tzinfo | None
+    zone_why: str
+    by_uuid: dict[str, list[dict[str, str]]]
+    context: bool
+    notes: list[str]
+
+    @property
+    def csv_path(self) -> Path:
+        return self.layout.csv or self.root / "data.csv"
+
+    def need_zone(self, what: str) -> tzinfo:
+        if self.zone is None:
+            raise InputError(
+                f"{what} holds clock times, and this layout ({self.layout.what}) does not say "
+                "which release wrote them: give --tz (UTC-5 for the RAVEN release, UTC-8 for ReMEmbR's)"
+            )
+        return self.zone
+
+
+def load(path: str, tz: str | None = None, context: bool = True, **_: Any) -> list[Episode]:
+    """NaVQA episodes: one per question clip (human_qa.json or qa_unfilled.json), else one per
+    sequence (see the module docstring for layouts, time zones and checks)."""
     root = Path(path)
     if not root.is_dir():
         raise InputError(f"NaVQA folder {root} does not exist")
-    try:
-        zone = ZoneInfo(tz)
-    except (KeyError, ValueError) as e:
-        raise InputError(f"unknown time zone {tz!r} ({e})") from e
-    csv_rows = read_data_csv(root / "data.csv") if (root / "data.csv").exists() else []
-    by_uuid = {r["uuid"]: r for r in csv_rows}
-    seqs = sorted(
-        {r["seq"] for r in csv_rows}
-        | {p.parent.name for p in root.glob("questions/*/human_qa.json")}
-        | {p.parent.name for p in root.glob("*/human_qa.json")},
-        key=natural_key,
-    )
+    layout = find_layout(root)
+    csv_rows = read_data_csv(layout.csv) if layout.csv else []
+    by_uuid: dict[str, list[dict[str, str]]] = {}
+    for r in csv_rows:
+        by_uuid.setdefault(r["uuid"], []).append(r)
+    seqs = sorted({r["seq"] for r in csv_rows} | layout.sequences(), key=natural_key)
     if not seqs:
-        raise InputError(f"{root}: no data.csv and no questions/<seq>/human_qa.json (NaVQA layout)")
+        raise InputError(
+            f"{root}: no data.csv and no questions/<seq>/human_qa.json (NaVQA layouts: the RAVEN or "
+            "ReMEmbR repository, its data folder, or data.csv + questions/<seq>/human_qa.json)"
+        )
+    zone, why = _zone(tz, layout, seqs)
+    ctx = _Ctx(root, layout, zone, why, by_uuid, context, [])
+    _cross_check(ctx, seqs)
     episodes: list[Episode] = []
+    missing: list[str] = []
+    dropped = 0
     for seq in seqs:
-        frames = load_frames(root, seq)
-        hq = _find_human_qa(root, seq)
-        if hq is not None:
-            episodes += _clip_episodes(root, seq, hq, frames, by_uuid, context)
-        else:
-            episodes.append(
-                _sequence_episode(root, seq, frames, [r for r in csv_rows if r["seq"] == seq], zone, context)
-            )
+        folder = frames_folder(layout.frame_roots, seq)
+        if folder is None:
+            missing.append(seq)
+            dropped += _question_count(ctx, seq, csv_rows)
+            continue
+        episodes += _sequence(ctx, seq, load_frames(folder), [r for r in csv_rows if r["seq"] == seq])
+    if missing:
+        where = " or ".join(f"{r}/coda_data/<seq>/" for r in layout.frame_roots)
+        ctx.notes.append(
+            f"sequence(s) {', '.join(missing)} have no frames ({where} or frames/<seq>/poses.csv): "
+            f"their {dropped} question(s) are left out"
+        )
+    if not episodes:
+        raise InputError(f"{root}: no sequence has frames ({ctx.notes[-1] if ctx.notes else 'none found'})")
+    label = zone_label(zone) if zone is not None else "not needed (no data.csv clock time is read)"
+    for ep in episodes:
+        ep.meta["zone"] = f"NaVQA data.csv clock times: {label} ({why})"
+        ep.meta["time_rule"] = (
+            f"NaVQA ({layout.what}): data.csv clock times read in {label} ({why}); a truth outside its "
+            f"recording (more than {MARGIN_S:g} s) is a truth error, never moved to a frame"
+        )
+        ep.meta["notes"] = list(ctx.notes)
     return episodes
 
 
-def _clip_episodes(
-    root: Path, seq: str, hq: Path, frames: SeqFrames, by_uuid: dict[str, dict[str, str]], context: bool
-) -> list[Episode]:
-    try:
-        items = json.loads(hq.read_text(encoding="utf-8"))["data"]
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
-        raise InputError(f"{hq}: not a human_qa.json ({e})") from e
-    clips: dict[tuple[float, float], list[Question]] = {}
-    for n, item in enumerate(items):
+def _zone(tz: str | None, layout: Layout, seqs: list[str]) -> tuple[tzinfo | None, str]:
+    """The zone data.csv is read in, and why (see the module docstring)."""
+    if tz:
+        return parse_zone(tz), "--tz"
+    if layout.release:
+        rel = RELEASES[layout.release]
+        return rel.zone, f"{rel.about}; layout: {layout.what}"
+    for seq in seqs:
+        hq = layout.human_qa(seq)
+        if hq is not None:
+            off = text_offset(_read_items(hq, "human_qa.json"))
+            if off is not None:
+                return timezone(timedelta(hours=off)), f"the offset {hq.name}'s question texts are written in"
+    return None, ""
+
+
+def _cross_check(ctx: _Ctx, seqs: list[str]) -> None:
+    """Note when human_qa.json's texts are written in another offset than data.csv is read in."""
+    if ctx.zone is None:
+        return
+    for seq in seqs:
+        hq = ctx.layout.human_qa(seq)
+        off = text_offset(_read_items(hq, "human_qa.json")) if hq is not None else None
+        if off is None:
+            continue
+        start = _read_items(hq, "human_qa.json")[0].get("start_time", 0.0) if hq else 0.0
+        have = ctx.zone.utcoffset(datetime.fromtimestamp(float(start), timezone.utc))
+        if have is not None and round(have.total_seconds() / 3600) != off:
+            ctx.notes.append(
+                f"{hq}: its question texts are written in UTC{off:+d}, data.csv is read in {zone_label(ctx.zone)}"
+            )
+        return
+
+
+def _question_count(ctx: _Ctx, seq: str, csv_rows: list[dict[str, str]]) -> int:
+    hq = ctx.layout.human_qa(seq)
+    if hq is not None:
+        return len(_read_items(hq, "human_qa.json"))
+    return sum(1 for r in csv_rows if r["seq"] == seq)
+
+
+def _sequence(ctx: _Ctx, seq: str, frames: SeqFrames, rows: list[dict[str, str]]) -> list[Episode]:
+    hq = ctx.layout.human_qa(seq)
+    if hq is not None:
+        return _clip_episodes(ctx, seq, frames, _clips_from_human_qa(ctx, hq))
+    unfilled = ctx.layout.clips(seq)
+    if unfilled is not None:
+        return _clip_episodes(ctx, seq, frames, _clips_from_unfilled(ctx, unfilled, frames))
+    return [_sequence_episode(ctx, seq, frames, rows)]
+
+
+def _check_type(qtype: str, where: str) -> None:
+    if qtype not in TYPES:
+        raise InputError(f"{where}: type {qtype!r} is not one of {', '.join(TYPES)}")
+
+
+def _clips_from_human_qa(ctx: _Ctx, hq: Path) -> list[_Clip]:
+    out = []
+    for n, item in enumerate(_read_items(hq, "human_qa.json")):
         where = f"{hq} item {n}"
         try:
             qid, t0, t1 = str(item["id"]), float(item["start_time"]), float(item["end_time"])
             qtype = str(item["type"]).lower()
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{where}: missing or bad field {e}") from e
-        if qtype not in TYPES:
-            raise InputError(f"{where}: type {qtype!r} is not one of {', '.join(TYPES)}")
-        truth = _truth_from_json(item, where)
-        row = by_uuid.get(qid, {})
+        _check_type(qtype, where)
+        truth = _truth_from_json(item)
+        row = (ctx.by_uuid.get(qid) or [{}])[0]
         text = row.get("question") or str(item.get("question", "")).split("\n")[-1].strip()
-        clip = frames.window(t0, t1)
-        if not clip:
-            raise InputError(f"{where}: no frames of sequence {seq} between {t0} and {t1}")
-        if context and clip[-1].pose is not None:
-            text = _context(text, clip[-1].pose)
-        q = Question(
-            id=qid,
-            text=text,
-            type=cast(EvalType, qtype),
-            truth=truth,
-            category=row.get("category", "").lower(),
-            horizon=_horizon(qid, item.get("length_category")),
-            meta={} if _scorable(qtype, truth) else {"unscorable": "no parsable ground truth"},
+        out.append(
+            _Clip(
+                qid,
+                t0,
+                t1,
+                item.get("length_category"),
+                text,
+                qtype,
+                truth,
+                row.get("category", ""),
+                list(truth.times),
+                False,
+            )
         )
-        clips.setdefault((t0, t1), []).append(q)
-    out = []
-    for (t0, t1), qs in sorted(clips.items()):
-        refs = frames.window(t0, t1)
-        name = f"navqa/{seq}@{t0:.3f}-{t1:.3f}"
-        out.append(_episode(root, name, f"{seq}:{t0:.3f}:{t1:.3f}", refs, qs))
     return out
 
 
-def _sequence_episode(
-    root: Path, seq: str, frames: SeqFrames, rows: list[dict[str, str]], zone: ZoneInfo, context: bool
-) -> Episode:
+def _clip_from_row(
+    ctx: _Ctx, row: dict[str, str], frames: SeqFrames, window: tuple[float, float], length: str | None
+) -> _Clip:
+    """A data.csv question over a window of the sequence, its truth read in the episode's zone."""
+    where = f"{ctx.csv_path} line {row['line']}"
+    qtype = row["type"].lower()
+    _check_type(qtype, where)
+    timed = row.get("stamp") and qtype in TIMED
+    zone = ctx.need_zone(str(ctx.csv_path)) if timed else (ctx.zone or timezone.utc)
+    got = _truth_from_csv(row, frames, zone, where)
+    return _Clip(
+        row["uuid"],
+        *window,
+        length,
+        row["question"],
+        qtype,
+        got.truth,
+        row.get("category", ""),
+        got.stamps,
+        True,
+    )
+
+
+def _clips_from_unfilled(ctx: _Ctx, path: Path, frames: SeqFrames) -> list[_Clip]:
+    out = []
+    for n, item in enumerate(_read_items(path, "qa_unfilled.json")):
+        try:
+            qid, t0, t1 = str(item["id"]), float(item["start_time"]), float(item["end_time"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{path} item {n}: missing or bad field {e}") from e
+        for row in ctx.by_uuid.get(qid, []):  # a clip may carry several questions
+            out.append(_clip_from_row(ctx, row, frames, (t0, t1), item.get("length_category")))
+    return out
+
+
+def _question(ctx: _Ctx, c: _Clip, qid: str, text: str, t0: float, t1: float) -> Question:
+    meta: dict[str, Any] = {}
+    zone = ctx.zone or timezone.utc
+    err = check_inside(c.stamps, t0, t1, zone, c.clock) if c.stamps else None
+    if err:
+        meta["truth_error"] = err
+    elif not _scorable(c.qtype, c.truth):
+        meta["unscorable"] = "no parsable ground truth"
+    return Question(
+        id=qid,
+        text=text,
+        type=cast(EvalType, c.qtype),
+        truth=c.truth,
+        category=c.category.lower(),
+        horizon=_horizon(qid, c.length),
+        meta=meta,
+    )
+
+
+def _clip_episodes(ctx: _Ctx, seq: str, frames: SeqFrames, clips: list[_Clip]) -> list[Episode]:
+    by_window: dict[tuple[float, float], list[Question]] = {}
+    for c in clips:
+        refs = frames.window(c.t0, c.t1)
+        if not refs:
+            raise InputError(f"question {c.qid}: no frames of sequence {seq} between {c.t0} and {c.t1}")
+        text = _context(c.text, refs[-1].pose) if ctx.context and refs[-1].pose is not None else c.text
+        by_window.setdefault((c.t0, c.t1), []).append(_question(ctx, c, c.qid, text, refs[0].t, refs[-1].t))
+    out = []
+    for (t0, t1), qs in sorted(by_window.items()):
+        name = f"navqa/{seq}@{t0:.3f}-{t1:.3f}"
+        out.append(_episode(ctx.root, name, f"{seq}:{t0:.3f}:{t1:.3f}", frames.window(t0, t1), qs))
+    return out
+
+
+def _sequence_episode(ctx: _Ctx, seq: str, frames: SeqFrames, rows: list[dict[str, str]]) -> Episode:
     qs = []
     last = frames.refs[-1].pose
     for row in rows:
-        where = f"{root / 'data.csv'} line {row['line']}"
-        qtype = row["type"].lower()
-        if qtype not in TYPES:
-            raise InputError(f"{where}: type {qtype!r} is not one of {', '.join(TYPES)}")
-        truth = _truth_from_csv(row, frames, zone, where)
-        text = _context(row["question"], last) if context and last is not None else row["question"]
-        qs.append(
-            Question(
-                id=row["uuid"],
-                text=text,
-                type=cast(EvalType, qtype),
-                truth=truth,
-                category=row.get("category", "").lower(),
-                horizon=_horizon(row["uuid"], None),
-                meta={} if _scorable(qtype, truth) else {"unscorable": "no parsable ground truth"},
-            )
-        )
-    return _episode(root, f"navqa/{seq}", f"{seq}:all", frames.refs, qs)
+        c = _clip_from_row(ctx, row, frames, frames.span, None)
+        text = _context(c.text, last) if ctx.context and last is not None else c.text
+        qs.append(_question(ctx, c, c.qid, text, *frames.span))
+    return _episode(ctx.root, f"navqa/{seq}", f"{seq}:all", frames.refs, qs)
 
 
 def _episode(root: Path, name: str, key: str, refs: list[FrameRef], qs: list[Question]) -> Episode:

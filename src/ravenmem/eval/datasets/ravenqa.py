@@ -2,21 +2,29 @@
 
 Layout (`raven-qa:PATH`; PATH is the dataset folder, a subset folder, a split folder or one video):
 
+    the release (huggingface.co/datasets/zzcnewly/RAVEN_QA, placed under data/ as its README says):
+    PATH/{habitat_sim,real_world,irs,irs_hard}/[<group>/]<video>/frames/*.jpg + questions.json
+    ours and older exports:
     PATH/<subset>/[simple|hard/]<video>/frames/frame_0001.jpg ...   frames, ordered by natural sort
     PATH/<subset>/[simple|hard/]<video>/questions.json
 
-Every folder under PATH holding a questions.json is a video. Its subset (the paper's web,
-self-recorded, sim and real-robot videos) is the nearest folder above it that is not named
-simple/hard; its split (simple / hard) is such a folder right above it (or the one above that),
-else a top-level `"split"` in questions.json, else an optional fifth element of a question row.
+Every folder under PATH holding a questions.json is a video. When a folder above it carries one
+of the release's subset names, that is its subset and the release's split goes with it: `irs`
+(the human-ego videos) is the simple split, `irs_hard` the hard one, `habitat_sim` and
+`real_world` (robot-ego) have none (a simple / hard folder right above the video still names one). Otherwise its subset is the nearest folder above it that is
+not named simple/hard and its split such a folder right above it (or the one above that), else a
+top-level `"split"` in questions.json, else an optional fifth element of a question row.
 
 `questions.json` keys (all but the question list optional):
 
     "questions (ques, answer_in_filename, category, query_img)": [[question, answer, category, query_img], ...]
     "questions (ques, answer_in_position)": [[question, answer], ...]      (older videos; "questions" also read)
     "timestamp_to_filename": {"HH:MM:SS": "frame_0042.jpg", ...}
-    "timestamp_to_position": {"HH:MM:SS": [x, y, z], ...}
+    "timestamp_to_position": {"HH:MM:SS": [x, y, z] or "frame_0042.jpg", ...}
     "filename_to_position": {"frame_0042.jpg": [x, y, z], ...}
+
+The release's own converter reads `timestamp_to_position` before `timestamp_to_filename` and
+takes an entry holding a file name as that frame's time; both are read here the same way.
 
 An answer is a filename, an [x, y, z], a `[[x, y, z], filename]` pair, or a list of those (any
 one of them is right). Categories: dominant, secondary, reasoning, information recall, spatial.
@@ -26,7 +34,11 @@ the answer names one of them (the paper's target retrieval accuracy; the nearest
 answer's time, so exactly that frame by default); its position accuracy is reported beside it
 when the frames have positions. A question answered by a position only is a `position` question.
 
-Frame times: frames named in `timestamp_to_filename` get that time of day; the others are
+The times the release gives the answer frames (from those two maps; a position answer gets the
+time of the `timestamp_to_position` entry within 1 cm of it in x, y) are kept as the truth's
+`times`: the release scorer's rule (`--scoring release`) compares an answer's time with them.
+
+Frame times: frames named in `timestamp_to_filename` (or by file name in `timestamp_to_position`) get that time of day; the others are
 interpolated by frame order between them (and continue at the neighbouring rate outside);
 without any, frame i is at i / `rate` seconds (default 1 fps). Times of day are placed on
 2000-01-01 UTC. Poses: `filename_to_position`, else `timestamp_to_position` interpolated in
@@ -66,18 +78,35 @@ QUESTION_KEYS = (
 )
 CATEGORIES = ("dominant", "secondary", "reasoning", "information recall", "spatial")
 SPLITS = ("simple", "hard", "easy")
+# The release's subsets and the split each one is (human-ego irs / irs_hard; robot-ego none)
+RELEASE_SUBSETS = {"habitat_sim": "", "real_world": "", "irs": "simple", "irs_hard": "hard"}
 # Position threshold (m) when the user gives none: our default, not the paper's (RAVEN-QA files do
-# not carry one). Override with --pos-threshold M, or per subset pos_threshold={subset: m}.
+# not carry one; the release scorer's --pos_threshold defaults to 0.1 m). Override with
+# --pos-threshold M, or per subset --pos-threshold real_world=3,habitat_sim=1.
 DEFAULT_POS_THRESHOLD = 2.0
+POSITION_MATCH_M = 0.01  # the release converter matches an answer position to a timestamp within 1 cm
 
 
 def _subset_split(vdir: Path) -> tuple[str, str]:
-    """(subset, split) of a video folder: the nearest folder above it that is not a split name,
-    and a `simple` / `hard` folder among the two folders right above it ("" when none)."""
+    """(subset, split) of a video folder: a release subset folder above it and its split, else
+    the nearest folder above it that is not a split name, and a `simple` / `hard` folder among
+    the two folders right above it ("" when none)."""
     above = list(vdir.resolve().parent.parts)[::-1]
     split = next((p.lower() for p in above[:2] if p.lower() in SPLITS), "")
+    release = next((p for p in above if p.lower() in RELEASE_SUBSETS), None)
+    if release is not None:
+        return release.lower(), split or RELEASE_SUBSETS[release.lower()]
     subset = next((p for p in above if p.lower() not in SPLITS), "")
     return subset, split
+
+
+def _group(vdir: Path, subset: str) -> list[str]:
+    """Folders between the subset folder and the video (e.g. the release's indoor / outdoor)."""
+    parts = list(vdir.resolve().parent.parts)
+    if subset not in parts:
+        return []
+    below = parts[len(parts) - parts[::-1].index(subset) :]
+    return [p for p in below if p.lower() not in SPLITS]
 
 
 def find_videos(root: Path) -> list[tuple[str, str, Path]]:
@@ -140,10 +169,11 @@ def load_video(
         return index.get(Path(str(name)).name)
 
     anchors: dict[int, float] = {}
-    for hms, fname in (data.get("timestamp_to_filename") or {}).items():
-        i = idx_of(fname)
-        if i is not None:
-            anchors[i] = parse_hms(hms, f"{qpath} timestamp_to_filename")
+    for key in ("timestamp_to_filename", "timestamp_to_position"):
+        for hms, val in _mapping(data, key, qpath).items():
+            i = idx_of(val) if isinstance(val, str) else None
+            if i is not None:
+                anchors[i] = parse_hms(hms, f"{qpath} {key}")
     try:
         secs = interpolate_times(len(files), anchors, rate)
     except InputError as e:
@@ -155,7 +185,7 @@ def load_video(
         i = idx_of(fname)
         if i is not None and _is_xyz(pos):
             known[i] = [float(v) for v in pos]
-    t2p = data.get("timestamp_to_position") or {}
+    t2p = _mapping(data, "timestamp_to_position", qpath)
     if t2p:
         pts = sorted(
             (parse_hms(h, f"{qpath} timestamp_to_position"), p) for h, p in t2p.items() if _is_xyz(p)
@@ -174,10 +204,10 @@ def load_video(
         for i, (f, t, p) in enumerate(zip(files, times, positions))
     ]
     split = str(data.get("split") or split).lower()
-    name = "/".join(x for x in (subset, split, vdir.name) if x)
+    name = "/".join(x for x in (subset, split, *_group(vdir, subset), vdir.name) if x)
     duration = times[-1] - times[0] if len(times) > 1 else None
     where = _Where(qpath, vdir, name, subset, split, horizon_of(duration))
-    questions = _questions(data, where, positions, index, has_poses)
+    questions = _questions(data, where, positions, index, has_poses, release_stamps(data, qpath))
     period = float(np.median(np.diff(times))) if len(times) > 1 else 1.0 / rate
     rule = (
         "frame times from timestamp_to_filename, interpolated by frame order in between"
@@ -218,6 +248,7 @@ def _questions(
     positions: list[list[float] | None],
     index: dict[str, int],
     has_poses: bool,
+    stamps: Stamps,
 ) -> list[Question]:
     key = next((k for k in QUESTION_KEYS if k in data), None)
     if key is None:
@@ -234,7 +265,10 @@ def _questions(
                 f"{where}: expected [question, answer, (category, query_img, split)], got {row!r}"
             )
         truth = Truth()
+        given: list[list[float]] = []  # positions written in the answer itself
         for pos, fname in parse_answer(row[1], where):
+            if pos is not None:
+                given.append(pos)
             if fname is not None:
                 base = Path(fname).name
                 truth.files.append(base)
@@ -244,6 +278,7 @@ def _questions(
                     pos = positions[index[base]]
             if pos is not None:
                 truth.positions.append(list(pos) + [0.0] * (3 - len(pos)))
+        truth.times = _release_times(truth.files, given, stamps)
         category = str(row[2]).strip().lower() if len(row) > 2 and row[2] else ""
         image = _query_image(row[3], w.vdir, where) if len(row) > 3 and row[3] else None
         split = str(row[4]).strip().lower() if len(row) > 4 and row[4] else w.split
@@ -268,17 +303,62 @@ def _query_image(ref: Any, vdir: Path, where: str) -> Path:
     raise InputError(f"{where}: query image {rel!r} not found under {vdir}")
 
 
-def load(
-    path: str, rate: float = 1.0, pos_threshold: float | dict[str, float] | None = None, **_: Any
-) -> list[Episode]:
+def _mapping(data: dict[str, Any], key: str, qpath: Path) -> dict[str, Any]:
+    val = data.get(key) or {}
+    if not isinstance(val, dict):
+        raise InputError(f'{qpath}: {key!r} must be an object of "HH:MM:SS": value')
+    return val
+
+
+@dataclass
+class Stamps:
+    """The times the release's converter gives answers: per frame file, and per x, y position."""
+
+    files: dict[str, float]
+    positions: list[tuple[float, float, float]]  # (x, y, seconds)
+
+
+def release_stamps(data: dict[str, Any], qpath: Path) -> Stamps:
+    """As the release's converter reads them: `timestamp_to_position` when present, else
+    `timestamp_to_filename`; an entry is a frame file name or an [x, y(, z)] position."""
+    key = "timestamp_to_position" if "timestamp_to_position" in data else "timestamp_to_filename"
+    files: dict[str, float] = {}
+    positions: list[tuple[float, float, float]] = []
+    for hms, val in _mapping(data, key, qpath).items():
+        secs = parse_hms(hms, f"{qpath} {key}")
+        if isinstance(val, str):
+            files[Path(val).name] = secs
+        elif _is_xyz(val):
+            positions.append((float(val[0]), float(val[1]), secs))
+    return Stamps(files, positions)
+
+
+def _release_times(files: list[str], positions: list[list[float]], stamps: Stamps) -> list[float]:
+    """The truth's instants by the release's rule: an answer frame's stamp, else (for a
+    position answer) the stamp of a position within 1 cm in x, y; on the base day."""
+    out = [stamps.files[f] for f in files if f in stamps.files]
+    if not out:
+        for p in positions:
+            hit = next(
+                (
+                    s
+                    for x, y, s in stamps.positions
+                    if abs(x - p[0]) < POSITION_MATCH_M and abs(y - p[1]) < POSITION_MATCH_M
+                ),
+                None,
+            )
+            if hit is not None:
+                out.append(hit)
+    return sorted({BASE_DAY + s for s in out})
+
+
+def load(path: str, rate: float = 1.0, **_: Any) -> list[Episode]:
     """All videos under a RAVEN-QA folder (see the module docstring for the layout)."""
     if rate <= 0:
         raise InputError(f"rate must be > 0 frames per second, got {rate}")
-    eps = []
-    for subset, split, vdir in find_videos(Path(path)):
-        thr = pos_threshold.get(subset) if isinstance(pos_threshold, dict) else pos_threshold
-        eps.append(load_video(subset, vdir, rate=rate, pos_threshold=thr, split=split))
-    return eps
+    return [
+        load_video(subset, vdir, rate=rate, split=split) for subset, split, vdir in find_videos(Path(path))
+    ]
 
 
 def export_episode(out_dir: str | Path, frames: list[Frame], questions: list[dict[str, Any]]) -> Path:

@@ -19,7 +19,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from .types import Hit, MemoryRecord
+from ..types import Hit, MemoryRecord
 
 FETCH_FACTOR = 4  # candidates asked for per diverse hit wanted, growing by this factor when short
 

@@ -28,10 +28,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from .errors import InputError
-from .fsio import atomic_write, atomic_write_json
+from ..errors import InputError
+from ..fsio import atomic_write, atomic_write_json
+from .folder import MANIFEST
 
-MANIFEST = "memory.json"
 FORMAT_VERSION = 1  # the newest manifest format this code reads and writes
 MAX_MANIFEST_BYTES = 64 << 20  # the ingest history grows ~0.5 KB per run: 64 MB is ~100k runs
 LOCAL = "local"

@@ -3,15 +3,16 @@
 The order makes a killed `forget` leave the old state or the new one:
 
 1. the thumbnails of the memories to forget are listed in a thumbnail journal
-   (`ravenmem.recovery`, the same `pending-thumbs-*.json` ingest writes);
+   (`ravenmem.memory.recovery`, the same journal ingest writes);
 2. the store deletes the memories in one transaction (`Store.delete`);
 3. the journal is settled: the listed thumbnails no stored memory references are deleted;
-4. rows of the forgotten memories go from the sidecars (`lifelong.sqlite`).
+4. rows of the forgotten memories go from the sidecars (the groups table).
 
 Killed before 2 commits, every memory and thumbnail is still there (the next writer finds the
 journal, sees the thumbnails referenced and keeps them); killed after, the memories are gone
 and the next writer deletes the thumbnails left over. Sidecar rows of forgotten ids are never
-shown (ids never repeat) and are pruned by the next writer.
+shown (ids never repeat) and are pruned by the next writer. Every step goes through the
+writer handle (`ravenmem.memory.writer`).
 """
 
 from __future__ import annotations
@@ -20,17 +21,17 @@ import math
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from .. import recovery
-from ..errors import InputError
-from ..timeparse import fmt_time
-from ..types import MemoryRecord
-
-if TYPE_CHECKING:
-    from ..memory import Memory, Near, TimeLike
+from ...errors import InputError
+from ...timeparse import fmt_time
+from ...types import MemoryRecord
+from ..core import Core
+from ..folder import file_size, thumb_file
+from ..protocol import Near, TimeLike
+from ..recovery import Entry
 
 
 @dataclass
@@ -82,7 +83,7 @@ def parse_ids(text: str) -> list[int]:
 
 
 def select(
-    mem: Memory,
+    mem: Core,
     before: TimeLike = None,
     after: TimeLike = None,
     region: Near | None = None,
@@ -108,72 +109,61 @@ def select(
     return np.asarray(chosen[np.isin(chosen, want)], np.int64), len(want) - len(stored)
 
 
-def _thumb(folder: Path, rec: MemoryRecord) -> Path | None:
-    """The thumbnail file ravenmem wrote for a record, or None (no thumbnail, an external file)."""
-    rel = rec.image_path
-    if not rel or Path(rel).is_absolute():
-        return None
-    p = folder / rel
-    if p.parent != folder / recovery.THUMBS or not recovery.THUMB_NAME.fullmatch(p.name):
-        return None
-    return p
+class Forgetting(Core):
+    """`Memory.forget`."""
 
+    def forget(
+        self,
+        before: TimeLike = None,
+        after: TimeLike = None,
+        region: Near | None = None,
+        ids: Iterable[int] | None = None,
+        dry_run: bool = False,
+    ) -> ForgetReport:
+        """Remove memories for good: store rows, index entries, thumbnails, sidecar rows.
 
-def _size(p: Path) -> int:
-    try:
-        return p.stat().st_size
-    except OSError:
-        return 0
-
-
-def forget(
-    mem: Memory,
-    before: TimeLike = None,
-    after: TimeLike = None,
-    region: Near | None = None,
-    ids: Iterable[int] | None = None,
-    dry_run: bool = False,
-) -> ForgetReport:
-    """Remove the memories the selectors pick (see `Memory.forget`)."""
-    if not dry_run:
-        mem._require_writer()
-    chosen, unknown = select(mem, before, after, region, ids)
-    stats = mem.store.stats()
-    n_before = int(stats.get("count") or 0)  # type: ignore[call-overload]
-    per_mem = float(stats.get("bytes") or 0) / n_before if n_before else 0.0  # type: ignore[arg-type]
-    report = ForgetReport(removed=0, unknown_ids=unknown, memories_left=n_before, dry_run=dry_run)
-    if len(chosen) == 0:
+        Selectors combine (a memory must match every one given): `before`/`after` are time
+        expressions (inclusive, as in the search filters), `region` an (x, y, radius m) disc,
+        `ids` memory ids. At least one is required; selecting nothing is not an error (the
+        report says 0). Crash-safe: a killed process leaves all of them or none, and the next
+        writer removes any thumbnail left over (`ravenmem.memory.lifelong.forget`). Takes the
+        writer lock; `dry_run=True` only reports what would go.
+        """
+        writer = None if dry_run else self.writer()
+        chosen, unknown = select(self, before, after, region, ids)
+        stats = self.store.stats()
+        n_before = int(stats.get("count") or 0)  # type: ignore[call-overload]
+        per_mem = float(stats.get("bytes") or 0) / n_before if n_before else 0.0  # type: ignore[arg-type]
+        report = ForgetReport(removed=0, unknown_ids=unknown, memories_left=n_before, dry_run=dry_run)
+        if len(chosen) == 0:
+            return report
+        thumbs: list[tuple[Path, MemoryRecord]] = []
+        t_lo, t_hi = math.inf, -math.inf
+        for s in range(0, len(chosen), 50_000):
+            for r in self.store.get(chosen[s : s + 50_000].tolist()):
+                t_lo, t_hi = min(t_lo, r.t), max(t_hi, r.t)
+                p = thumb_file(self.path, r.image_path)
+                if p is not None:
+                    thumbs.append((p, r))
+        report.t_first, report.t_last = t_lo, t_hi
+        report.thumbnail_bytes = sum(file_size(p) for p, _ in thumbs)
+        report.thumbnails = sum(1 for p, _ in thumbs if p.is_file())
+        if writer is None:
+            report.removed = len(chosen)
+            report.store_bytes_est = round(per_mem * len(chosen))
+            report.memories_left = n_before - len(chosen)
+            return report
+        journal = writer.journal(journal_entries(self.path, thumbs))
+        with writer.change():
+            report.removed = self.store.delete(chosen)
+        if journal is not None:
+            report.thumbnails = writer.settle(self.store, journal)
+        writer.deleted(chosen)
+        report.store_bytes_est = round(per_mem * report.removed)
+        report.memories_left = self.count()
         return report
-    thumbs: list[tuple[Path, MemoryRecord]] = []
-    t_lo, t_hi = math.inf, -math.inf
-    for s in range(0, len(chosen), 50_000):
-        for r in mem.store.get(chosen[s : s + 50_000].tolist()):
-            t_lo, t_hi = min(t_lo, r.t), max(t_hi, r.t)
-            p = _thumb(mem.path, r)
-            if p is not None:
-                thumbs.append((p, r))
-    report.t_first, report.t_last = t_lo, t_hi
-    report.thumbnail_bytes = sum(_size(p) for p, _ in thumbs)
-    report.thumbnails = sum(1 for p, _ in thumbs if p.is_file())
-    if dry_run:
-        report.removed = len(chosen)
-        report.store_bytes_est = round(per_mem * len(chosen))
-        report.memories_left = n_before - len(chosen)
-        return report
-    from .sidecars import after_delete
 
-    journal = None
-    if thumbs:
-        entries = [
-            (p.relative_to(mem.path).as_posix(), r.source, int(r.frame_index), float(r.t)) for p, r in thumbs
-        ]
-        journal = recovery.begin(mem.path, entries)
-    with mem._lock:
-        report.removed = mem.store.delete(chosen)
-        mem._span = None
-    if journal is not None:
-        report.thumbnails = recovery.settle(mem.path, mem.store, journal)
-    after_delete(mem, chosen)
-    report.store_bytes_est = round(per_mem * report.removed)
-    report.memories_left = mem.count()
-    return report
+
+def journal_entries(folder: Path, thumbs: list[tuple[Path, MemoryRecord]]) -> list[Entry]:
+    """The journal's lines for thumbnails about to be deleted with their memories."""
+    return [(p.relative_to(folder).as_posix(), r.source, int(r.frame_index), float(r.t)) for p, r in thumbs]

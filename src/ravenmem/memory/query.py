@@ -9,23 +9,20 @@ the query runs, by the `Memory` method it calls (one place for every front end).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, cast
+from typing import cast
 
 import numpy as np
 
-from .errors import InputError
-from .tools import check_k
-from .types import Hit
-
-if TYPE_CHECKING:
-    from .memory import Memory, TimeLike
+from ..errors import InputError
+from ..types import Hit
+from .protocol import MemoryLike, TimeLike, check_k
 
 
 @dataclass(frozen=True)
 class Query:
     """Filters and at most one retrieval mode; `run()` calls the matching tool."""
 
-    memory: Memory
+    memory: MemoryLike
     after_t: TimeLike = None
     before_t: TimeLike = None
     disc: tuple[float, float, float] | None = None

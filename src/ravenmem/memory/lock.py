@@ -22,16 +22,16 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import MemoryBusyError
-from .timeparse import fmt_time
+from ..errors import MemoryBusyError
+from ..timeparse import fmt_time
+from .folder import LOCK
 
 try:
     import fcntl
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None  # type: ignore[assignment]
 
-LOCK_FILE = "writer.lock"
-__all__ = ["LOCK_FILE", "MemoryBusyError", "WriterLock"]
+__all__ = ["WriterLock"]
 
 
 def _command() -> str:
@@ -46,7 +46,7 @@ class WriterLock:
 
     def __init__(self, folder: str | os.PathLike[str]) -> None:
         self.folder = Path(folder)
-        self.path = self.folder / LOCK_FILE
+        self.path = self.folder / LOCK
         self._fd: int | None = None
 
     @property

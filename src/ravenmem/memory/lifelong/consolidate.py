@@ -11,7 +11,7 @@ no neighbouring pair is more similar than `max_similarity` and, with a `budget`,
 Each merged run keeps one stored memory, its *representative*: the member whose embedding is
 closest to the run's mean (the medoid under cosine to the mean), so the kept picture, pose and
 time are a real observation from the middle of the run. How many memories it stands for and
-the first and last time they were seen go to the sidecar table (`ravenmem.lifelong.groups`);
+the first and last time they were seen go to the sidecar table (`ravenmem.memory.groups`);
 the search tools report them as `count` and `span`. The other members are forgotten the way
 `forget` does it, with the same crash safety (see `groups` for the two-phase protocol).
 """
@@ -22,17 +22,17 @@ import heapq
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from .. import recovery
-from ..errors import InputError
-from .forget import _size, _thumb
-from .groups import GroupTable, _exists
-
-if TYPE_CHECKING:
-    from ..memory import Memory
+from ...errors import InputError
+from ...types import MemoryRecord
+from ..core import Core
+from ..folder import file_size, thumb_file
+from ..groups import exists
+from ..writer import Writer
+from .forget import journal_entries
 
 
 @dataclass
@@ -181,89 +181,90 @@ def plan(
     return Plan(reps, drops, groups, lowest, left)
 
 
-def consolidate(
-    mem: Memory,
-    budget: int | None = None,
-    max_similarity: float | None = None,
-    max_distance: float = 1.0,
-    max_gap: float | None = None,
-    dry_run: bool = False,
-) -> ConsolidateReport:
-    """Merge near-duplicate neighbours (see `Memory.consolidate`)."""
-    check_options(budget, max_similarity, max_distance, max_gap)
-    if not dry_run:
-        mem._require_writer()
-    ids = mem.store.select()
-    n = len(ids)
-    report = ConsolidateReport(
-        before=n,
-        after=n,
-        budget=budget,
-        max_similarity=max_similarity,
-        max_distance=max_distance,
-        dry_run=dry_run,
-    )
-    known = mem._groups.get(mem.store)
-    report.represented = n + sum(known[i][0] - 1 for i in ids.tolist() if i in known)
-    if n < 2:
-        report.budget_met = budget is None or n <= budget
+class Consolidation(Core):
+    """`Memory.consolidate`."""
+
+    def consolidate(
+        self,
+        budget: int | None = None,
+        max_similarity: float | None = None,
+        max_distance: float = 1.0,
+        max_gap: float | None = None,
+        dry_run: bool = False,
+    ) -> ConsolidateReport:
+        """Merge runs of near-duplicate memories (neighbours in time, within `max_distance`
+        metres, most similar first) into one representative that keeps their count and time
+        span, until no neighbours are more similar than `max_similarity` and/or at most
+        `budget` memories remain. Crash-safe like `forget`; see
+        `ravenmem.memory.lifelong.consolidate`.
+        """
+        check_options(budget, max_similarity, max_distance, max_gap)
+        writer = None if dry_run else self.writer()
+        ids = self.store.select()
+        n = len(ids)
+        report = ConsolidateReport(
+            before=n,
+            after=n,
+            budget=budget,
+            max_similarity=max_similarity,
+            max_distance=max_distance,
+            dry_run=dry_run,
+        )
+        known = self.groups()
+        report.represented = n + sum(known[i][0] - 1 for i in ids.tolist() if i in known)
+        if n < 2:
+            report.budget_met = budget is None or n <= budget
+            return report
+        recs = []
+        for s in range(0, n, 20_000):
+            recs += self.store.get(ids[s : s + 20_000].tolist(), with_embeddings=True)
+        t = np.array([r.t for r in recs], np.float64)
+        xy = np.array([(r.pose.x, r.pose.y) for r in recs], np.float64)
+        codes: dict[str, int] = {}
+        source = np.array([codes.setdefault(r.source, len(codes)) for r in recs], np.int64)
+        emb = np.stack([r.embedding for r in recs if r.embedding is not None]).astype(np.float32)
+        counts = np.array([known.get(r.id, (1, r.t, r.t))[0] for r in recs], np.int64)
+        spans = np.array([known.get(r.id, (1, r.t, r.t))[1:] for r in recs], np.float64)
+        p = plan(t, xy, source, emb, counts, spans, budget, max_similarity, max_distance, max_gap)
+        drop_idx = sorted(i for d in p.drops for i in d)
+        report.after = p.entries_after
+        report.merged = len(drop_idx)
+        report.groups = len(p.reps)
+        report.lowest_similarity = p.lowest
+        report.budget_met = None if budget is None else p.entries_after <= budget
+        stats = self.store.stats()
+        per_mem = float(stats.get("bytes") or 0) / n  # type: ignore[arg-type]
+        report.store_bytes_est = round(per_mem * len(drop_idx))
+        thumbs = [
+            (pth, recs[i]) for i in drop_idx if (pth := thumb_file(self.path, recs[i].image_path)) is not None
+        ]
+        report.thumbnail_bytes = sum(file_size(pth) for pth, _ in thumbs)
+        report.thumbnails = sum(1 for pth, _ in thumbs if pth.is_file())
+        if writer is None or not drop_idx:
+            return report
+        drop = np.array(sorted(recs[i].id for i in drop_idx), np.int64)
+        rows = [(recs[r].id, *g) for r, g in zip(p.reps, p.groups)]
+        _apply(self, writer, drop, rows, thumbs)
         return report
-    recs = []
-    for s in range(0, n, 20_000):
-        recs += mem.store.get(ids[s : s + 20_000].tolist(), with_embeddings=True)
-    t = np.array([r.t for r in recs], np.float64)
-    xy = np.array([(r.pose.x, r.pose.y) for r in recs], np.float64)
-    codes: dict[str, int] = {}
-    source = np.array([codes.setdefault(r.source, len(codes)) for r in recs], np.int64)
-    emb = np.stack([r.embedding for r in recs if r.embedding is not None]).astype(np.float32)
-    counts = np.array([known.get(r.id, (1, r.t, r.t))[0] for r in recs], np.int64)
-    spans = np.array([known.get(r.id, (1, r.t, r.t))[1:] for r in recs], np.float64)
-    p = plan(t, xy, source, emb, counts, spans, budget, max_similarity, max_distance, max_gap)
-    drop_idx = sorted(i for d in p.drops for i in d)
-    report.after = p.entries_after
-    report.merged = len(drop_idx)
-    report.groups = len(p.reps)
-    report.lowest_similarity = p.lowest
-    report.budget_met = None if budget is None else p.entries_after <= budget
-    stats = mem.store.stats()
-    per_mem = float(stats.get("bytes") or 0) / n  # type: ignore[arg-type]
-    report.store_bytes_est = round(per_mem * len(drop_idx))
-    thumbs = [(pth, recs[i]) for i in drop_idx if (pth := _thumb(mem.path, recs[i])) is not None]
-    report.thumbnail_bytes = sum(_size(pth) for pth, _ in thumbs)
-    report.thumbnails = sum(1 for pth, _ in thumbs if pth.is_file())
-    if dry_run or not drop_idx:
-        return report
-    drop = np.array(sorted(recs[i].id for i in drop_idx), np.int64)
-    rows = [(recs[r].id, *g) for r, g in zip(p.reps, p.groups)]
-    _apply(mem, drop, rows, thumbs)
-    return report
 
 
 def _apply(
-    mem: Memory,
+    mem: Core,
+    writer: Writer,
     drop: np.ndarray,
     rows: list[tuple[int, int, float, float]],
-    thumbs: list[tuple[Path, Any]],
+    thumbs: list[tuple[Path, MemoryRecord]],
 ) -> None:
     """Journal the thumbnails, record the groups (pending), delete, commit, settle."""
-    from .sidecars import after_delete
-
-    journal = None
-    if thumbs:
-        entries = [
-            (pth.relative_to(mem.path).as_posix(), r.source, int(r.frame_index), float(r.t))
-            for pth, r in thumbs
-        ]
-        journal = recovery.begin(mem.path, entries)
-    table = GroupTable(mem.path)
+    journal = writer.journal(journal_entries(mem.path, thumbs))
+    table = writer.group_table()
     try:
         batch = table.begin(rows, drop)
         try:
-            with mem._lock:
+            with writer.change(groups=True):
                 mem.store.delete(drop)
-                mem._span = None
         except BaseException:
-            if _exists(mem.store, int(drop[0])):
+            if exists(mem.store, int(drop[0])):
                 table.abort(batch)
             else:
                 table.commit(batch)
@@ -271,7 +272,6 @@ def _apply(
         table.commit(batch)
     finally:
         table.close()
-        mem._groups.invalidate()
     if journal is not None:
-        recovery.settle(mem.path, mem.store, journal)
-    after_delete(mem, drop, groups=False)
+        writer.settle(mem.store, journal)
+    writer.deleted(drop, groups=False)

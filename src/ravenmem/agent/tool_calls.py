@@ -14,21 +14,21 @@ import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from ..changes import ChangeHit
 from ..errors import InputError, RavenmemError
+from ..memory.places import ChangeHit
+from ..memory.protocol import MemoryLike, check_k
 from ..timeparse import fmt_time
-from ..tools import TOOLS, TimeMode, check_k, get_tool
+from ..tools import TOOLS, TimeMode, get_tool
 from ..types import Hit, MemoryRecord
-from .base import MemoryLike
 from .images import data_url, record_jpeg
 from .schema import Answer, PlaceChange
 
 DEFAULT_K = 5
-TIME_MODES = ("forward", "centred")
+TIME_MODES = ("forward", "centred", "nearest")
 
 
 @dataclass
@@ -126,8 +126,8 @@ def per_tool_k(top_k: int | Mapping[str, int], default: int = DEFAULT_K) -> dict
 
 def check_time_mode(mode: str) -> TimeMode:
     if mode not in TIME_MODES:
-        raise InputError(f"time_mode must be forward or centred, got {mode!r}")
-    return "centred" if mode == "centred" else "forward"
+        raise InputError(f"time_mode must be forward, centred or nearest, got {mode!r}")
+    return cast(TimeMode, mode)
 
 
 class ToolRunner:
@@ -138,7 +138,8 @@ class ToolRunner:
     line to each memory; `attach_images=False` sends text only; `labels` (records -> {id:
     words}) adds what each picture shows, for a model that cannot see (`agent.labels`);
     `show_scores=False` hides similarity scores and distances; `time_mode` picks the time
-    tool's window.
+    tool's window; `diverse` (None: the tools' default) is the text and image tools'
+    `diverse` where the model's call leaves it out, so a preset's "exactly k" holds.
     """
 
     def __init__(
@@ -154,7 +155,9 @@ class ToolRunner:
         time_mode: str = "forward",
         tools: Sequence[str] | None = None,
         labels: Callable[[Sequence[MemoryRecord]], dict[int, list[str]]] | None = None,
+        diverse: bool | None = None,
     ) -> None:
+        self.diverse = diverse
         self.ks = per_tool_k(top_k)
         self.labels = labels
         self.mem = mem
@@ -220,6 +223,8 @@ class ToolRunner:
             raw = json.loads(arguments) if isinstance(arguments, str) else arguments
             if not isinstance(raw, Mapping):
                 raise InputError("arguments must be a JSON object")
+            if self.diverse is not None and "diverse" in tool.args.model_fields and "diverse" not in raw:
+                raw = {**raw, "diverse": self.diverse}
             args = tool.validate(raw)
             hits = tool.run(
                 self.mem,
@@ -235,7 +240,7 @@ class ToolRunner:
         self.embedded = self.embedded or name in ("search_text", "search_image")
         mid = getattr(args, "memory_id", None)
         query = getattr(args, "query", None) or (f"m{mid}" if mid is not None else "the attached image")
-        return self._format(tool.label(args), tool.order_for(args), hits, name, wm, query)
+        return self._format(tool.label(args), tool.order_for(args, self.time_mode), hits, name, wm, query)
 
     def _format(
         self, label: str, order: str, hits: list[Hit], name: str, wm: WorkingMemory, query: str = ""

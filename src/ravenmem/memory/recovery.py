@@ -8,7 +8,7 @@ any journal left behind and deletes the listed thumbnails the store does not ref
 the store for the memories of the journal's (source, frame index, time) and compares their
 image paths. A store batch is one transaction, so it holds all of them or none.
 
-Only files ravenmem names itself are ever removed: thumbnails named like `Memory._write_thumb`'s
+Only files ravenmem names itself are ever removed: thumbnails named as `folder.thumb_name` names them
 and listed in a journal, and `ravenmem.fsio` temporary files that no live process holds.
 """
 
@@ -17,23 +17,19 @@ from __future__ import annotations
 import json
 import logging
 import os
-import re
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from .fsio import atomic_write_json, remove_stale_temp_files
-from .manifest import MANIFEST
-from .store.base import Store
+from ..fsio import atomic_write_json, remove_stale_temp_files
+from ..store.base import Store
+from .folder import JOURNAL_NAME, JOURNAL_PREFIX, MANIFEST, THUMBS, journal_name, thumb_file
 
 log = logging.getLogger(__name__)
 
-THUMBS = "thumbs"
-THUMB_NAME = re.compile(r"-?\d+_[0-9a-f]{8}\.jpg")
-_JOURNAL = re.compile(r"pending-thumbs-[0-9a-f]{12}\.json")
-_WRITER_ONLY = (f"{MANIFEST}.", "pending-thumbs-")  # files only the lock holder writes
+_WRITER_ONLY = (f"{MANIFEST}.", JOURNAL_PREFIX)  # files only the lock holder writes
 
 # (thumbnail path relative to the memory folder, source, frame index, time)
 Entry = tuple[str, str, int, float]
@@ -41,7 +37,7 @@ Entry = tuple[str, str, int, float]
 
 def begin(folder: Path, entries: Sequence[Entry]) -> Path:
     """Write (durably) the journal of thumbnails about to be written; returns its path."""
-    path = folder / f"pending-thumbs-{uuid.uuid4().hex[:12]}.json"
+    path = folder / journal_name(uuid.uuid4().hex[:12])
     atomic_write_json(path, {"thumbs": [list(e) for e in entries]})
     return path
 
@@ -70,8 +66,8 @@ def settle(folder: Path, store: Store, journal: Path) -> int:
             referenced.update(r.image_path or "" for r in store.get(np.asarray(sf.ids)[hit].tolist()))
     removed = 0
     for name, *_ in entries:
-        p = folder / name
-        if name in referenced or p.parent != folder / THUMBS or not THUMB_NAME.fullmatch(p.name):
+        p = thumb_file(folder, name)
+        if name in referenced or p is None:
             continue
         if p.is_file():
             p.unlink()
@@ -95,7 +91,7 @@ def recover(folder: Path, store: Store) -> dict[str, int]:
     such a file) and removed then if nobody holds them: a writer restarted right after a kill -9
     in the middle of a cache save would otherwise keep its temporary file.
     """
-    journals = [e for e in sorted(os.listdir(folder)) if _JOURNAL.fullmatch(e)]
+    journals = [e for e in sorted(os.listdir(folder)) if JOURNAL_NAME.fullmatch(e)]
     removed = sum(settle(folder, store, folder / j) for j in journals)
     temps = [p for t in _WRITER_ONLY for p in remove_stale_temp_files(folder, min_age=0.0, target=t)]
     temps += remove_stale_temp_files(folder, wait=True)

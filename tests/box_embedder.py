@@ -1,14 +1,18 @@
-"""A small deterministic embedder that really looks at the pictures: the share of strongly red,
-green and blue pixels (the synthetic world's boxes), and texts by the colour words they hold.
+"""The tests' embedder for pictures of a world (the simulators' coloured boxes): it really looks
+at the pictures, the share of strongly red, green and blue pixels, and reads texts by the colour
+words they hold. Registered as `test-boxes`, so `--embedder test-boxes` reaches it in-process.
 
 A text naming no colour gets a dimension of its own that no picture has, so it matches nothing
-(the offline reasoner's decoys score 0, as things that are not there should)."""
+(the offline reasoner's decoys score 0, as things that are not there should). Solid test
+pictures use `tests.conftest.ColorEmbedder` instead (exact colours, not shares)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
 import numpy as np
+
+from ravenmem.embed.base import EMBEDDERS
 
 COLOURS = ("red", "green", "blue")
 REF = 0.05  # a box filling 0.25 % of the picture scores 1/sqrt(2)
@@ -39,3 +43,8 @@ class BoxEmbedder:
             row[hot if hot else [4]] = 1.0
             row /= np.linalg.norm(row)
         return out
+
+
+@EMBEDDERS.register("test-boxes")
+def _boxes(spec: str = "", **_: object) -> BoxEmbedder:
+    return BoxEmbedder()

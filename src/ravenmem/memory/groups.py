@@ -18,11 +18,14 @@ new state after a crash, decided by the store's own one-transaction delete:
 A batch still pending is in effect exactly when its witness is gone from the store: readers
 apply it on the fly, and the next writer (`recover`) commits it, or drops it when the store
 never deleted. Rows of memories that were forgotten are dropped by `forget` (ids never repeat,
-so a row left behind by a killed `forget` is never shown; `recover` prunes it).
+so a row left behind by a killed `forget` is never shown; `recover` prunes it). `drop_rows`
+and `recover_groups` are what the writer handle (`ravenmem.memory.writer`) calls after a delete and when it
+takes over after a crash.
 """
 
 from __future__ import annotations
 
+import logging
 import sqlite3
 import threading
 import time
@@ -32,9 +35,10 @@ from pathlib import Path
 import numpy as np
 
 from ..store.base import Store
+from .folder import GROUPS
 
-FILE = "lifelong.sqlite"
 Group = tuple[int, float, float]  # (count, first_t, last_t)
+log = logging.getLogger(__name__)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS groups (
@@ -50,7 +54,8 @@ CREATE TABLE IF NOT EXISTS pending (
 """
 
 
-def _exists(store: Store, mid: int) -> bool:
+def exists(store: Store, mid: int) -> bool:
+    """Whether the store holds memory `mid`."""
     try:
         store.get([int(mid)])
     except KeyError:
@@ -73,7 +78,7 @@ class GroupTable:
     """The writer's handle on `lifelong.sqlite` (created on first use)."""
 
     def __init__(self, folder: Path) -> None:
-        self.path = Path(folder) / FILE
+        self.path = Path(folder) / GROUPS
         self._conn = _connect(self.path, readonly=False)
 
     def begin(self, rows: Sequence[tuple[int, int, float, float]], drop: np.ndarray) -> int:
@@ -138,7 +143,7 @@ class GroupTable:
         batches = self._conn.execute("SELECT id, witness FROM batches ORDER BY id").fetchall()
         done = aborted = 0
         for batch, witness in batches:
-            if _exists(store, witness):
+            if exists(store, witness):
                 self.abort(int(batch))
                 aborted += 1
             else:
@@ -180,7 +185,7 @@ class GroupView:
     `PRAGMA data_version` otherwise (it changes when another connection wrote)."""
 
     def __init__(self, folder: Path) -> None:
-        self.path = Path(folder) / FILE
+        self.path = Path(folder) / GROUPS
         self._lock = threading.Lock()
         self._conn: sqlite3.Connection | None = None
         self._version: int | None = None
@@ -220,7 +225,7 @@ def _load(conn: sqlite3.Connection, store: Store) -> dict[int, Group]:
     for batch, witness, drop in conn.execute(
         "SELECT id, witness, drop_ids FROM batches ORDER BY id"
     ).fetchall():
-        if _exists(store, witness):  # the store has not deleted this batch: not in effect
+        if exists(store, witness):  # the store has not deleted this batch: not in effect
             continue
         for i in np.frombuffer(drop, np.int64).tolist():
             rows.pop(int(i), None)
@@ -239,3 +244,27 @@ def annotate(hits: Iterable[object], groups: dict[int, Group]) -> None:
         g = groups.get(h.memory.id)  # type: ignore[attr-defined]
         if g is not None:
             h.count, h.span = g[0], (g[1], g[2])  # type: ignore[attr-defined]
+
+
+def drop_rows(folder: Path, ids: np.ndarray) -> None:
+    """Drop the rows of memories the store just deleted (nothing to do on a memory without)."""
+    if (folder / GROUPS).exists():
+        table = GroupTable(folder)
+        try:
+            table.drop(ids)
+        finally:
+            table.close()
+
+
+def recover_groups(folder: Path, store: Store) -> dict[str, int]:
+    """Settle what a killed writer left in the table (nothing to do on a memory without)."""
+    if not (folder / GROUPS).exists():
+        return {}
+    table = GroupTable(folder)
+    try:
+        done = table.recover(store)
+    finally:
+        table.close()
+    if any(done.values()):
+        log.info("%s: consolidation batches settled: %s", folder, done)
+    return done

@@ -1,0 +1,255 @@
+"""Where is it now? Sightings, revisits and verdicts for a world that changes.
+
+A memory is a log of views, not a map of things: when a mug moves, the old views of it stay
+and still match "a mug" as well as ever. To answer from the latest evidence, this module asks,
+for every place where the thing was seen, whether the robot looked at that place again later:
+
+1. **Sightings.** Memories that show the thing: cosine to the query at least `threshold`,
+   halfway (by default) between a typical memory's score (the median of a sample spread over
+   the memory) and the best match. The newest sightings are searched for explicitly (time
+   windows walking back from the end), so a thing seen ten thousand times in January and once
+   in May is found in May.
+2. **Places.** Sightings are grouped into places: a sighting joins the best earlier one whose
+   view it overlaps (cameras within `view_radius` metres, orientations within
+   `view_angle_deg`: the full 3-D rotation when both poses carry a quaternion, else the yaw),
+   and sightings that follow each other in time with no memory in between are one place (the
+   robot kept the thing in view while it moved).
+3. **Revisits.** A later memory whose view overlaps one of the place's sightings looks at the
+   same scene. If it scores at least the threshold it is one more sighting (the place's last
+   sighting moves on); if not, it is a view of the place without the thing. Only views after
+   the robot looked away *and* a pass later (`episode_gap_s`, by default 30 times the
+   memory's mean time between keyframes while recording) count: frames of the same pass that lose the thing
+   at the edge of the picture are not evidence that it left.
+4. **Verdicts**, per place, from its last sighting at T1:
+   - `still there`: no later visit without it, and it was seen there on more than one visit;
+   - `not revisited`: seen on one visit only, and nothing has looked at the place since;
+   - `moved`: a later visit (first at T2) looked at the place without it, and it was seen
+     elsewhere since: on a later pass than T1, or after T2;
+   - `gone`: a later visit looked at the place without it, and it was not seen elsewhere since
+     (views of it from elsewhere on the same pass as T1 do not count: the same spot, another
+     angle).
+5. **The thing's status** (`Whereabouts.status`): the verdict of its newest place, except
+   that it is `gone` when a place where it was seen on that same last pass was looked at
+   again, after the newest sighting, without it (one object seen from several viewpoints is
+   several places here; this is how their evidence is joined).
+
+Places come newest first (by last sighting): unless the status is gone, the first one is where
+the thing is now (`Whereabouts.now`). `before` sets the "as of" time: only memories up to it
+count, so "where was it at noon?" is the same question asked of the past.
+
+Limits (see docs/memory.md, "A world that changes"): views are compared, things are not
+located, so a place seen again only from a new viewpoint counts as not revisited; a thing
+moved within the same picture still shows in it; two instances of a thing look alike.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..imageio import read_image
+from ..timeparse import fmt_time
+from ..types import Filter, Hit, MemoryRecord
+from .core import Core, check_text
+from .places import Place, Verdict, Whereabouts
+from .protocol import MAX_K, Near, TimeLike
+from .views import ChangeConfig, chrono, follow, group_sightings, merge, sample
+
+__all__ = ["ChangeConfig", "Changes", "Place", "Verdict", "Whereabouts"]
+
+
+class Changes(Core):
+    """`Memory.last_seen`."""
+
+    def last_seen(
+        self,
+        query: str | None = None,
+        *,
+        image: np.ndarray | str | os.PathLike[str] | None = None,
+        memory_id: int | None = None,
+        vector: np.ndarray | None = None,
+        after: TimeLike = None,
+        before: TimeLike = None,
+        near: Near | None = None,
+        min_score: float | None = None,
+        config: ChangeConfig | None = None,
+    ) -> Whereabouts:
+        """Where a thing was seen, place by place (newest first), and whether each place still
+        shows it: `still there`, `not revisited`, `moved` or `gone` (see the module docstring).
+        The thing is a `query` text, an `image` (an array or an image file), a stored memory's
+        picture (`memory_id`) or a query `vector`. `after`/`near` restrict the sightings,
+        `before` is the "as of" time for everything; `.now` is the place it is at now, if any.
+        `min_score` puts a floor under the match threshold (the offline reasoner passes its
+        calibrated one); `config` sets the rules' numbers.
+        """
+        if query is not None:
+            check_text(query)
+        img = read_image(Path(image)) if isinstance(image, (str, os.PathLike)) else image
+        s = config or ChangeConfig()
+        self.time_span()  # an empty memory is an error (EmptyMemoryError), as for every search
+        q, label = _query_vector(self, query, img, memory_id, vector)
+        filt = self.make_filter(after, before, near)
+        asof = Filter(before=filt.before)
+        pool = _search(self, q, min(s.pool, self.count()), filt)
+        if not pool:
+            return Whereabouts(label, [], math.inf, 0.0, 0.0)
+        best = max(sc for _, sc in pool.values())
+        floor = _floor(self, q, s.floor_sample)
+        thr = floor + s.match_ratio * (best - floor) if best > floor + 1e-6 else math.inf
+        if min_score is not None:
+            thr = max(thr, float(min_score))
+        pool.update(_recent(self, q, filt, thr, s))
+        seen = {i: Hit(memory=r, score=sc) for i, (r, sc) in pool.items() if sc >= thr}
+        if not seen:
+            return Whereabouts(label, [], thr, floor, best)
+        places = [Place(0, g) for g in group_sightings(self, sorted(seen.values(), key=chrono), s)]
+        gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * _spacing(self)
+        for p in places:
+            follow(self, p, q, thr, s, asof, gap)
+        for p in merge(places):
+            follow(self, p, q, thr, s, asof, gap)
+        places.sort(key=lambda p: chrono(p.sightings[-1]), reverse=True)
+        for i, p in enumerate(places, 1):
+            p.index = i
+        # consolidated memories stand for several: counts and spans on the evidence
+        self.grouped([h for p in places for h in (*p.sightings, *p.revisits)])
+        out = Whereabouts(label, places, thr, floor, best)
+        _judge(out, _episodes(places, gap))
+        return out
+
+
+def _query_vector(
+    mem: Core, query: str | None, image: np.ndarray | None, memory_id: int | None, vector: np.ndarray | None
+) -> tuple[np.ndarray, str]:
+    given = [v is not None for v in (query, image, memory_id, vector)]
+    if sum(given) != 1:
+        raise InputError("last_seen needs exactly one of: a text query, an image, a memory_id or a vector")
+    if query is not None:
+        if not isinstance(query, str) or not query.strip():
+            raise InputError("last_seen: empty text query")
+        return np.asarray(mem.embedder.embed_texts([query])[0], np.float32), query
+    if image is not None:
+        return np.asarray(mem.embedder.embed_images([image])[0], np.float32), "the image"
+    if memory_id is not None:
+        try:
+            (rec,) = mem.store.get([int(memory_id)], with_embeddings=True)
+        except KeyError:
+            raise InputError(f"memory_id {memory_id}: no such memory") from None
+        assert rec.embedding is not None
+        return np.asarray(rec.embedding, np.float32), f"memory m{rec.id}"
+    v = np.asarray(vector, np.float32).reshape(-1)
+    if v.shape != (mem.dim,) or not np.all(np.isfinite(v)):
+        raise InputError(f"last_seen: the vector must be {mem.dim} finite numbers, got shape {v.shape}")
+    return v, "the vector"
+
+
+def _search(mem: Core, q: np.ndarray, k: int, filt: Filter) -> dict[int, tuple[MemoryRecord, float]]:
+    scored = mem.store.search_vector(q, max(1, min(k, MAX_K)), filt)
+    recs = {r.id: r for r in sample(mem, [i for i, _ in scored])}
+    return {i: (recs[i], float(sc)) for i, sc in scored if i in recs}
+
+
+def _spread(mem: Core, n: int) -> list[int]:
+    """About n ids spread evenly over the memory: ids grow with insertion, so between the ids
+    of the oldest and the newest memory (a few may be missing: `sample` skips them). The
+    stored times, not `mem.time_span()`: a consolidated memory's span reaches past its newest
+    representative's own time, where no memory starts."""
+    st = mem.store.stats()
+    t0, t1 = float(st["t_min"]), float(st["t_max"])  # type: ignore[arg-type]
+    ends = [r.id for t in (t0, t1) for r in mem.store.by_time(t, 1)]
+    lo, hi = min(ends), max(ends)
+    return sorted({int(i) for i in np.linspace(lo, hi, max(1, min(n, hi - lo + 1)))})
+
+
+def _floor(mem: Core, q: np.ndarray, n: int) -> float:
+    """A typical memory's score: the median over memories spread evenly over the memory."""
+    recs = sample(mem, _spread(mem, n), embeddings=True)
+    scores = [float(np.dot(r.embedding, q)) for r in recs if r.embedding is not None]
+    return float(np.median(scores)) if scores else 0.0
+
+
+def _recent(
+    mem: Core, q: np.ndarray, filt: Filter, thr: float, s: ChangeConfig
+) -> dict[int, tuple[MemoryRecord, float]]:
+    """The newest sightings: the best `pool` memories in time windows that grow backwards from
+    the end (a 64th of the span, then 4 times wider) until one holds a sighting."""
+    t0, t1 = mem.time_span()
+    lo = max(t0, filt.after) if filt.after is not None else t0
+    hi = min(t1, filt.before) if filt.before is not None else t1
+    width = max((hi - lo) / 64.0, 1e-3)
+    for _ in range(s.recency_windows):
+        start = max(lo, hi - width)
+        found = _search(mem, q, s.pool, Filter(after=start, before=hi, region=filt.region))
+        if any(sc >= thr for _, sc in found.values()) or start <= lo:
+            return found
+        width *= 4.0
+    return {}
+
+
+def _spacing(mem: Core, n: int = 64) -> float:
+    """The robot's usual time between keyframes while recording: the mean time between a memory
+    and the next one stored (ids grow with insertion), over pairs spread over the memory, not
+    counting breaks (gaps over 10 times the median: the robot was off or elsewhere). The mean,
+    not the median: keyframes come fast while turning and slowly while driving."""
+    ids = _spread(mem, n)
+    first = ids[:-1] if len(ids) > 1 else ids
+    recs = {r.id: r.t for r in sample(mem, sorted(set(first) | {i + 1 for i in first}))}
+    diffs = np.array(
+        [recs[i + 1] - recs[i] for i in first if i in recs and i + 1 in recs and recs[i + 1] > recs[i]]
+    )
+    if diffs.size == 0:
+        return 1.0
+    return float(diffs[diffs <= 10.0 * np.median(diffs)].mean())
+
+
+def _episodes(places: list[Place], gap: float) -> dict[int, int]:
+    """Memory id -> pass: sightings of the thing (any place) in a row with no gap over `gap` s."""
+    hits = sorted((h for p in places for h in p.sightings), key=chrono)
+    out, ep, prev = {}, 0, None
+    for h in hits:
+        if prev is not None and h.memory.t - prev > gap:
+            ep += 1
+        out[h.memory.id] = ep
+        prev = h.memory.t
+    return out
+
+
+def _judge(w: Whereabouts, episode: dict[int, int]) -> None:
+    """Place verdicts (moved / gone when a later visit looked without seeing it, else still
+    there / not revisited), then the thing's status. `w.places` is newest first."""
+    for p in w.places:
+        if not p.revisits:
+            p.verdict = "still there" if p.later_visit else "not revisited"
+            continue
+        t1, t2, ep = p.last.t, p.revisits[0].memory.t, episode[p.last.id]
+        since = [
+            (h, q)
+            for q in w.places
+            if q is not p
+            for h in q.sightings
+            if h.memory.t > t2 or (h.memory.t > t1 and episode[h.memory.id] != ep)
+        ]
+        if since:  # seen elsewhere on a later pass, or after it was found missing here: moved
+            newest, where = max(since, key=lambda hq: chrono(hq[0]))
+            p.verdict, p.moved_to, p.newest_since = "moved", where.index, newest
+            p.seen_since = min((h for h, _ in since), key=chrono)
+        else:  # seen elsewhere only on the pass it was last seen here (another view of it): gone
+            p.verdict = "gone"
+    top = w.places[0]
+    w.status = top.verdict
+    if top.verdict != "gone":
+        ep, t_last = episode[top.last.id], top.last.t
+        for q in w.places[1:]:
+            later = [h for h in q.revisits if h.memory.t > t_last]
+            if later and episode[q.last.id] == ep:
+                w.status = "gone"
+                w.status_note = (
+                    f"last seen at {fmt_time(t_last)} from place {top.index} (m{top.last.id}); on that "
+                    f"pass it was also seen from place {q.index} (last m{q.last.id}), which was looked "
+                    f"at again at {fmt_time(later[0].memory.t)} (m{later[0].memory.id}) without it"
+                )
+                break

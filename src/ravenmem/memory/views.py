@@ -1,0 +1,233 @@
+"""Views and places: which memories look at the same scene, how sightings group into places,
+and what the robot's later visits of a place show (steps 2 and 3 of `ravenmem.memory.changes`).
+
+`ChangeConfig` holds every rule's numbers; `overlaps` is the one test of two views.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..types import Filter, Hit, MemoryRecord, Region
+from .core import Core
+from .places import Place
+from .protocol import MAX_K
+
+_PAGE = 256  # memories read per step of a walk forward in time
+
+
+@dataclass(frozen=True)
+class ChangeConfig:
+    """How sightings, places and revisits are decided. `match_ratio`: a memory shows the thing
+    when its score is at least floor + match_ratio * (best - floor). `view_radius` (m) and
+    `view_angle_deg`: two views overlap when their cameras are this close and turned this
+    little from each other. `episode_gap_s`: sightings further apart than this are different
+    passes (None: 30 times the memory's mean time between keyframes while recording). `pool`: candidates
+    read per search (at most 1000)."""
+
+    pool: int = 200
+    match_ratio: float = 0.5
+    view_radius: float = 1.5
+    view_angle_deg: float = 45.0
+    episode_gap_s: float | None = None
+    floor_sample: int = 64
+    recency_windows: int = 8
+    max_rounds: int = 8
+    max_walk: int = 2000
+    max_revisits: int = 5
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.pool <= MAX_K or not 0.0 < self.match_ratio < 1.0:
+            raise InputError(f"changes: pool must be 1..{MAX_K} and 0 < match_ratio < 1: {self}")
+        if self.view_radius <= 0 or not 0 < self.view_angle_deg <= 180 or self.max_revisits < 1:
+            raise InputError(
+                f"changes: view_radius > 0, 0 < view_angle_deg <= 180, max_revisits >= 1: {self}"
+            )
+        if self.episode_gap_s is not None and not self.episode_gap_s > 0:
+            raise InputError(f"changes: episode_gap_s must be > 0 (or None), got {self.episode_gap_s}")
+
+
+def chrono(h: Hit) -> tuple[float, int]:
+    """Chronological order of hits (time, then id)."""
+    return (h.memory.t, h.memory.id)
+
+
+def _scores(mem: Core, q: np.ndarray, ids: Sequence[int]) -> list[tuple[MemoryRecord, float]]:
+    recs = sample(mem, ids, embeddings=True)
+    out = []
+    for r in recs:
+        assert r.embedding is not None
+        out.append((r, float(np.dot(r.embedding, q))))
+        r.embedding = None
+    return out
+
+
+def sample(mem: Core, ids: Sequence[int], embeddings: bool = False) -> list[MemoryRecord]:
+    """The records of `ids` that exist (ids a forget removed are skipped)."""
+    return mem.stored(ids, with_embeddings=embeddings)
+
+
+def overlaps(a: MemoryRecord, b: MemoryRecord, s: ChangeConfig | None = None) -> bool:
+    """Whether two memories look at the same scene: cameras within `view_radius` (in the plane)
+    and turned at most `view_angle_deg` from each other."""
+    s = s or ChangeConfig()
+    close = math.hypot(a.pose.x - b.pose.x, a.pose.y - b.pose.y) <= s.view_radius
+    return close and math.degrees(a.pose.rotation_to(b.pose)) <= s.view_angle_deg
+
+
+def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hit]]:
+    """Places: each sighting joins the best-scored earlier seed whose view it overlaps (no
+    chains: a robot turning on the spot does not make one place of every direction), and
+    sightings that follow each other in time with no memory in between are one place (the
+    robot kept the thing in view while it moved)."""
+    n = len(hits)
+    parent = list(range(n))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    seeds: list[int] = []
+    for i in sorted(range(n), key=lambda i: -(hits[i].score or 0.0)):
+        home = next((j for j in seeds if overlaps(hits[i].memory, hits[j].memory, s)), None)
+        if home is None:
+            seeds.append(i)
+        else:
+            parent[root(i)] = root(home)
+    for i in range(n - 1):
+        a, b = hits[i].memory, hits[i + 1].memory
+        if root(i) == root(i + 1):
+            continue
+        step = mem.store.by_time(a.t, 2, Filter(before=b.t))
+        if len(step) == 2 and step[0].id == a.id and step[1].id == b.id:
+            parent[root(i)] = root(i + 1)
+    groups: dict[int, list[Hit]] = {}
+    for i, h in enumerate(hits):
+        groups.setdefault(root(i), []).append(h)
+    return [sorted(g, key=chrono) for g in groups.values()]
+
+
+def _disc(p: Place, s: ChangeConfig) -> tuple[Region, list[MemoryRecord]]:
+    """The cameras a later view is compared with (the last 16 sightings and the best one), and
+    a disc around them that holds every camera overlapping one of them."""
+    cams = [h.memory for h in p.sightings[-16:]]
+    best = p.best.memory
+    if all(r.id != best.id for r in cams):
+        cams.append(best)
+    cx = float(np.mean([r.pose.x for r in cams]))
+    cy = float(np.mean([r.pose.y for r in cams]))
+    reach = max(math.hypot(r.pose.x - cx, r.pose.y - cy) for r in cams)
+    return Region(cx, cy, reach + s.view_radius), cams
+
+
+def _views(
+    mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord], cams: list[MemoryRecord], s: ChangeConfig
+) -> list[Hit]:
+    """The records whose view overlaps one of `cams`, scored against the query, chronological."""
+    near = [r for r in recs if any(overlaps(r, c, s) for c in cams)]
+    scored = _scores(mem, q, [r.id for r in near]) if near else []
+    return sorted((Hit(memory=r, score=sc) for r, sc in scored), key=chrono)
+
+
+def _newest_views(
+    mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Filter, thr: float | None
+) -> list[Hit]:
+    """The newest views of the place after its last sighting (with `thr`: the newest that show
+    the thing): time windows growing backwards from the end, inside the place's disc."""
+    disc, cams = _disc(p, s)
+    lo = p.last.t
+    hi = asof.before if asof.before is not None else mem.time_span()[1]
+    if thr is not None:  # one search over the whole time first: mostly there is no later sighting
+        found = mem.store.search_vector(q, s.pool, Filter(after=lo, before=hi, region=disc))
+        recs = sample(mem, [i for i, sc in found if sc >= thr])
+        if not any(chrono(h) > chrono(p.sightings[-1]) for h in _views(mem, q, recs, cams, s)):
+            return []
+    width = max((hi - lo) / 64.0, 1e-3)
+    for _ in range(s.recency_windows + 4):
+        start = max(lo, hi - width)
+        filt = Filter(after=start, before=hi, region=disc)
+        if thr is None:
+            recs = mem.store.by_time(start, s.pool, filt)
+        else:
+            found = mem.store.search_vector(q, s.pool, filt)
+            recs = sample(mem, [i for i, sc in found if sc >= thr])
+        got = [h for h in _views(mem, q, recs, cams, s) if chrono(h) > chrono(p.sightings[-1])]
+        if thr is not None:
+            got = [h for h in got if (h.score or 0.0) >= thr]
+        if got or start <= lo:
+            return got
+        width *= 4.0
+    return []
+
+
+def follow(mem: Core, p: Place, q: np.ndarray, thr: float, s: ChangeConfig, asof: Filter, gap: float) -> None:
+    """Grow the place with its newest later sightings, then collect the later views without the
+    thing: after the robot looked away, and at least a pass (`gap` s) after the last sighting."""
+    for _ in range(s.max_rounds):
+        more = _newest_views(mem, q, p, s, asof, thr)
+        if not more:
+            break
+        known = {h.memory.id for h in p.sightings}
+        p.sightings = sorted(p.sightings + [h for h in more if h.memory.id not in known], key=chrono)
+    end = _visit_end(mem, p, p.last, s, asof)
+    start = p.last.t + gap if end is None else max(end, p.last.t + gap)
+    disc, cams = _disc(p, s)
+    first = mem.store.by_time(start, s.pool, Filter(before=asof.before, region=disc))
+    without = [h for h in _views(mem, q, first, cams, s) if (h.score or 0.0) < thr]
+    p.revisit_count = len(without)
+    if without:
+        newest = [h for h in _newest_views(mem, q, p, s, asof, None) if (h.score or 0.0) < thr]
+        if newest and newest[-1].memory.id not in {h.memory.id for h in without}:
+            without.append(newest[-1])
+            p.revisit_count = max(p.revisit_count + 1, len(without))
+    keep = s.max_revisits
+    p.revisits = without if len(without) <= keep else without[: keep - 1] + without[-1:]
+    first_end = _visit_end(mem, p, p.first, s, asof)
+    p.later_visit = first_end is not None and p.last.t >= first_end
+
+
+def _visit_end(mem: Core, p: Place, start: MemoryRecord, s: ChangeConfig, asof: Filter) -> float | None:
+    """When the robot first looked away from the place after `start`: the time of the first
+    later memory that overlaps none of the place's sightings (None if it never did)."""
+    views = [h.memory for h in p.sightings]
+    cursor, read = (start.t, start.id), 0
+    while read < s.max_walk:
+        page = mem.store.by_time(cursor[0], _PAGE, asof)
+        fresh = [r for r in page if (r.t, r.id) > cursor]
+        for r in fresh:
+            if not any(overlaps(r, v, s) for v in views):
+                return r.t
+        read += len(fresh)
+        if len(page) < _PAGE or not fresh:
+            return None
+        cursor = (fresh[-1].t, fresh[-1].id)
+    return None
+
+
+def merge(places: list[Place]) -> list[Place]:
+    """Places that grew into each other (a later sighting of one is a sighting of another)
+    become one; returns the places that took others in (their revisits must be redone)."""
+    owner: dict[int, Place] = {}
+    grown: list[Place] = []
+    for p in list(places):
+        for other in {owner[h.memory.id] for h in p.sightings if h.memory.id in owner}:
+            if other not in places:
+                continue
+            ids = {h.memory.id for h in p.sightings}
+            p.sightings = sorted(
+                p.sightings + [h for h in other.sightings if h.memory.id not in ids], key=chrono
+            )
+            places.remove(other)
+            grown = [g for g in grown if g is not other]
+            if p not in grown:
+                grown.append(p)
+        for h in p.sightings:
+            owner[h.memory.id] = p
+    return grown

@@ -247,6 +247,31 @@ def test_the_model_chooses_position_and_heading(mem, server):
     assert any("no position given" in n for n in ans.notes)
 
 
+def test_the_answers_yaw_is_radians_whatever_the_model_wrote(mem, server):
+    """Answer.yaw is radians in the map frame: `yaw_deg` is converted, `yaw`/`heading` are
+    radians, and degrees copied into `yaw` (the listings show `yaw=90deg`) are re-asked with
+    the reason, never read as radians (90 rad would face 117 deg) nor guessed."""
+    ids = ids_by_index(mem)
+    server.push(
+        tool("search_text", query="red"),
+        answer(question_type="position", evidence=[ids[8]], position=[8.5, 3.2, 0.4], yaw=90),
+        answer(question_type="position", evidence=[ids[8]], position=[8.5, 3.2, 0.4], yaw_deg=90),
+    )
+    ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
+    assert "yaw 90 is more than a full turn in radians; give degrees as yaw_deg" in server.texts(2)
+    assert ans.yaw == pytest.approx(math.pi / 2) and ans.yaw_source == "model"
+    server.push(
+        tool("search_text", query="red"),
+        answer(question_type="position", evidence=[ids[8]], position=[8.5, 3.2, 0.4], heading=-1.5),
+    )
+    ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
+    assert ans.yaw == pytest.approx(-1.5) and ans.model_dump()["yaw"] == pytest.approx(-1.5)
+    # no heading from the model: the evidence camera's, radians as stored (memory 8: yaw 0.8 rad)
+    server.push(tool("search_text", query="red"), answer(question_type="position", evidence=[ids[8]]))
+    ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
+    assert ans.yaw == pytest.approx(0.8) and ans.yaw_source == "evidence"
+
+
 def test_a_far_model_position_is_kept_but_marked_unsupported_with_the_distance(mem, server):
     ids = ids_by_index(mem)
     server.push(

@@ -138,6 +138,16 @@ class ModelAnswer(BaseModel):
             raise ValueError(f"a heading of {v:g} is not an angle")
         return v
 
+    @field_validator("yaw", mode="after")
+    @classmethod
+    def _radians(cls, v: float | None) -> float | None:
+        # The listings show headings as `yaw=90deg`, so a model may copy degrees into `yaw`:
+        # read as radians, 90 would silently face 117 deg. More than a full turn is not a
+        # radian heading; the model is asked again (never guessed to be degrees).
+        if v is not None and abs(v) > 2 * math.pi + 1e-6:
+            raise ValueError(f"yaw {v:g} is more than a full turn in radians; give degrees as yaw_deg")
+        return v
+
     @field_validator("time", mode="before")
     @classmethod
     def _when(cls, v: Any) -> Any:

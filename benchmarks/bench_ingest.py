@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import os
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 import ravenmem
 from ravenmem.ingest.keyframes import KeyframeConfig, describe
@@ -70,7 +70,7 @@ def main() -> None:
     ap.add_argument("--ocr-frames", type=int, default=40)
     ap.add_argument("--threads", type=int, default=2)
     a = ap.parse_args()
-    torch.set_num_threads(a.threads)
+    os.environ["RAVENMEM_THREADS"] = str(a.threads)  # the offline embedder's onnxruntime threads
     every = KeyframeConfig.only()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
@@ -80,7 +80,7 @@ def main() -> None:
         thumbs = run(a.tum, a.frames, ocr=False, thumb=320, tmp=tmp, kf=every, name="thumbs")
         withocr = run(a.tum, a.ocr_frames, ocr=True, thumb=320, tmp=tmp, kf=every, name="ocr")
     rep = default["rep"]
-    print(f"torch threads: {a.threads}")
+    print(f"embedder threads (onnxruntime): {a.threads}")
     print(f"default keyframes ({describe(KeyframeConfig())}), whole recording:")
     for label, r in (("no OCR", default), ("with OCR", default_ocr)):
         print(

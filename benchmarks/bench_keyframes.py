@@ -48,17 +48,14 @@ MIN_POSITIVES = 3
 
 def embed_all(cache: Path, threads: int) -> dict[str, np.ndarray]:
     """Times, poses and default-embedder vectors of every frame (cached by embedder name)."""
-    import torch
-
     from ravenmem.embed import create_embedder
     from ravenmem.ingest.tum import TumSource
 
-    emb = create_embedder("offline")
+    emb = create_embedder(f"offline:threads={threads}")
     if cache.exists():
         z = dict(np.load(cache, allow_pickle=False))
         if str(z["embedder"]) == emb.name:
             return z
-    torch.set_num_threads(threads)
     src = TumSource(DATA, depth=False, pose_match="interpolate", max_gap=0.2)  # all 723 frames posed
     rows, vecs, batch = [], [], []
     t0 = time.perf_counter()

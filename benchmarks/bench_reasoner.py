@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections import defaultdict
@@ -161,9 +162,7 @@ def main() -> None:
     args = ap.parse_args()
     if not (DATA / "rgb.txt").exists():
         sys.exit(f"TUM data not found at {DATA}")
-    import torch
-
-    torch.set_num_threads(args.threads)
+    os.environ["RAVENMEM_THREADS"] = str(args.threads)  # the offline embedder's onnxruntime threads
     if args.memory is None:
         slug = "".join(c if c.isalnum() else "_" for c in args.keyframes)
         args.memory = Path(f"/tmp/ravenmem_bench_tum_{slug}.mem")

@@ -20,9 +20,9 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from ravenmem.ingest.poses import PoseTrack, load_pose_track
-from ravenmem.ingest.rosbag import RosbagSource
 from ravenmem.ingest.tum import TumSource
 from ravenmem.ingest.video import VideoSource
+from ravenmem.ros.bag import RosbagSource
 
 H, W = 480, 640
 

@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from ravenmem.ingest import rosmsg
-from ravenmem.server.zenoh_link import RosLink, ZenohEndpoints, ZenohLink, parse_link_spec
+from ravenmem.ros import msgs as rosmsg
+from ravenmem.ros.link import LinkConfig, RosLink
+from ravenmem.ros.zenoh import ZenohEndpoints, ZenohLink
 from ravenmem.types import Pose
 
 H, W = 480, 640
@@ -96,7 +97,7 @@ class Count:
 
 def in_process(msgs: list[bytes], poses: list[bytes], label: str) -> None:
     sink = Count()
-    link = RosLink(parse_link_spec("image=cam,pose=odom"), sink)
+    link = RosLink(LinkConfig.from_spec("image=cam,pose=odom"), sink)
     for p in poses:
         link.pose("odom", p)
     t0 = time.perf_counter()
@@ -114,7 +115,9 @@ def over_zenoh(msgs: list[bytes], poses: list[bytes], label: str, rate: float) -
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
     sink = Count()
-    link = ZenohLink(parse_link_spec("image=cam,pose=odom"), sink, ZenohEndpoints(listen=(endpoint,))).start()
+    link = ZenohLink(
+        LinkConfig.from_spec("image=cam,pose=odom"), sink, ZenohEndpoints(listen=(endpoint,))
+    ).start()
     conf = zenoh.Config()
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ravenmem.nav.goals import read_pose_stamped
 from ravenmem.nav.grid import MapConfig, OccupancyGrid
-from ravenmem.nav.nav2 import read_pose_stamped
 from tests.agent.conftest import SCENE, run_cli
 from tests.agent.scripted_server import answer, tool
 from tests.agent.test_cli import ids_of
@@ -95,7 +95,7 @@ def test_an_answer_without_a_place_is_no_path_and_exit_1(cli, mem_path, server):
     server.push(answer(question_type="position", found=False, answer="I did not see one."))
     r = cli("ask", "Where is the purple elephant?", "-m", mem, *vlm(server), "--navigate")
     assert r.returncode == 1, r.stderr
-    assert "navigate: no path: the answer has no position to go to (not found)" in r.stdout
+    assert "navigate: no path (answer): the answer has no position to go to (not found)" in r.stdout
     assert "Traceback" not in r.stderr
 
 

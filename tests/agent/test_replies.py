@@ -47,22 +47,16 @@ def cli(color_plugin, tmp_path):
     return lambda *args, **kw: run_cli(*args, site=color_plugin, home=home, **kw)
 
 
+def ask_cli(cli, mem_path, srv: ScriptedModel, question: str, *extra: str):
+    """`ravenmem ask QUESTION -m MEMORY` against the scripted model, with `extra` flags."""
+    return cli("ask", question, "-m", str(mem_path), "--base-url", srv.base_url, "--model", "m", *extra)
+
+
 @pytest.mark.parametrize("case", NASTY, ids=[c.name for c in NASTY])
 def test_the_command_fails_such_questions_with_one_line_and_exit_1(cli, mem_path, case: Case):
     ids = ids_of(mem_path)
     with ScriptedModel(materialise(case, ids)) as srv:
-        r = cli(
-            "ask",
-            case.question,
-            "-m",
-            str(mem_path),
-            "--base-url",
-            srv.base_url,
-            "--model",
-            "m",
-            "--max-retries",
-            "0",
-        )
+        r = ask_cli(cli, mem_path, srv, case.question, "--max-retries", "0")
     assert r.returncode == 1, (r.stdout[-2000:], r.stderr[-2000:])
     assert "Traceback" not in r.stderr and "Traceback" not in r.stdout
     lines = r.stderr.strip().splitlines()
@@ -87,17 +81,7 @@ def test_a_text_answer_with_strings_for_numbers_through_the_command(cli, mem_pat
         },
     ]
     with ScriptedModel(script) as srv:
-        r = cli(
-            "ask",
-            "Where is the magenta box?",
-            "-m",
-            str(mem_path),
-            "--base-url",
-            srv.base_url,
-            "--model",
-            "m",
-            "--json",
-        )
+        r = ask_cli(cli, mem_path, srv, "Where is the magenta box?", "--json")
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     assert data["position"] == [7.1, 3.0, 0.5] and data["yaw"] == pytest.approx(3.14)  # radians

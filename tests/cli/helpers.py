@@ -46,9 +46,11 @@ def run_cli(
     )
 
 
-def assert_one_line_error(r: subprocess.CompletedProcess[str], code: int = 2) -> str:
-    """Exit `code`, exactly one line on stderr starting with `error:`, no traceback; the line."""
-    lines = r.stderr.splitlines()
+def assert_one_line_error(r: subprocess.CompletedProcess[str], code: int = 2, warnings: bool = False) -> str:
+    """Exit `code`, exactly one line on stderr starting with `error:`, no traceback; the line.
+
+    `warnings=True` lets `warning: ` lines stand before it (a command that warned, then failed)."""
+    lines = [ln for ln in r.stderr.splitlines() if not (warnings and ln.startswith("warning: "))]
     assert r.returncode == code, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
     assert "Traceback" not in r.stderr and "Traceback" not in r.stdout, r.stderr[-2000:]
     assert len(lines) == 1 and lines[0].startswith("error: "), r.stderr[-2000:]

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from ravenmem.nav.nav2 import read_pose_stamped
+from ravenmem.nav.goals import read_pose_stamped
 from ravenmem.types import Pose, yaw_of
 
 

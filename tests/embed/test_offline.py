@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from ravenmem.embed import Embedder, create_embedder
-from ravenmem.embed.offline import OfflineConfig, parse_spec
+from ravenmem.embed.offline import OfflineConfig, RunOptions, parse_spec
 from ravenmem.errors import InputError
 
 KEYBOARD = ["1305031233.793747.jpg", "1305031238.861826.jpg", "1305031241.793694.jpg"]  # frames 128, 280, 368
@@ -63,8 +63,10 @@ def test_name_round_trips(spec: str) -> None:
 
 
 def test_spec_forms() -> None:
-    cfg, threads = parse_spec("tiles=none:threads=2")
-    assert cfg.tiles == 1 and threads == 2
+    cfg, run = parse_spec("tiles=none:threads=2")
+    assert cfg.tiles == 1 and run == RunOptions(threads=2, runtime="onnx")
+    cfg, run = parse_spec("runtime=torch")
+    assert cfg == OfflineConfig() and run.runtime == "torch" and run.threads is None
     cfg, _ = parse_spec("effnet-lite0+minilm:conse-t7-temp0.5:tiles6-max:r160")
     assert cfg == OfflineConfig(design="conse", t=7, temp=0.5, tiles=6, pool="max", res=160)
     assert parse_spec("", design="cls")[0].dim == 1000
@@ -82,6 +84,8 @@ def test_spec_forms() -> None:
         ("offline:w=2", "w=2"),
         ("offline:color=red", "unknown option 'color'"),
         ("offline:conse-x", "bad design option"),
+        ("offline:runtime=tensorflow", "runtime='tensorflow'"),
+        ("offline:threads=0", "threads=0"),
     ],
 )
 def test_bad_specs_raise_input_error(spec: str, match: str) -> None:

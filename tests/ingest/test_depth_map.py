@@ -17,7 +17,7 @@ pytest.importorskip("vizdoom")
 from functools import partial
 
 from ravenmem.nav import load_map  # noqa: E402
-from ravenmem.nav.nav2 import read_pose_stamped  # noqa: E402
+from ravenmem.nav.goals import read_pose_stamped  # noqa: E402
 from tests.cli.helpers import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
@@ -201,6 +201,10 @@ def test_navigate_goes_around_a_wall(recorded: dict) -> None:
 
 
 def test_unreachable_goal_fails_with_one_line(recorded: dict) -> None:
-    r = rm("navigate", "--memory", str(recorded["mem"]), "--to", "500,500", "--json")
-    assert r.returncode == 2 and r.stdout == ""
-    assert "unreachable" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = rm("navigate", "--memory", str(recorded["mem"]), "--to", "500,500")
+    assert r.returncode == 1 and r.stdout == ""
+    assert "unreachable" in r.stderr and "the goal is the problem" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    r = rm("navigate", "--memory", str(recorded["mem"]), "--to", "500,500", "--json")  # JSON in every case
+    out = json.loads(r.stdout)
+    assert r.returncode == 1 and not out["ok"] and out["problem"] == "goal" and "unreachable" in out["reason"]

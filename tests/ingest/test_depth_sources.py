@@ -26,9 +26,9 @@ from ravenmem.ingest.depth import PRESETS, decode_depth_message, parse_intrinsic
 from ravenmem.ingest.folder import FolderSource  # noqa: E402
 from ravenmem.ingest.keyframes import KeyframeConfig  # noqa: E402
 from ravenmem.ingest.pipeline import ingest  # noqa: E402
-from ravenmem.ingest.rosbag import RosbagSource  # noqa: E402
 from ravenmem.ingest.tum import TumSource  # noqa: E402
 from ravenmem.nav.mapping import MapBuilder  # noqa: E402
+from ravenmem.ros.bag import RosbagSource  # noqa: E402
 from ravenmem.types import Intrinsics  # noqa: E402
 
 

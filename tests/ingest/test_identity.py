@@ -13,9 +13,9 @@ from PIL import Image
 
 import ravenmem
 from ravenmem.ingest.folder import FolderSource
-from ravenmem.ingest.rosbag import RosbagSource
 from ravenmem.ingest.tum import TumSource
 from ravenmem.ingest.video import VideoSource
+from ravenmem.ros.bag import RosbagSource
 from ravenmem.types import Frame, Pose
 from tests.cli.helpers import run_cli
 

@@ -10,8 +10,8 @@ import pytest
 
 from ravenmem.errors import InputError
 from ravenmem.ingest.poses import SKIP_OUTSIDE
-from ravenmem.ingest.rosbag import RosbagSource
-from ravenmem.ingest.rosmsg import SKIP_COMPRESSED
+from ravenmem.ros.bag import RosbagSource
+from ravenmem.ros.msgs import SKIP_COMPRESSED
 
 from .bags import BAG_DELAY, RGB, write_bag
 
@@ -91,7 +91,7 @@ def test_compressed_images_with_tf_chain(bag: Path) -> None:
 
 
 def test_bag_receive_time_option(bag: Path) -> None:
-    frames = list(RosbagSource(bag, image_topic=IMAGES, pose_topic="/odom", time_source="bag"))
+    frames = list(RosbagSource(bag, image_topic=IMAGES, pose_topic="/odom", time_source="receive"))
     bag_times = [10.0, 10.1, 10.2, 10.3, 10.4, 10.45, 10.5]
     assert [f.t for f in frames] == pytest.approx([t + BAG_DELAY for t in bag_times])
     for f, t in zip(frames, bag_times, strict=True):

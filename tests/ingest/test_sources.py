@@ -11,10 +11,10 @@ from PIL import Image
 from ravenmem.errors import InputError
 from ravenmem.ingest import SOURCES, FrameSource
 from ravenmem.ingest.folder import FolderSource
-from ravenmem.ingest.rosbag import RosbagSource
 from ravenmem.ingest.sources import detect_format, open_source
 from ravenmem.ingest.tum import TumSource
 from ravenmem.ingest.video import VideoSource
+from ravenmem.ros.bag import RosbagSource
 
 from .bags import write_bag
 from .test_video import write_video

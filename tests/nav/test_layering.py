@@ -1,9 +1,11 @@
-"""The layering of DESIGN.md for the simulator, navigation and robot floors: arrows point down.
+"""The layering of DESIGN.md for the simulator, navigation, robot and ROS floors: arrows point down.
 
 sim is a low floor (it knows types and registries, nothing of maps), nav sits above memory
-(maps, A*, goals; it knows nothing of simulators or robots), robot sits above both. Checked
-twice: every `import` statement in the source (module level and inside functions), and what
-importing each package really pulls into a fresh interpreter.
+(maps, A*, goals; it knows nothing of simulators or robots), robot sits above both. ros (the
+ROS 2 messages, bags, links, node and services) sits over the memory, the agent, the planner
+and the service it attaches to; nothing below it imports it (the bag source is reached by its
+registry name). Checked twice: every `import` statement in the source (module level and inside
+functions), and what importing each package really pulls into a fresh interpreter.
 """
 
 from __future__ import annotations
@@ -20,26 +22,29 @@ import pytest
 SRC = Path(__file__).resolve().parents[2] / "src" / "ravenmem"
 
 # What each package may import from ravenmem (anything else is a sideways or upward arrow).
+_GROUND = {"types", "errors", "registry", "fsio", "timeparse", "imageio"}
+_DATA = _GROUND | {"memory", "tools", "store", "embed", "ingest"}
 ALLOWED = {
-    "sim": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "sim"},
-    "nav": {"types", "errors", "registry", "fsio", "timeparse", "imageio", "memory", "tools", "nav"},
-    "robot": {
-        "types",
-        "errors",
-        "registry",
-        "fsio",
-        "timeparse",
-        "imageio",
-        "memory",
-        "tools",
-        "store",
-        "embed",
-        "sim",
-        "nav",
-        "ingest",
-        "robot",
-    },
+    "sim": _GROUND | {"sim"},
+    "nav": _GROUND | {"memory", "tools", "nav"},
+    "robot": _DATA | {"sim", "nav", "robot"},
+    "ros": _DATA | {"agent", "nav", "server", "ros"},
 }
+# packages below ros: none of them may import it
+BELOW_ROS = (
+    "types",
+    "errors",
+    "fsio",
+    "memory",
+    "store",
+    "embed",
+    "ingest",
+    "agent",
+    "nav",
+    "server",
+    "sim",
+    "robot",
+)
 
 
 def _ravenmem_imports(path: Path, package: str) -> set[str]:
@@ -80,6 +85,16 @@ def test_imports_point_down(package: str) -> None:
     assert not bad, f"upward or sideways imports: {bad}"
 
 
+def test_nothing_below_ros_imports_it() -> None:
+    bad = {}
+    for top in BELOW_ROS:
+        paths = [SRC / f"{top}.py"] if (SRC / f"{top}.py").is_file() else sorted((SRC / top).rglob("*.py"))
+        for path in paths:
+            if "ros" in _ravenmem_imports(path, top):
+                bad[str(path.relative_to(SRC))] = "ros"
+    assert not bad, f"imports of ravenmem.ros from below it: {bad}"
+
+
 def test_the_checker_sees_relative_and_lazy_imports() -> None:
     found = _ravenmem_imports(SRC / "nav" / "grid.py", "nav")
     assert {"types", "fsio", "errors"} <= found  # relative imports at module level are seen
@@ -98,7 +113,7 @@ def test_importing_a_package_pulls_in_no_higher_floor() -> None:
         "base = set(sys.modules)\n"
         "out = {'ravenmem': floors(base)}\n"
         "for pkg, mods in (('sim', ('vizdoom', 'synthetic', 'control', 'groundtruth', 'queries')),\n"
-        "                  ('nav', ('mapping', 'planning', 'frontier', 'render', 'nav2', 'goals'))):\n"
+        "                  ('nav', ('mapping', 'planning', 'frontier', 'render', 'goals'))):\n"
         "    for name in [m for m in sys.modules if m not in base and m.startswith('ravenmem')]:\n"
         "        del sys.modules[name]\n"
         "    for m in mods:\n"

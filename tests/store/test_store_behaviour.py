@@ -9,7 +9,7 @@ import pytest
 
 from ravenmem.errors import EmbedderMismatchError, InputError
 from ravenmem.store import Store
-from ravenmem.types import Filter, MemoryRecord, Region
+from ravenmem.types import Filter, MemoryRecord, Pose, Region
 from tests.store.store_helpers import BACKENDS, StoreOpener, make_records, opener, robot_stream
 
 N, DIM = 400, 16
@@ -320,3 +320,55 @@ def test_add_many_imports_and_resumes(open_fn: StoreOpener) -> None:
         assert store.add_many([(recs[:3], emb[:3])]) == 3 and store.count() == N + 3
     finally:
         store.close()
+
+
+def test_set_poses_moves_memories_for_every_tool_and_reopen(open_fn: StoreOpener) -> None:
+    """`set_poses` (re-anchoring into another map) changes where memories are for the position
+    tool, the filters, `get` and `stats`, after a reopen too; the vectors, times and texts stay;
+    an unknown id changes nothing."""
+    store = open_fn(dim=DIM)
+    recs = make_records(120, seed=11)
+    emb = robot_stream(120, DIM, seed=12)
+    ids = store.add(recs, emb)
+    recs = [r.with_id(i) for r, i in zip(recs, ids, strict=True)]
+    try:
+        store.select(Filter(region=Region(0.0, 0.0, 1.0)))  # the columns are loaded (and cached)
+        c, s = np.cos(0.5), np.sin(0.5)
+
+        def moved(p: Pose) -> Pose:  # a yaw of 0.5 rad about z, then 100 m along x
+            q = p.quat and (0.0, 0.0, *_turn(p.quat[2:], 0.25))
+            return Pose(c * p.x - s * p.y + 100.0, s * p.x + c * p.y, p.z, p.yaw + 0.5, q)
+
+        new = [moved(r.pose) for r in recs]
+        with pytest.raises(KeyError):
+            store.set_poses([ids[0], 10**9], [new[0], new[1]])
+        assert store.get([ids[0]])[0].pose == recs[0].pose  # nothing changed
+        with pytest.raises(InputError, match="poses"):
+            store.set_poses([ids[0]], [])
+        assert store.set_poses(ids, new) == len(ids)
+        for attempt in range(2):
+            got = store.get(ids, with_embeddings=True)
+            assert [g.pose for g in got] == new
+            assert [(g.t, g.ocr_text, g.source) for g in got] == [(r.t, r.ocr_text, r.source) for r in recs]
+            assert np.allclose(
+                np.stack([g.embedding for g in got]),
+                emb / np.linalg.norm(emb, axis=1, keepdims=True),
+                atol=1e-6,
+            )
+            near = store.nearest(100.0, 0.0, None, 10)
+            d = {r.id: float(np.hypot(p.x - 100.0, p.y)) for r, p in zip(recs, new, strict=True)}
+            assert [i for i, _ in near] == sorted(d, key=lambda i: (d[i], i))[:10]
+            region = Filter(region=Region(100.0, 0.0, 5.0))
+            assert store.select(region).tolist() == [i for i in ids if d[i] <= 5.0]
+            assert store.stats()["x_max"] >= max(p.x for p in new) > 100
+            if attempt == 0:
+                store.close()
+                store = open_fn(dim=DIM)
+    finally:
+        store.close()
+
+
+def _turn(zw: tuple[float, float], half: float) -> tuple[float, float]:
+    """A yaw-only quaternion's (z, w) turned by 2 * half about z."""
+    z, w = zw
+    return (float(np.sin(half) * w + np.cos(half) * z), float(np.cos(half) * w - np.sin(half) * z))

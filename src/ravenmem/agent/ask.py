@@ -4,16 +4,18 @@ The CLI (`ravenmem ask`), the service (`POST /ask`, MCP `ask`), the evaluation a
 links build one `MethodOptions` (method, model, presets, budgets, image settings) and one
 `AskRequest`, and call `ask`. It builds the method, answers, and applies the rules every front
 end shares: a failed question and an unsupported answer (a position farther than the support
-threshold from every memory the model was shown) are refused with one line, and nothing is
-planned to a refused answer unless the request allows unsupported answers.
+threshold from every memory the model was shown) are refused with one line. Whether such an
+answer may be driven to is decided in one place, the goal path (`ravenmem.nav.goals.goal_for`
+refuses failed and unsupported answers unless the request allows unsupported ones).
 
     from ravenmem.agent.ask import AskRequest, MethodOptions, ask
     opts = MethodOptions(method="raven", vlm=VLMConfig(base_url=..., model=...), preset="navqa")
     result = ask(mem, AskRequest("Where is the red mug?", options=opts))
     result.answer, result.refusal, result.exit_code
 
-Navigation planning lives above this package (`ravenmem.nav`), so a request carries the planner
-as a function of the answer: `AskRequest(..., plan=lambda ans: plan_to_answer(mem, ans, start))`.
+Navigation planning lives beside this package (`ravenmem.nav`, which the agent does not import),
+so a request carries the planner as a function of the answer and of `allow_unsupported`:
+`AskRequest(..., plan=lambda ans, allow: goal_for(ans, mem, start, allow_unsupported=allow))`.
 """
 
 from __future__ import annotations
@@ -144,13 +146,13 @@ class PlanLike(Protocol):
 @dataclass
 class AskRequest:
     """One question: its text, an optional query picture, the method options, and what to do
-    with the answer: `plan` (answer -> plan) when the caller wants to drive there, and
-    `allow_unsupported` to plan (and report success) even for an unsupported position."""
+    with the answer: `plan` ((answer, allow_unsupported) -> plan, the goal path) when the caller
+    wants to drive there, and `allow_unsupported` to use (and plan to) an unsupported position."""
 
     question: str
     options: MethodOptions = field(default_factory=MethodOptions)
     image: np.ndarray | str | Path | None = None
-    plan: Callable[[Answer], PlanLike] | None = None
+    plan: Callable[[Answer, bool], PlanLike] | None = None
     allow_unsupported: bool = False
 
 
@@ -196,17 +198,18 @@ class QuestionFailed(RavenmemError):
 
 def ask(memory: MemoryLike, request: AskRequest, method: Method | None = None) -> AskResult:
     """Answer `request` from `memory` (with `method` when one is already built, as the
-    evaluation reuses one per worker) and apply the refusal and navigation rules."""
+    evaluation reuses one per worker) and apply the refusal rule. With a planner the answer
+    always goes to it: the goal path refuses what must not be driven to, with its reason."""
     m = method if method is not None else build_method(memory, request.options)
     ans = m.ask(request.question, image=request.image)  # type: ignore[arg-type]
+    # where its position is (REP 105), for every front end and robot link
+    ans.frame_id = ans.frame_id or getattr(memory, "frame_id", None)
+    ans.map_id = ans.map_id or getattr(memory, "map_id", None)
     result = AskResult(answer=ans, refusal=refusal_of(ans, request.allow_unsupported))
     if ans.unsupported and request.allow_unsupported:
         result.notes.append("unsupported position allowed by the request")
     if request.plan is not None:
-        if result.refusal is None:
-            result.navigation = request.plan(ans).as_dict()
-        else:
-            result.navigation = refused_plan(result.refusal)
+        result.navigation = request.plan(ans, request.allow_unsupported).as_dict()
     return result
 
 
@@ -222,8 +225,3 @@ def refusal_of(ans: Answer, allow_unsupported: bool = False) -> str | None:
         )
         return f"unsupported answer: its position is {where}; not used (allow unsupported answers to use it)"
     return None
-
-
-def refused_plan(reason: str) -> dict[str, Any]:
-    """The navigation JSON of a plan that was not made because the answer was refused."""
-    return {"ok": False, "reason": reason, "refused": True, "waypoints": [], "pose_stamped": None}

@@ -92,6 +92,10 @@ class Answer(BaseModel):
     text: str = ""
     position: list[float] | None = Field(default=None, description="[x, y, z] in the map frame, metres")
     yaw: float | None = Field(default=None, description="heading in radians, map frame")
+    frame_id: str | None = Field(
+        default=None, description="the frame (REP 105) position and yaw are in: the memory's, map or odom"
+    )
+    map_id: str | None = Field(default=None, description="the identity of the map the position is in")
     position_source: Source = "none"
     yaw_source: Source = "none"
     time: float | None = Field(default=None, description="Unix seconds (UTC)")

@@ -240,10 +240,12 @@ def ask(
     with ravenmem.open(memory) as mem:
         plan = None
         if grid is not None:
-            from ravenmem.nav.goals import plan_to_answer
+            from ravenmem.nav.goals import goal_for
 
-            def plan(ans: Any) -> Any:
-                return plan_to_answer(mem, ans, start, robot_radius, grid=grid)
+            def plan(ans: Any, allow: bool) -> Any:
+                return goal_for(
+                    ans, mem, start, robot_radius=robot_radius, grid=grid, allow_unsupported=allow
+                )
 
         result = ask(mem, AskRequest(question, opts, img, plan, allow_unsupported))
         ans = result.answer
@@ -304,13 +306,15 @@ def _output(data: dict[str, Any], json_out: bool, refusal: str | None, code: int
 def _render_navigation(nav: dict[str, Any]) -> None:
     con = out_console()
     if not nav["ok"]:
-        con.print(f"[bold]navigate:[/] [red]no path[/]: {esc(nav['reason'])}", highlight=False)
+        what = f" ({nav['problem']})" if nav.get("problem") else ""
+        con.print(f"[bold]navigate:[/] [red]no path{what}[/]: {esc(nav['reason'])}", highlight=False)
         return
     (sx, sy), (gx, gy, gyaw) = nav["start"], nav["goal"]
+    heading = nav.get("heading") or {}
     con.print(
         f"[bold]navigate:[/] A* path {nav['path_length_m']:.2f} m, {len(nav['waypoints'])} waypoints, "
         f"from ({sx:.2f}, {sy:.2f}) to ({gx:.2f}, {gy:.2f}) facing {math.degrees(gyaw):.0f} deg "
-        f"(frame {esc(nav['frame_id'])})",
+        f"({esc(heading.get('reason', ''))}; frame {esc(nav['frame_id'])}, map {esc(nav.get('map_id') or '')})",
         highlight=False,
     )
     for note in nav.get("notes", []):

@@ -161,6 +161,26 @@ def ingest(
         str | None, typer.Option(help="depth camera: fr1 | fr2 | fr3 | kinect | fx,fy,cx,cy")
     ] = None,
     build_map: Annotated[bool, typer.Option("--map/--no-map", help="build the map from depth frames")] = True,
+    map_id: Annotated[
+        str | None,
+        typer.Option(
+            help="the map the poses are in (default: one per recording); a memory in another map "
+            "is refused (see `ravenmem align`)"
+        ),
+    ] = None,
+    tf_parent: Annotated[
+        str | None, typer.Option(help="bags with /tf: the poses' parent frame (default map, odom or world)")
+    ] = None,
+    tf_child: Annotated[
+        str | None, typer.Option(help="bags with /tf: the posed frame (default base_link)")
+    ] = None,
+    time_source: Annotated[
+        str | None, typer.Option(help="bags: header (header.stamp) or receive (when the bag got it)")
+    ] = None,
+    pose_match: Annotated[
+        str | None, typer.Option(help="interpolate between poses, or the nearest within --max-gap")
+    ] = None,
+    max_gap: Annotated[float | None, typer.Option(help="seconds a frame may be from its pose(s)")] = None,
     wait: Annotated[
         bool, typer.Option("--wait", help="wait while another process writes this memory")
     ] = False,
@@ -170,6 +190,7 @@ def ingest(
     already in it are skipped, so running the same command again after an interruption resumes
     where it stopped."""
     import ravenmem
+    from ravenmem.ingest.identity import derived_map_id
     from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
@@ -194,16 +215,27 @@ def ingest(
             depth_topic=depth_topic,
             depth_scale=depth_scale,
             camera_frame=camera_frame,
+            tf_parent=tf_parent,
+            tf_child=tf_child,
+            time_source=time_source,
+            pose_match=pose_match,
+            max_gap=max_gap,
         ).items()
         if v is not None
     }
     src = open_source(source, format, **kwargs)
+    derived, frame_id = derived_map_id(src)
     mapper = _mapper(memory, src, intrinsics) if build_map else None
     existed = (memory / MANIFEST).is_file()
     mem = ravenmem.create(
         memory, embedder=embedder, store=store, thumb_size=thumb_size, ocr=ocr, exist_ok=True, wait=wait
     )
     with mem, mem.undo_create_on_error():  # a failed first ingest leaves no folder behind
+        note = mem.claim_map(
+            map_id or derived, frame_id, given=map_id is not None, what=f"recording {source}"
+        )
+        if note and not json_out:
+            print_warning(note)
         rep = run_ingest(src, mem, keyframes=cfg, batch_size=batch_size, wait=wait, mapper=mapper)
         total = mem.count()
         size = mem.info()
@@ -458,7 +490,7 @@ def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: J
 
 def _register_extensions() -> None:
     """Let the agent / nav / eval areas add their commands when their modules are present."""
-    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong", "viz"):
+    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong", "viz", "bench", "align"):
         try:
             module = importlib.import_module(f"ravenmem.cli.{mod}")
         except ModuleNotFoundError as e:

@@ -90,9 +90,9 @@ def map_cmd(
     from ravenmem.memory.folder import MAP_GRID
     from ravenmem.nav.grid import OccupancyGrid
     from ravenmem.nav.mapping import map_counts, recording_config
-    from ravenmem.nav.nav2 import export_map_server, import_map_server
     from ravenmem.nav.render import draw_map
     from ravenmem.robot.maps import build_map
+    from ravenmem.ros.nav2 import export_map_server, import_map_server
 
     if (resolution is not None or robot_radius is not None) and not rebuild:
         raise InputError("--resolution and --robot-radius change how a map is built: add --rebuild")
@@ -159,56 +159,30 @@ def navigate(
     png: Annotated[Path | None, typer.Option(help="draw the map with the path here")] = None,
     json_out: JsonOpt = False,
 ) -> None:
-    """Plan with A* on the memory's own map to a position or to an answer; print the path and
-    the goal as a ROS PoseStamped. Unknown or blocked goals snap to the nearest reachable
-    cell that sees them, or the command fails with the reason."""
-    import ravenmem
-    from ravenmem.agent.methods import create_method
-    from ravenmem.errors import InputError
-    from ravenmem.nav.goals import GoalPlan, last_pose, plan_to_answer, plan_to_pose
-    from ravenmem.nav.grid import OccupancyGrid
+    """Plan with A* on the memory's own map to a position or to an answer (`nav.goals.goal_for`,
+    as `ask --navigate` and the robot links do); print the path and the goal as a ROS
+    PoseStamped in the memory's frame. Unknown or blocked goals snap to the nearest reachable
+    cell that sees them. Exit 1 when there is no path, saying whether the start or the goal is
+    the problem; with --json the plan is printed in every case (an input error too, exit 2)."""
+    from ravenmem.errors import RavenmemError
     from ravenmem.nav.render import draw_map
 
-    grid = OccupancyGrid.load(memory)
-    start = parse_start(from_)
-    if drive and from_ is not None:
-        raise InputError("--drive starts where the simulator starts; leave out --from")
-    goal_xy = _xy(to, "--to")
     out: dict[str, Any] = {"memory": str(memory), "to": to}
-    with ravenmem.open(memory) as mem:
-        if drive and len(grid.trajectory):
-            start = (float(grid.trajectory[0][0]), float(grid.trajectory[0][1]))  # the simulator's start
-        if start is None:
-            start = last_pose(grid, mem)
-        if goal_xy is not None:
-            plan = plan_to_pose(grid, goal_xy, start, robot_radius)
-            yaw = 0.0
-            if plan.ok and len(plan.waypoints) >= 2:
-                (ax, ay), (bx, by) = plan.waypoints[-2], plan.waypoints[-1]
-                yaw = math.atan2(by - ay, bx - ax)
-            goal = (plan.goal[0], plan.goal[1], yaw) if plan.ok and plan.goal else None
-            gp = GoalPlan(plan, goal, start, goal_xy)
-        else:
-            question = to if to.rstrip().endswith("?") else f"Where did you see the {to}?"
-            name = "offline" if method == "auto" else method
-            answer = create_method(name, mem).ask(question)
-            out["answer"] = {
-                "method": answer.method,
-                "found": answer.found,
-                "position": answer.position,
-                "text": answer.text,
-            }
-            if not answer.found or not answer.position:
-                raise InputError(f"{to!r}: not found in memory ({answer.method}); the robot stays put")
-            gp = plan_to_answer(mem, answer, start, robot_radius, grid=grid)
+    try:
+        gp, grid, start = _plan(memory, to, from_, method, robot_radius, drive, out)
+    except RavenmemError as e:
+        if json_out:
+            sys.stdout.write(
+                json.dumps(out | {"ok": False, "problem": "input", "reason": str(e)}, indent=2) + "\n"
+            )
+        raise
     out |= gp.as_dict()
-    if not gp.ok:
-        raise InputError(gp.plan.reason)
-    if drive:
-        out["drive"] = _drive(memory, grid, (gp.goal[0], gp.goal[1]) if gp.goal else goal_xy, max_steps)
+    if gp.ok and drive:
+        assert gp.goal is not None
+        out["drive"] = _drive(memory, grid, (gp.goal[0], gp.goal[1]), max_steps)
     if png is not None:
         layers = _layers(grid, None, f"{memory.name}: A* to {to}")
-        layers.paths = [gp.plan.waypoints]
+        layers.paths = [gp.plan.waypoints] if gp.ok else []
         layers.start = start
         layers.goals = [gp.goal] if gp.goal else []
         if "drive" in out:
@@ -217,6 +191,11 @@ def navigate(
         out["png"] = str(png)
     if json_out:
         sys.stdout.write(json.dumps(out, indent=2, default=str) + "\n")
+    if not gp.ok:
+        if not json_out:
+            sys.stderr.write(f"no path (the {gp.problem} is the problem): {gp.reason}\n")
+        raise typer.Exit(1)
+    if json_out:
         return
     g = gp.goal or (0.0, 0.0, 0.0)
     line = (
@@ -225,6 +204,8 @@ def navigate(
         if start
         else ""
     )
+    if gp.heading is not None:
+        line += f" ({gp.heading.reason})"
     if gp.plan.snapped:
         line += (
             f" (goal snapped from ({gp.target[0]:.2f}, {gp.target[1]:.2f}))" if gp.target else " (snapped)"
@@ -236,6 +217,48 @@ def navigate(
         line += f"; drove {d['driven_m']:.1f} m: {d['reason']}, robot at ({d['final'][0]:.2f}, {d['final'][1]:.2f})"
     sys.stdout.write(line + "\n")
     sys.stdout.write(json.dumps(gp.pose_stamped()) + "\n")
+
+
+def _plan(
+    memory: Path,
+    to: str,
+    from_: str | None,
+    method: str,
+    robot_radius: float | None,
+    drive: bool,
+    out: dict[str, Any],
+) -> tuple[Any, Any, tuple[float, float] | None]:
+    """(the goal plan, the map, the start) of `navigate`; the answer goes into `out`."""
+    import ravenmem
+    from ravenmem.agent.methods import create_method
+    from ravenmem.errors import InputError
+    from ravenmem.nav.goals import PositionGoal, goal_for, last_pose
+    from ravenmem.nav.grid import OccupancyGrid
+
+    grid = OccupancyGrid.load(memory)
+    start = parse_start(from_)
+    if drive and from_ is not None:
+        raise InputError("--drive starts where the simulator starts; leave out --from")
+    goal_xy = _xy(to, "--to")
+    with ravenmem.open(memory) as mem:
+        if drive and len(grid.trajectory):
+            start = (float(grid.trajectory[0][0]), float(grid.trajectory[0][1]))  # the simulator's start
+        if start is None:
+            start = last_pose(grid, mem)
+        if goal_xy is not None:
+            target: Any = PositionGoal(position=list(goal_xy))
+        else:
+            question = to if to.rstrip().endswith("?") else f"Where did you see the {to}?"
+            name = "offline" if method == "auto" else method
+            target = create_method(name, mem).ask(question)
+            target.frame_id, target.map_id = mem.frame_id, mem.map_id
+            out["answer"] = {
+                "method": target.method,
+                "found": target.found,
+                "position": target.position,
+                "text": target.text,
+            }
+        return goal_for(target, mem, start, robot_radius=robot_radius, grid=grid), grid, start
 
 
 def _drive(memory: Path, grid: Any, goal: Any, max_steps: int) -> dict[str, Any]:

@@ -88,7 +88,8 @@ def serve(
         str | None,
         typer.Option(
             help="ROS 2 topics over Zenoh into the memory, e.g. 'image=camera/color/image_raw,pose=odom"
-            ",goal=goal_pose' (needs the robot extra; keys in docs/serve.md)"
+            ",goal=goal_pose'; also serves ravenmem_msgs/srv/Ask and Search (needs the robot extra; "
+            "keys in docs/serve.md)"
         ),
     ] = None,
     zenoh_connect: Annotated[
@@ -100,6 +101,12 @@ def serve(
     ] = None,
     zenoh_config: Annotated[
         Path | None, typer.Option(help="a Zenoh JSON5 config file (routers, TLS, ...)")
+    ] = None,
+    map_id: Annotated[
+        str | None,
+        typer.Option(
+            help="the map live poses are in (a memory in another map is refused; see `ravenmem align`)"
+        ),
     ] = None,
 ) -> None:
     """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds, a robot."""
@@ -136,6 +143,7 @@ def serve(
         create=new,
         wait=wait,
         links=links,
+        map_id=map_id,
     )
 
 
@@ -144,11 +152,12 @@ def _zenoh_link(
 ) -> Callable[[Any], Any]:
     """Check `--zenoh` before anything opens; return what starts the link on the service."""
     from ravenmem.errors import require
-    from ravenmem.server.zenoh_link import ZenohEndpoints, parse_link_spec, start_link
+    from ravenmem.ros.link import LinkConfig
+    from ravenmem.ros.zenoh import ZenohEndpoints, start_link
 
     if read_only:
         raise InputError("--zenoh adds frames to the memory: it cannot run with --read-only")
-    cfg = parse_link_spec(spec)
+    cfg = LinkConfig.from_spec(spec)
     require("zenoh", "robot")
     if config is not None and not config.is_file():
         raise InputError(f"zenoh config {config} is not a file")

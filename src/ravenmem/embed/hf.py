@@ -65,8 +65,8 @@ class HFEmbedder(LazyTorchEmbedder):
         return f"hf:{self.source}"
 
     def _load_model(self) -> int:
+        torch: Any = require("torch", "hf")  # before transformers: it installs without torch
         tf: Any = require("transformers", "hf")
-        import torch
 
         device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
         try:

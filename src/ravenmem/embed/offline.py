@@ -23,8 +23,14 @@ letting tile-level noise dominate; one vector per frame results.
 `benchmarks/bench_embedders.py` measures the designs on hand-labelled TUM frames; the default is
 the `mix` design with tiles: best overall mAP there within the 8 KB-per-memory budget (docs/embedders.md: "The offline design and why").
 
+Both networks run through onnxruntime (`runtime=onnx`, the default: `_effnet_onnx`,
+`_bert_onnx`), their graphs built from the packaged weights without torch and cached under the
+user cache directory; `runtime=torch` runs the same weights through torch (extra `torch`). The
+two give the same vectors to ~1e-5 (tested), so the runtime is not part of `name`: a memory built
+with either opens and searches with the other.
+
 Spec: `offline[:TOKEN]...`, tokens `key=value` (design, t, temp, w, a, tiles, pool, res,
-threads) or the canonical tokens of `name`
+threads, runtime) or the canonical tokens of `name`
 (`effnet-lite0+minilm:hybrid-t100-temp3-w0.3-a0.7:tiles5-fmax:r224`), so that
 `create_embedder(e.name)` rebuilds the same embedder.
 """
@@ -39,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, require
 from .base import EMBEDDERS, l2_normalize
 from .tiles import layout, tile_batch
 
@@ -51,6 +57,7 @@ TEXT_TAU = 0.05  # softmax temperature of a text over the class names (projectio
 TEXT_TOPK = 5  # class names a text is projected onto in the 384-d space
 MAX_TILES_PER_PASS = 64
 SEM_DIM, CLS_DIM = 384, 1000
+RUNTIMES = ("onnx", "torch")
 
 
 @dataclass(frozen=True)
@@ -103,6 +110,22 @@ def _num(x: float) -> str:
     return f"{x:g}"
 
 
+@dataclass(frozen=True)
+class RunOptions:
+    """How the networks run; nothing here changes the vectors, so none of it is in `name`."""
+
+    threads: int | None = None  # intra-op threads; None: `_onnx.default_threads()` (torch: its default)
+    runtime: str = "onnx"
+
+    def __post_init__(self) -> None:
+        if self.runtime not in RUNTIMES:
+            raise InputError(
+                f"offline embedder: runtime={self.runtime!r}; choose one of {', '.join(RUNTIMES)}"
+            )
+        if self.threads is not None and not 1 <= self.threads <= 256:
+            raise InputError(f"offline embedder: threads={self.threads} must be in 1..256")
+
+
 _KEYS = {
     "design": str,
     "t": int,
@@ -115,8 +138,11 @@ _KEYS = {
 }
 
 
-def parse_spec(spec: str, **kwargs: Any) -> tuple[OfflineConfig, int | None]:
-    """Parse `spec` (+ keyword overrides) into a config and an optional torch thread count."""
+_RUN_KEYS = {"threads": int, "runtime": str}
+
+
+def parse_spec(spec: str, **kwargs: Any) -> tuple[OfflineConfig, RunOptions]:
+    """Parse `spec` (+ keyword overrides) into a config (the vectors) and run options."""
     items: list[tuple[str, str]] = []
     for tok in (s.strip() for s in spec.split(":")):
         if not tok or tok == MODEL_TOKEN:
@@ -141,27 +167,28 @@ def parse_spec(spec: str, **kwargs: Any) -> tuple[OfflineConfig, int | None]:
         else:
             raise InputError(
                 f"offline embedder spec {spec!r}: unknown option {tok!r} "
-                f"(use key=value with keys {', '.join([*_KEYS, 'threads'])}, or a canonical name)"
+                f"(use key=value with keys {', '.join([*_KEYS, *_RUN_KEYS])}, or a canonical name)"
             )
     items.extend((k, str(v)) for k, v in kwargs.items())
     values: dict[str, Any] = {}
-    threads: int | None = None
+    run: dict[str, Any] = {}
     for k, v in items:
-        if k == "threads":
-            threads = _convert(spec, k, v, int)
+        if k in _RUN_KEYS:
+            run[k] = _convert(spec, k, v, _RUN_KEYS[k])
             continue
         if k == "tiles" and v.lower() in ("none", "off", "no"):
             v = "1"
         if k not in _KEYS:
             raise InputError(
-                f"offline embedder spec {spec!r}: unknown option {k!r}; known: {', '.join([*_KEYS, 'threads'])}"
+                f"offline embedder spec {spec!r}: unknown option {k!r}; known: {', '.join([*_KEYS, *_RUN_KEYS])}"
             )
         values[k] = _convert(spec, k, v, _KEYS[k])
     if values.get("tiles") == 1:
         values.pop("pool", None)  # pooling means nothing for one tile; keep one config per name
     cfg = OfflineConfig(**values)
     # quantise floats to what `name` prints, so that the name rebuilds exactly this embedder
-    return replace(cfg, temp=float(_num(cfg.temp)), w=float(_num(cfg.w)), a=float(_num(cfg.a))), threads
+    cfg = replace(cfg, temp=float(_num(cfg.temp)), w=float(_num(cfg.w)), a=float(_num(cfg.a)))
+    return cfg, RunOptions(**run)
 
 
 def _convert(spec: str, key: str, value: str, typ: type) -> Any:
@@ -203,9 +230,9 @@ class OfflineEmbedder:
     side that is used: a text query loads MiniLM and the label bank, never the image network, so
     creating the embedder and reading `name`/`dim` load nothing at all."""
 
-    def __init__(self, config: OfflineConfig | None = None, threads: int | None = None) -> None:
+    def __init__(self, config: OfflineConfig | None = None, run: RunOptions | None = None) -> None:
         self.config = config or OfflineConfig()
-        self.threads = threads
+        self.run = run or RunOptions()
         self._lock = threading.Lock()
         self._net: Any = None
         self._text: Any = None
@@ -229,7 +256,7 @@ class OfflineEmbedder:
             from ._text import MiniLM, class_names, load_label_bank
 
             self._set_threads()
-            text = MiniLM()
+            text = MiniLM(self.run.runtime, self.run.threads)
             raw = load_label_bank(text, class_names())
             self._text = text
             self._mu = raw.mean(axis=0)
@@ -241,32 +268,44 @@ class OfflineEmbedder:
         with self._lock:
             if self._net is not None:
                 return
-            from ._effnet import EffnetLite0
-
             self._set_threads()
-            net = EffnetLite0()
+            if self.run.runtime == "torch":
+                from ._effnet import EffnetLite0
+
+                net: Any = EffnetLite0()
+            else:
+                from ._effnet_onnx import EffnetLite0Onnx
+
+                net = EffnetLite0Onnx(self.run.threads)
             assert self._bank is not None
             self._ridge = fit_ridge(self._bank, net.classifier_weight)
             self._net = net
 
     def _set_threads(self) -> None:
-        if self.threads:
-            import torch
-
-            torch.set_num_threads(self.threads)
+        """torch's thread count is process-wide; onnxruntime's is per session (`_onnx.session`)."""
+        if self.run.runtime == "torch":
+            torch = require("torch", "torch")
+            if self.run.threads:
+                torch.set_num_threads(self.run.threads)  # type: ignore[attr-defined]
 
     def classify(self, images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Per-tile class logits (N*tiles, 1000) and pooled features (N*tiles, 1280), image-major."""
-        import torch
-
         self._load()
-        batch = tile_batch(images, layout(self.config.tiles), self.config.res)
+        return self.forward(self.tiles(images))
+
+    def tiles(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        """The network's input for `images`: (N*tiles, 3, res, res) float32 in [0, 1]."""
+        return tile_batch(images, layout(self.config.tiles), self.config.res)
+
+    def forward(self, batch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The image network alone on a tile batch: logits (n, 1000) and features (n, 1280)."""
+        self._load()
         logits, feats = [], []
         for s in range(0, batch.shape[0], MAX_TILES_PER_PASS):
-            out = self._net(batch[s : s + MAX_TILES_PER_PASS])
-            logits.append(out.logits)
-            feats.append(out.features)
-        return torch.cat(logits).numpy(), torch.cat(feats).numpy()
+            f, z = self._net(batch[s : s + MAX_TILES_PER_PASS])
+            logits.append(z)
+            feats.append(f)
+        return np.concatenate(logits), np.concatenate(feats)
 
     def vectors(
         self, logits: np.ndarray, feats: np.ndarray, config: OfflineConfig | None = None
@@ -340,5 +379,5 @@ def fit_ridge(bank: np.ndarray, weights: np.ndarray, alpha: float = RIDGE_ALPHA)
 
 @EMBEDDERS.register("offline")
 def _factory(spec: str, **kwargs: Any) -> OfflineEmbedder:
-    cfg, threads = parse_spec(spec, **kwargs)
-    return OfflineEmbedder(cfg, threads=threads)
+    cfg, run = parse_spec(spec, **kwargs)
+    return OfflineEmbedder(cfg, run)

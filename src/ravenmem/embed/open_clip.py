@@ -69,8 +69,8 @@ class OpenClipEmbedder(LazyTorchEmbedder):
         return f"open_clip:{model}"
 
     def _load_model(self) -> int:
+        torch: Any = require("torch", "clip")  # before open_clip: it installs without torch
         oc: Any = require("open_clip", "clip")
-        import torch
 
         if self.config_path is not None:
             oc.add_model_config(self.config_path)

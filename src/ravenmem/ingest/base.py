@@ -53,8 +53,10 @@ class FrameSink(Protocol):
     def close(self) -> None: ...
 
 
+# The bag source lives with the other ROS code (`ravenmem.ros.bag`): named here, it is imported
+# only when a bag is opened.
 SOURCES: Registry[FrameSource] = Registry(
     "source format",
     "ravenmem.sources",
-    {fmt: f"ravenmem.ingest.{fmt}" for fmt in ("video", "tum", "folder", "rosbag")},
+    {fmt: f"ravenmem.ingest.{fmt}" for fmt in ("video", "tum", "folder")} | {"rosbag": "ravenmem.ros.bag"},
 )

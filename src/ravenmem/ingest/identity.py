@@ -49,3 +49,11 @@ def source_identity(source: object) -> str:
     if callable(ident):
         return str(ident())
     return str(getattr(source, "name", type(source).__name__))
+
+
+def derived_map_id(source: object) -> tuple[str, str]:
+    """(map identity, frame) of a recording's poses when the user names no map: its frame
+    (REP 105; a source's `frame_id`, `map` when it says none) in that recording, so two
+    recordings are two maps until someone says they share one (`ingest --map-id`)."""
+    frame = str(getattr(source, "frame_id", None) or "map")
+    return f"{source_identity(source)}#{frame}", frame

@@ -117,7 +117,20 @@ class Core:
                 lock.release()
                 raise
             self._writer.hold(lock)
-            self._writer.recover(self.store)
+            self.recover_writes()
+
+    def recover_writes(self) -> None:
+        """The writer's clean-up after a writer that was killed: the journals and temporary
+        files (`recovery`, `groups`), then a re-anchoring left half done (`anchor`). The lock is
+        given up when that fails."""
+        self._writer.recover(self.store)
+        try:
+            from .anchor import finish
+
+            self.manifest = finish(self.path, self.store, self.manifest) or self.manifest
+        except BaseException:
+            self._writer.release()
+            raise
 
     def release_writer(self) -> None:
         """Let another process write (this Memory takes the lock again at its next write)."""

@@ -125,7 +125,7 @@ def open(  # noqa: A001
         lock.release()
         raise
     try:
-        mem.writer().recover(mem.store)
+        mem.recover_writes()
     except BaseException:
         mem.close()
         raise

@@ -5,7 +5,7 @@ A memory folder holds the manifest, the store's files, thumbnails and the sideca
 channel, resolves time expressions and hands out `Hit`s; the store does the indexing. It is
 put together from one module per concern, each a class over `Core` (the state and the shared
 reads): the searches (`search`), where a thing is now (`changes`), forgetting and consolidation
-(`lifelong`), `info`; this module adds the writes and the lifecycle. `ravenmem.create` and
+(`lifelong`), `info`, the map the poses are in (`anchor`); this module adds the writes and the lifecycle. `ravenmem.create` and
 `ravenmem.open` (`memory.create`) make one.
 
 Nothing read from a memory reaches outside its folder: the manifest is checked before the store
@@ -26,6 +26,7 @@ import numpy as np
 from ..errors import InputError
 from ..imageio import write_jpeg
 from ..types import Frame, MemoryRecord, Pose
+from .anchor import Anchoring
 from .changes import Changes
 from .folder import thumb_name
 from .info import Info
@@ -38,7 +39,7 @@ from .search import Search
 __all__ = ["Memory"]
 
 
-class Memory(Search, Changes, Forgetting, Consolidation, Info, MemoryLike):
+class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, MemoryLike):
     """A visual memory: add frames, then search by text, image, time or position.
 
     Use `ravenmem.create(path)` for a new memory and `ravenmem.open(path)` for an existing one.

@@ -17,6 +17,9 @@ here, so the folder's layout can be read, and changed, in one file:
 | `captions.sqlite` | the caption baseline's captions | `agent.captions` |
 | `offline_calibration.json` | the offline reasoner's calibrated threshold | `agent.offline` |
 | `study_memory.json` | an ablation study's copy of a memory is complete | `eval.studies` |
+| `anchor/poses.npz` | every memory's pose before `ravenmem align --apply` moved it | `memory.anchor` |
+| `anchor/pending.json` | a re-anchoring under way (finished by the next writer) | `memory.anchor` |
+| `anchor/map.npz`, `anchor/map.json` | the occupancy map before it was re-anchored | `nav.align` |
 
 The store's own files (`store.sqlite`, `index.faiss`, `columns.cache` for the embedded store; a
 Milvus Lite `NAME.db` the user named) belong to the store backend, which lives a floor below
@@ -40,6 +43,9 @@ EXPLORE = "explore.json"
 CAPTIONS = "captions.sqlite"
 OFFLINE_CALIBRATION = "offline_calibration.json"
 STUDY_DONE = "study_memory.json"
+ANCHOR = "anchor"  # a folder: the originals of a re-anchored memory (`ravenmem align`)
+ANCHOR_POSES = f"{ANCHOR}/poses.npz"
+ANCHOR_JOURNAL = f"{ANCHOR}/pending.json"
 
 JOURNAL_PREFIX = "pending-thumbs-"
 JOURNAL_NAME = re.compile(r"pending-thumbs-[0-9a-f]{12}\.json")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from .anchor import map_identity
 from .core import Core
 from .folder import thumbs_bytes
 
@@ -62,6 +63,7 @@ class Info(Core):
             self._span = None
             out["t_min"], out["t_max"] = self.time_span()  # what the merged memories saw, too
             out["duration_s"] = out["t_max"] - out["t_min"]
+        out |= map_identity(self.manifest, self.path)  # where the poses are (REP 105)
         out["ingests"] = ingests
         return out
 

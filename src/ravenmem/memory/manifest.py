@@ -35,6 +35,7 @@ from .folder import MANIFEST
 FORMAT_VERSION = 1  # the newest manifest format this code reads and writes
 MAX_MANIFEST_BYTES = 64 << 20  # the ingest history grows ~0.5 KB per run: 64 MB is ~100k runs
 LOCAL = "local"
+_UNSET_LEFT_OUT = ("frame_id", "map_id", "anchor")  # written only once known
 LITE = "milvus-lite:"
 _REMOTE = re.compile(r"(?:https?://)?[A-Za-z0-9_.\-]+:\d{1,5}/?|https?://[A-Za-z0-9_.\-]+/?")
 
@@ -52,6 +53,13 @@ class Manifest:
     created: float = 0.0
     ingests: list[dict[str, Any]] = field(default_factory=list)
     format_version: int = FORMAT_VERSION
+    # where the poses are (REP 105): their frame (`map`, or `odom` when there was no map frame)
+    # and the map's identity; None in memories written before they were recorded (read as
+    # `map` and `memory:<folder name>`). `anchor`: the transform `ravenmem align --apply` put
+    # the poses through, and the map they came from (`ravenmem.memory.anchor`).
+    frame_id: str | None = None
+    map_id: str | None = None
+    anchor: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)  # unknown keys, written back as they were
 
     def __post_init__(self) -> None:
@@ -77,6 +85,12 @@ class Manifest:
         if not isinstance(self.store, str):
             _bad("store", "a string", self.store)
         store_kind(self.store)
+        for name in ("frame_id", "map_id"):
+            v = getattr(self, name)
+            if v is not None and not is_name(v):
+                _bad(name, "a name of 1 to 200 printable characters", v)
+        if self.anchor is not None:
+            check_anchor(self.anchor)
 
     # ------------------------------------------------------------------ JSON
     @classmethod
@@ -95,6 +109,9 @@ class Manifest:
     def to_json(self) -> dict[str, Any]:
         out = dict(self.extra)
         out.update({f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"})
+        for key in _UNSET_LEFT_OUT:
+            if out[key] is None:
+                del out[key]
         return out
 
     @classmethod
@@ -136,6 +153,26 @@ class Manifest:
             return self.store
         rel = self.store[len(LITE) :] if self.store.startswith(LITE) else self.store[len("milvus://") :]
         return "milvus://" + str(_inside(folder, rel, "store"))
+
+
+def is_name(v: object) -> bool:
+    """A frame or map name: 1 to 200 printable characters, no surrounding space."""
+    return isinstance(v, str) and 0 < len(v) <= 200 and v == v.strip() and v.isprintable()
+
+
+def check_anchor(a: object) -> None:
+    """The manifest's `anchor`: {"transform": [x, y, z, yaw], "from": {"frame_id", "map_id"}, ...}."""
+    if not isinstance(a, dict):
+        _bad("anchor", "an object", a)
+        return
+    t = a.get("transform")
+    ok = isinstance(t, list) and len(t) == 4
+    ok = ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in t)  # type: ignore[union-attr]
+    if not ok:
+        _bad("anchor.transform", "four finite numbers [x, y, z, yaw]", t)
+    origin = a.get("from")
+    if not isinstance(origin, dict) or not all(is_name(origin.get(k)) for k in ("frame_id", "map_id")):
+        _bad("anchor.from", "the frame_id and map_id the poses came from", origin)
 
 
 def store_kind(value: str) -> str:

@@ -1,14 +1,28 @@
-"""From an answer to a goal the robot can drive to: a planned path on the memory's own map and
-a goal pose (position and heading) in the map frame.
+"""From an answer to a goal a robot can drive to: `goal_for(answer, memory, start)`, the one goal
+path of every front end (`ask --navigate`, `navigate`, `POST /ask` with `navigate`, MCP `ask`,
+the Zenoh link, the ROS 2 node and the `ravenmem_msgs/srv/Ask` service).
 
-The goal is where the camera was when it saw the thing asked about (the answer's position),
-facing the way the camera looked then, so that on arrival the robot sees it again. The heading:
-1. the model's own yaw (`yaw_source == "model"`) when the map's x, y are the world's x, y (a
-   z-up robot or simulator): the model chose it, and a yaw about world z is a map heading;
-2. else the evidence memory's viewing direction on the map, from its full orientation and the
-   map's camera mount (a hand-held camera's yaw about world z is not where it looked; on a map
-   whose up is not world z, a model's yaw cannot be placed either, and a note says so);
-3. else the answer's yaw; else map +x, with a note.
+The plan is made on the memory's own map, in the memory's own frame (REP 105: `map`, or `odom`
+when the poses had no map frame); a goal is never expressed in any other frame. Step by step:
+
+1. refuse what must not be driven to, each with a one-line reason a robot can log and the
+   `problem` it names: a failed question or an answer marked unsupported (`answer`), an answer
+   without a usable position (`answer`), an answer from another map (`map`: the memories were
+   never aligned, see `ravenmem align`), a memory without a map (`map`);
+2. put the answer's position on the map (`to_map_xy`) and plan with A* from `start` or the
+   robot's latest pose; a goal in an obstacle or unknown space is snapped to the nearest
+   reachable free cell that sees it; an unreachable plan says whether the start or the goal is
+   the problem (a start cut off from the rest of the map by walls or one-way ledges is blamed,
+   not the goal);
+3. set the heading (radians, REP 103: counter-clockwise from map x): the model's own yaw when
+   it gave one on a map whose up is the world's z; else, when the goal had to move, facing the
+   answer's position from the goal; else the way the evidence camera looked (the goal is where
+   it stood, so the robot sees the thing again); else the last leg of the path; else map +x.
+   The plan records which (`heading.source`) and why (`heading.reason`).
+
+`GoalPlan.as_dict()` is the JSON every front end returns; `GoalPlan.pose_stamped()` is the one
+`geometry_msgs/PoseStamped` builder (JSON; `ravenmem.ros.msgs.to_message` makes the CDR of the
+same dict for the wire).
 """
 
 from __future__ import annotations
@@ -16,26 +30,31 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+from scipy import ndimage
 
+from ..errors import InputError
 from ..memory import Memory
-from ..types import Pose
+from ..memory.folder import MAP_GRID
+from ..types import Pose, yaw_of
 from .base import PlanResult
 from .grid import OccupancyGrid
 from .mapping import BODY, camera_matrix
-from .nav2 import pose_stamped
 from .planning import plan_path
 
+SNAP_RADIUS = 4.0  # metres a goal may move to a reachable cell that sees it
 
-class EvidenceLike(Protocol):
-    id: int
+# what a refused or failed plan blames (`GoalPlan.problem`)
+ANSWER, MAP, START, GOAL = "answer", "map", "start", "goal"
 
 
 class AnswerLike(Protocol):
-    """What planning needs from an answer (`ravenmem.agent.schema.Answer` has it)."""
+    """What planning needs from an answer (`ravenmem.agent.schema.Answer` has it). Optional
+    attributes read when present: `failed`, `error`, `unsupported`, `support_distance` (an
+    answer whose position rests on no memory the model saw) and `map_id` (the map its
+    position is in)."""
 
     found: bool
     position: list[float] | None
@@ -49,42 +68,108 @@ class AnswerLike(Protocol):
 
 
 @dataclass
+class PositionGoal:
+    """A goal given as a map position (`navigate --to x,y`), shaped as an answer so that it
+    takes the same path as an answer's position."""
+
+    position: list[float]
+    yaw: float | None = None
+    found: bool = True
+    yaw_source: str = "none"
+    evidence: Sequence[Any] = ()
+
+
+@dataclass(frozen=True)
+class Heading:
+    """The goal's yaw (radians, map frame), where it came from and why."""
+
+    yaw: float
+    source: str  # model | target | evidence | path | default
+    reason: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"yaw": self.yaw, "source": self.source, "reason": self.reason}
+
+
+@dataclass
 class GoalPlan:
-    """A plan to a goal pose. `goal` is (x, y, yaw) in the map frame (None when there is no
-    goal); `plan.ok` False carries a one-line `plan.reason`."""
+    """A plan to a goal pose in the memory's frame. `goal` is (x, y, yaw) on the map (None when
+    there is no goal); when `ok` is False, `reason` says why in one line and `problem` names
+    what is wrong: `answer`, `map`, `start` or `goal`."""
 
     plan: PlanResult
-    goal: tuple[float, float, float] | None
-    start: tuple[float, float] | None
+    goal: tuple[float, float, float] | None = None
+    start: tuple[float, float] | None = None
     target: tuple[float, float] | None = None  # the answer's position on the map
     frame_id: str = "map"
+    map_id: str | None = None
+    heading: Heading | None = None
+    problem: str | None = None
     notes: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
         return self.plan.ok
 
+    @property
+    def reason(self) -> str:
+        return self.plan.reason
+
     def pose_stamped(self, stamp: float | None = None) -> dict[str, Any] | None:
-        """The goal as `geometry_msgs/PoseStamped` JSON for Nav2 (None without a goal)."""
+        """The goal as `geometry_msgs/PoseStamped` JSON in the memory's frame (None without one)."""
         if self.goal is None:
             return None
         return pose_stamped(*self.goal, frame_id=self.frame_id, stamp=stamp)
 
     def as_dict(self) -> dict[str, Any]:
+        """The plan as every front end returns it (`ravenmem ask --navigate --json`)."""
         p = self.plan
         return {
             "ok": p.ok,
             "reason": p.reason,
+            "problem": self.problem,
+            "frame_id": self.frame_id,
+            "map_id": self.map_id,
             "start": list(self.start) if self.start else None,
             "target": list(self.target) if self.target else None,
             "goal": list(self.goal) if self.goal else None,
+            "heading": self.heading.as_dict() if self.heading else None,
             "snapped": p.snapped,
             "path_length_m": p.length_m if p.ok else None,
             "waypoints": [list(w) for w in p.waypoints],
-            "frame_id": self.frame_id,
             "pose_stamped": self.pose_stamped(),
             "notes": self.notes,
         }
+
+
+def pose_stamped(
+    x: float, y: float, yaw: float, frame_id: str = "map", stamp: float | None = None
+) -> dict[str, Any]:
+    """A `geometry_msgs/msg/PoseStamped` as JSON (what `ros2 topic pub /goal_pose` takes):
+    position on the map plane (z = 0), orientation a rotation of `yaw` about the map's z.
+    A stamp of zero (the default) asks tf for its latest transform."""
+    t = 0.0 if stamp is None else float(stamp)
+    sec = int(math.floor(t))
+    nanosec = min(int(round((t - sec) * 1e9)), 999_999_999)
+    return {
+        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+        "pose": {
+            "position": {"x": float(x), "y": float(y), "z": 0.0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)},
+        },
+    }
+
+
+def read_pose_stamped(msg: dict[str, Any]) -> tuple[float, float, float, str]:
+    """(x, y, yaw, frame_id) from PoseStamped JSON; InputError naming the missing field."""
+    try:
+        p, q = msg["pose"]["position"], msg["pose"]["orientation"]
+        x, y = float(p["x"]), float(p["y"])
+        qx, qy, qz, qw = (float(q[k]) for k in ("x", "y", "z", "w"))
+        frame = str(msg["header"]["frame_id"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"not a PoseStamped: missing or bad field {e}") from None
+    return x, y, yaw_of(qx, qy, qz, qw), frame
 
 
 def to_map_xy(grid: OccupancyGrid, xyz: Sequence[float]) -> tuple[float, float]:
@@ -114,80 +199,170 @@ def last_pose(grid: OccupancyGrid, mem: Memory | None) -> tuple[float, float] | 
     return None
 
 
-def plan_to_pose(
-    grid: OccupancyGrid,
-    goal: tuple[float, float],
-    start: tuple[float, float] | None,
-    robot_radius: float | None = None,
-    snap_radius: float = 4.0,
-) -> PlanResult:
-    """A* on the map from `start` to `goal` (map metres), obstacles inflated by the robot
-    radius saved with the map unless given. An unknown or blocked goal is snapped to the
-    nearest reachable cell that sees it, else `ok` is False with the reason."""
-    if start is None:
-        return PlanResult(ok=False, reason="no start: give one (the map has no trajectory)", requested=goal)
-    radius = grid.config.robot_radius if robot_radius is None else float(robot_radius)
-    return plan_path(grid, start, goal, radius, snap_radius=snap_radius)
-
-
-def plan_to_answer(
-    mem: Memory | str | Path,
+def goal_for(
     answer: AnswerLike,
+    memory: Memory,
     start: tuple[float, float] | None = None,
+    *,
     robot_radius: float | None = None,
     grid: OccupancyGrid | None = None,
-    snap_radius: float = 4.0,
+    snap_radius: float = SNAP_RADIUS,
+    allow_unsupported: bool = False,
 ) -> GoalPlan:
-    """Plan from the robot's last pose (or `start`, map x, y) to an answer's position and
-    heading on the memory's own map.
-
-    Never raises for an answer that cannot be driven to (not found, no position, unreachable):
-    `plan.ok` is False and `plan.reason` says why in one line. Raises InputError only when the
-    memory has no map.
-    """
-    m = mem if isinstance(mem, Memory) else None
-    folder = mem.path if isinstance(mem, Memory) else Path(mem)
-    grid = grid if grid is not None else OccupancyGrid.load(folder)
-    if start is None:
-        start = last_pose(grid, m)
-    notes: list[str] = []
-    if not answer.found or not answer.position:
-        reason = "the answer has no position to go to" + ("" if answer.found else " (not found)")
-        return GoalPlan(PlanResult(ok=False, reason=reason), None, start)
-    if len(answer.position) < 2 or not all(math.isfinite(float(v)) for v in answer.position):
-        return GoalPlan(PlanResult(ok=False, reason=f"bad answer position {answer.position!r}"), None, start)
+    """The goal for `answer` on `memory`'s map (see the module docstring): never raises for an
+    answer, a map or a start that cannot be driven from or to; `ok` False carries the reason
+    and the `problem`. `grid` is the memory's map when the caller loaded it already."""
+    frame_id, map_id = memory.frame_id, memory.map_id
+    refused = _refusal(answer, map_id, allow_unsupported)
+    if refused is not None:
+        return GoalPlan(
+            PlanResult(ok=False, reason=refused[1]), frame_id=frame_id, map_id=map_id, problem=refused[0]
+        )
+    if grid is None:
+        try:
+            grid = OccupancyGrid.load(memory.path)
+        except InputError as e:
+            why = f"no map to plan on ({e})" if (memory.path / MAP_GRID).exists() else str(e)
+            return GoalPlan(PlanResult(ok=False, reason=why), frame_id=frame_id, map_id=map_id, problem=MAP)
+    if (memory.manifest.anchor or {}).get("transform") != grid.meta.get("anchor"):
+        why = "the map is not in the frame of the memory's poses (a re-anchoring was interrupted): run `ravenmem align --apply` again"
+        return GoalPlan(PlanResult(ok=False, reason=why), frame_id=frame_id, map_id=map_id, problem=MAP)
+    assert answer.position is not None
     target = to_map_xy(grid, [float(v) for v in answer.position])
-    yaw = answer.yaw
-    from_model = yaw is not None and answer.yaw_source == "model"
-    pose = None if from_model and grid.frame.is_world_xy else _evidence_pose(m, answer)
+    start = start if start is not None else last_pose(grid, memory)
+    gp = GoalPlan(PlanResult(ok=False, requested=target), None, start, target, frame_id, map_id)
+    if start is None:
+        gp.plan.reason = "no start: give one (the map has no trajectory and the memory no pose)"
+        gp.problem = START
+        return gp
+    radius = grid.config.robot_radius if robot_radius is None else float(robot_radius)
+    gp.plan = plan_path(grid, start, target, radius, snap_radius=snap_radius)
+    if not gp.plan.ok:
+        gp.problem, gp.plan.reason = _blame(grid, start, target, radius, snap_radius, gp.plan.reason)
+        return gp
+    assert gp.plan.goal is not None
+    gx, gy = gp.plan.goal
+    moved = math.dist((gx, gy), target)
+    if gp.plan.snapped:
+        gp.notes.append(f"goal moved {moved:.2f} m to a reachable cell")
+    gp.heading = _heading(answer, memory, grid, gp, moved)
+    gp.goal = (gx, gy, gp.heading.yaw)
+    return gp
+
+
+def _refusal(answer: AnswerLike, map_id: str, allow_unsupported: bool) -> tuple[str, str] | None:
+    """(problem, reason) when the answer must not be driven to, else None."""
+    if getattr(answer, "failed", False):
+        return (
+            ANSWER,
+            f"the question failed: {getattr(answer, 'error', None) or 'no answer'}; the robot stays put",
+        )
+    if getattr(answer, "unsupported", False) and not allow_unsupported:
+        d = getattr(answer, "support_distance", None)
+        where = f"{float(d):.1f} m from" if isinstance(d, (int, float)) else "not near"
+        return (
+            ANSWER,
+            f"unsupported answer: its position is {where} every memory the model was shown; the robot stays put",
+        )
+    if not answer.found or not answer.position:
+        return ANSWER, "the answer has no position to go to" + ("" if answer.found else " (not found)")
+    pos = answer.position
+    if len(pos) < 2 or not all(isinstance(v, (int, float)) and math.isfinite(float(v)) for v in pos):
+        return ANSWER, f"bad answer position {pos!r}"
+    other = getattr(answer, "map_id", None)
+    if other and other != map_id:
+        return MAP, (
+            f"the answer is in map {other!r} but this memory's map is {map_id!r}, and no transform "
+            "between them is known: align them first (ravenmem align --from A --to B --apply)"
+        )
+    return None
+
+
+def _blame(
+    grid: OccupancyGrid,
+    start: tuple[float, float],
+    goal: tuple[float, float],
+    radius: float,
+    snap: float,
+    reason: str,
+) -> tuple[str, str]:
+    """Whether the start or the goal is why no path was found, with the reason to log. A goal
+    reachable from some free region, but not from the start's, blames the start when the
+    start's region is the smaller one (a start closed off by one-way ledges, say)."""
+    if reason.startswith("start"):
+        return START, reason + "; give another start"
+    trav = grid.traversable(radius)
+    labels, _ = ndimage.label(trav)
+    s = grid.world_to_cell(*start)
+    if not grid.contains(s) or labels[s] == 0:
+        return START, f"start ({start[0]:.2f}, {start[1]:.2f}) is not in known free space; give another start"
+    g = grid.world_to_cell(*goal)
+    k = int(math.ceil(snap / grid.resolution))
+    h, w = trav.shape
+    r0, r1, c0, c1 = max(0, g[0] - k), min(h, g[0] + k + 1), max(0, g[1] - k), min(w, g[1] + k + 1)
+    near = set(np.unique(labels[r0:r1, c0:c1]).tolist()) - {0} if r0 < r1 and c0 < c1 else set()
+    if not near:
+        return GOAL, reason
+    area = grid.resolution**2
+    own = float((labels == labels[s]).sum()) * area
+    best = max(near, key=lambda lab: int((labels == lab).sum()))
+    other = float((labels == best).sum()) * area
+    if own < other:
+        return START, (
+            f"start ({start[0]:.2f}, {start[1]:.2f}) is cut off from the goal: its free region "
+            f"({own:.1f} m^2, closed by walls or one-way ledges) does not reach the goal's "
+            f"({other:.1f} m^2); give another start"
+        )
+    return GOAL, (
+        f"goal ({goal[0]:.2f}, {goal[1]:.2f}) is unreachable: it lies in a free region "
+        f"({other:.1f} m^2) the start's ({own:.1f} m^2) does not reach"
+    )
+
+
+def _heading(answer: AnswerLike, memory: Memory, grid: OccupancyGrid, gp: GoalPlan, moved: float) -> Heading:
+    """The goal's yaw and why (see the module docstring, step 3)."""
+    assert gp.plan.goal is not None and gp.target is not None
+    from_model = answer.yaw is not None and answer.yaw_source == "model"
+    if from_model and grid.frame.is_world_xy:
+        return Heading(float(answer.yaw), "model", "the model's yaw (REP 103, about the map's z)")  # type: ignore[arg-type]
+    if from_model:
+        gp.notes.append("the model's yaw is about world z, which is not this map's up: it is not used")
+    if gp.plan.snapped and moved > grid.resolution:
+        (gx, gy), (tx, ty) = gp.plan.goal, gp.target
+        return Heading(
+            math.atan2(ty - gy, tx - gx),
+            "target",
+            f"facing the answer's position from the goal ({moved:.2f} m away)",
+        )
+    pose = _evidence_pose(memory, answer, grid)
     if pose is not None:
-        yaw = heading_of(grid, pose)
-        if from_model:
-            notes.append(
-                "the model's yaw is about world z, which is not this map's up: the goal faces "
-                "where the evidence camera looked"
-            )
-    elif yaw is None:
-        yaw = 0.0
-        notes.append("no heading in the answer: the goal faces map +x")
-    plan = plan_to_pose(grid, target, start, robot_radius, snap_radius)
-    if not plan.ok:
-        return GoalPlan(plan, None, start, target, notes=notes)
-    assert plan.goal is not None
-    if plan.snapped:
-        notes.append(f"goal moved {math.dist(plan.goal, target):.2f} m to a reachable cell")
-    return GoalPlan(plan, (plan.goal[0], plan.goal[1], float(yaw)), start, target, notes=notes)
+        return Heading(heading_of(grid, pose), "evidence", "the way the evidence camera looked from the goal")
+    if len(gp.plan.waypoints) >= 2:
+        (ax, ay), (bx, by) = gp.plan.waypoints[-2], gp.plan.waypoints[-1]
+        if math.hypot(bx - ax, by - ay) > 1e-9:
+            return Heading(math.atan2(by - ay, bx - ax), "path", "the direction of the path's last leg")
+    gp.notes.append("no heading to go by: the goal faces map +x")
+    return Heading(0.0, "default", "nothing gave a heading: map +x")
 
 
-def _evidence_pose(mem: Memory | None, answer: AnswerLike) -> Pose | None:
-    """The full pose of the answer's first evidence memory, when the memory is at hand."""
-    if mem is None or not answer.evidence:
+def _evidence_pose(mem: Memory, answer: AnswerLike, grid: OccupancyGrid) -> Pose | None:
+    """The pose of the answer's first evidence memory: the stored record's full pose when it is
+    this memory's (same id, time and place: an answer from another memory of the same map names
+    ids of its own), else the pose the evidence carries, on z-up maps (its yaw is a heading)."""
+    if not answer.evidence:
         return None
-    ev_id = getattr(answer.evidence[0], "id", None)
-    if ev_id is None:
-        return None
+    ev = answer.evidence[0]
+    ev_id = getattr(ev, "id", None)
     try:
-        (rec,) = mem.get([int(ev_id)])
-    except ValueError:  # not an id, or no such memory (NotFoundError is a ValueError)
+        x, y, z = (float(getattr(ev, k)) for k in ("x", "y", "z"))
+        yaw, t = float(getattr(ev, "yaw", 0.0)), float(ev.t)
+    except (AttributeError, TypeError, ValueError):
         return None
-    return rec.pose
+    xyz = (x, y, z)
+    try:
+        (rec,) = mem.get([int(ev_id)])  # type: ignore[arg-type]
+    except (ValueError, TypeError):  # not an id, or no such memory (NotFoundError is a ValueError)
+        rec = None
+    if rec is not None and abs(rec.t - t) < 1e-6 and math.dist(rec.pose.xyz, xyz) < 1e-6:
+        return rec.pose
+    return Pose(x, y, z, yaw) if grid.frame.is_world_xy else None

@@ -44,6 +44,9 @@ def explore_into(
 ) -> tuple[OccupancyGrid, ExploreReport]:
     """Phase I: reset, explore, fill `mem`, then save the map and `explore.json` into `mem.path`."""
     cfg = cfg or ExploreConfig()
+    claim = getattr(mem, "claim_map", None)
+    if claim is not None:  # a simulator's poses are its world's (REP 105 map) unless it says otherwise
+        claim(env.name, getattr(env, "frame_id", "map"), given=False, what=f"exploring {env.name}")
     env.reset()
     explorer = Explorer(
         env, mem, cfg, coverage_ref=coverage_reference(env, cfg.resolution), progress=progress

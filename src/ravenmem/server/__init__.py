@@ -12,8 +12,8 @@ Rooms, each a thin layer over memory + tools + agent (no search logic of their o
 - `mcp_tools`: the tools as MCP tools (stdio and streamable HTTP);
 - `client`: the HTTP client behind `ravenmem search/ask/info --server URL`;
 - `run`: start it (`ravenmem serve`);
-- `zenoh_link`: the robot link: ROS 2 image and pose topics over Zenoh into the memory, answers
-  back as a goal pose (decode and pairing in `RosLink`, testable without Zenoh).
+The robot link (ROS 2 topics over Zenoh into the memory, goals and `ravenmem_msgs` services
+back) lives a floor up, in `ravenmem.ros`, and attaches itself to a `Service`.
 
 Importing this package imports none of the web stack; `client` needs only httpx.
 """

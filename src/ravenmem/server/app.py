@@ -60,7 +60,9 @@ class AskBody(BaseModel):
     image_memory_id: int | None = Field(
         None, ge=0, description="use this memory's picture as the query picture"
     )
-    navigate: bool = Field(False, description="also plan a path on the memory's map to the answer")
+    navigate: bool = Field(
+        False, description="also plan a path on the memory's map to the answer (its goal: `navigation`)"
+    )
     allow_unsupported: bool = Field(
         False,
         description="use (and drive to) a position farther than the support threshold from every "

@@ -90,6 +90,10 @@ def ask_schema(service: Service) -> dict[str, Any]:
                 "maximum": MAX_CALLS,
                 "description": "tool calls before the model must answer",
             },
+            "navigate": {
+                "type": "boolean",
+                "description": "also plan a path on the memory's map to the answer (its goal: `navigation`)",
+            },
             "allow_unsupported": {
                 "type": "boolean",
                 "description": "accept (and send to the robot) a position far from every memory the "
@@ -164,19 +168,21 @@ def _ask(service: Service, args: dict[str, Any], base: str | None) -> types.Call
     question = args.get("question")
     if not isinstance(question, str) or not question.strip() or len(question) > 2000:
         raise RavenmemError("ask: question must be a non-empty string of at most 2000 characters")
-    extra = set(args) - {"question", "method", "preset", "top_k", "max_tool_calls", "allow_unsupported"}
+    known = {"question", "method", "preset", "top_k", "max_tool_calls", "navigate", "allow_unsupported"}
+    extra = set(args) - known
     if extra:
         raise RavenmemError(f"ask: unknown argument(s) {', '.join(sorted(extra))}")
-    allow = args.get("allow_unsupported", False)
-    if not isinstance(allow, bool):
-        raise RavenmemError("ask: allow_unsupported must be true or false")
+    for flag in ("navigate", "allow_unsupported"):
+        if not isinstance(args.get(flag, False), bool):
+            raise RavenmemError(f"ask: {flag} must be true or false")
     result = service.ask(
         question,
         method=args.get("method"),
         top_k=args.get("top_k"),
         max_tool_calls=args.get("max_tool_calls"),
         preset=args.get("preset"),
-        allow_unsupported=allow,
+        navigate=args.get("navigate", False),
+        allow_unsupported=args.get("allow_unsupported", False),
     )
     data = service.result_json(result, _url(base))
     service.publish_answer(data, drive=result.refusal is None)

@@ -65,6 +65,7 @@ def serve(
     create: dict[str, Any] | None = None,
     wait: float = 0.0,
     links: Sequence[Callable[[Service], Any]] = (),
+    map_id: str | None = None,
 ) -> None:
     """Serve a memory until interrupted (Ctrl-C or SIGTERM store what is queued, then close).
 
@@ -73,7 +74,8 @@ def serve(
     the service holds the memory's writer lock for its whole life (`wait` seconds for another
     writer to finish; a busy memory is a one-line error naming the holder).
     `links` start other front ends on the service before it listens (the robot link:
-    `zenoh_link.start_link`); they are closed with it."""
+    `ravenmem.ros.zenoh.start_link`); they are closed with it. `map_id`: the map live poses
+    are in (`Memory.claim_map`: a memory in another map is refused before the port opens)."""
     check_bind(host, token)
     require("fastapi", "serve")
     uvicorn = require("uvicorn", "serve")
@@ -94,6 +96,15 @@ def serve(
             mem = ravenmem.open(memory, writable=cfg.writable, wait=wait or False)
         else:
             mem = ravenmem.create(memory, **(create or {}), wait=wait or False)
+        if map_id is not None:
+            try:
+                if cfg.writable:
+                    mem.claim_map(map_id, what="--map-id")
+                elif map_id != mem.map_id:
+                    raise InputError(f"--map-id {map_id!r}: memory {memory} is in map {mem.map_id!r}")
+            except BaseException:
+                mem.close()
+                raise
         service = Service(mem, cfg)
         warm_up(service)
         try:

@@ -15,10 +15,11 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from PIL import Image
+from pydantic import ValidationError
 
 from ..agent.ask import AskRequest, AskResult, MethodOptions
 from ..agent.ask import ask as agent_ask
@@ -36,6 +37,9 @@ from ..tools import TOOLS, Tool, ToolArgs, hit_json
 from ..types import Hit, Intrinsics, MemoryRecord
 from .events import EventBus
 from .live import AddResult, LiveWriter
+
+if TYPE_CHECKING:
+    from ..nav.goals import GoalPlan
 
 log = logging.getLogger(__name__)
 
@@ -294,10 +298,12 @@ class Service:
         preset: str | None = None,
         navigate: bool = False,
         allow_unsupported: bool = False,
+        start: tuple[float, float] | None = None,
     ) -> AskResult:
         """Answer a question as `ravenmem ask` does (`agent.ask`), with the service's own VLM;
         what the question leaves out comes from the service's defaults, then from the preset or
-        the method. `navigate` plans a path on the memory's map to the answer."""
+        the method. `navigate` plans a path on the memory's map to the answer (from `start`,
+        else the robot's latest pose) with `plan`."""
         opts = MethodOptions.of(
             method or self.cfg.default_method,
             vlm=self.cfg.vlm or VLMConfig(),  # the service's model or none: never the environment's
@@ -309,13 +315,12 @@ class Service:
         ).check()
         plan = None
         if navigate:
-            from ..nav.goals import plan_to_answer
             from ..nav.grid import OccupancyGrid
 
             grid = OccupancyGrid.load(self.mem.path)  # no map: one line naming how to build one
 
-            def plan(ans: Answer) -> Any:
-                return plan_to_answer(self.mem, ans, grid=grid)
+            def plan(ans: Answer, allow: bool) -> GoalPlan:
+                return self.plan(ans, start, allow_unsupported=allow, grid=grid)
 
         return agent_ask(self.mem, AskRequest(question, opts, image, plan, allow_unsupported))
 
@@ -325,6 +330,40 @@ class Service:
         if result.navigation is not None:
             data["navigation"] = result.navigation
         return data
+
+    # ---------------------------------------------------------------- goals
+    def plan(
+        self,
+        ans: Any,
+        start: tuple[float, float] | None = None,
+        allow_unsupported: bool = False,
+        grid: Any = None,
+    ) -> GoalPlan:
+        """The goal for an answer on the memory's map, as every front end plans it
+        (`nav.goals.goal_for`: `POST /ask` with navigate, MCP `ask`, the robot links); a failed
+        or unsupported answer is refused there unless `allow_unsupported`."""
+        from ..nav.goals import goal_for
+
+        return goal_for(ans, self.mem, start, grid=grid, allow_unsupported=allow_unsupported)
+
+    def plan_json(
+        self, data: dict[str, Any], start: tuple[float, float] | None = None
+    ) -> dict[str, Any] | None:
+        """`plan` for an answer given as its JSON (a robot link's hook); None when it is not one."""
+        try:
+            ans = Answer.model_validate(data)
+        except ValidationError:
+            return None
+        return self.plan(ans, start).as_dict()
+
+    def frame_check(self, frame: str) -> str | None:
+        """Whether live poses in `frame` (REP 105) may be stored: a memory without a frame yet
+        takes it; one in another frame refuses them (the reason, counted by the link)."""
+        try:
+            self.mem.claim_map(frame_id=frame, what="the live poses")
+        except InputError:
+            return f"poses in frame {frame!r}, the memory's are in {self.mem.frame_id!r}"
+        return None
 
     def answer_json(self, ans: Answer, image_url: ImageUrl) -> dict[str, Any]:
         """The answer as `ravenmem ask --json` gives it, evidence images as URLs (no paths)."""

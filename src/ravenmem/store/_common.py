@@ -44,15 +44,9 @@ QUAT_COLUMNS = RECORD_COLUMNS[5:9]
 
 def record_values(r: MemoryRecord) -> tuple[object, ...]:
     """A record's values in `RECORD_COLUMNS` order."""
-    p = r.pose
-    q = p.quat or (None, None, None, None)
     return (
         float(r.t),
-        p.x,
-        p.y,
-        p.z,
-        p.yaw,
-        *q,
+        *pose_values(r.pose),
         r.source,
         int(r.frame_index),
         r.image_path,
@@ -124,6 +118,28 @@ def check_ids(ids: object) -> np.ndarray:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
             raise InputError(f"ids: expected integer memory ids, got {v!r}")
     return np.unique(np.asarray(vals, np.int64))
+
+
+def check_poses(ids: object, poses: object) -> tuple[list[int], list[Pose]]:
+    """The arguments of `set_poses`: integer ids, each once, and as many `Pose`s."""
+    vals = ids.ravel().tolist() if isinstance(ids, np.ndarray) else list(ids)  # type: ignore[call-overload]
+    got = list(poses)  # type: ignore[call-overload]
+    for v in vals:
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise InputError(f"ids: expected integer memory ids, got {v!r}")
+    if len(set(vals)) != len(vals):
+        raise InputError("ids: each memory may be given one new pose only")
+    if len(got) != len(vals) or not all(isinstance(p, Pose) for p in got):
+        raise InputError(f"poses: expected {len(vals)} Pose objects, one per id")
+    return [int(v) for v in vals], got
+
+
+POSE_COLUMNS = RECORD_COLUMNS[1:9]  # x, y, z, yaw, qx, qy, qz, qw
+
+
+def pose_values(p: Pose) -> tuple[float | None, ...]:
+    """A pose's values in `POSE_COLUMNS` order (the quaternion all four or None)."""
+    return (p.x, p.y, p.z, p.yaw, *(p.quat or (None, None, None, None)))
 
 
 def check_point(x: float, y: float, z: float | None, radius: float | None) -> None:

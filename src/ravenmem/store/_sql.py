@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from ..types import Filter, MemoryRecord
-from ._common import RECORD_COLUMNS, norm_text, record_from, record_values
+from ..types import Filter, MemoryRecord, Pose
+from ._common import POSE_COLUMNS, RECORD_COLUMNS, norm_text, pose_values, record_from, record_values
 
 COLS = ", ".join(("id", *RECORD_COLUMNS))  # the `memories` table's columns, as SCHEMA creates them
 
@@ -125,6 +125,28 @@ def insert(
     except BaseException:
         conn.execute("ROLLBACK")
         raise
+
+
+def set_poses(
+    conn: sqlite3.Connection, ids: Sequence[int], poses: Sequence[Pose], meta: dict[str, str]
+) -> int:
+    """New poses for stored memories, and `meta`, in one transaction; KeyError (and nothing
+    changed) when an id is not stored."""
+    sets = ", ".join(f"{c} = ?" for c in POSE_COLUMNS)
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        n = 0
+        for i, p in zip(ids, poses, strict=True):
+            cur = conn.execute(f"UPDATE memories SET {sets} WHERE id = ?", (*pose_values(p), int(i)))
+            if cur.rowcount != 1:
+                raise KeyError(f"unknown memory id: {i}")
+            n += 1
+        conn.executemany("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", list(meta.items()))
+        conn.execute("COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+    return n
 
 
 def delete(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from ..registry import Registry
-from ..types import Filter, MemoryRecord
+from ..types import Filter, MemoryRecord, Pose
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,12 @@ class Store(Protocol):
     def delete(self, ids: Iterable[int]) -> int:
         """Forget memories by id (unknown ids are ignored); returns how many were deleted.
         Crash-safe: a killed process leaves either all of them or none."""
+        ...
+
+    def set_poses(self, ids: Sequence[int], poses: Sequence[Pose]) -> int:
+        """Give memories new poses (a re-anchoring into another map, see `ravenmem align`);
+        their embeddings, times, texts and ids stay. All of them or none: one transaction where
+        the backend has them. Unknown ids raise KeyError; returns how many were changed."""
         ...
 
     def select(self, filt: Filter | None = None) -> np.ndarray:

@@ -17,6 +17,7 @@ of precomputed embeddings: it commits them chunk by chunk and builds the index o
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import sqlite3
 import threading
@@ -29,7 +30,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..fsio import remove_stale_temp_files
-from ..types import Filter, MemoryRecord
+from ..types import Filter, MemoryRecord, Pose
 from . import _sql
 from ._columns import Columns, ColumnsFileError
 from ._common import (
@@ -40,6 +41,7 @@ from ._common import (
     check_ids,
     check_limit,
     check_point,
+    check_poses,
     check_query,
     import_key,
     query_words,
@@ -51,6 +53,7 @@ from .base import STORES, SourceFrames
 
 log = logging.getLogger(__name__)
 UID_KEY = "store.uid"
+POSES_KEY = "store.poses"  # bumped by every `set_poses`: the columns cache is of one pose epoch
 _RERANK_MIN = 32  # candidates re-ranked per query at least (k = 1 still gets a margin)
 
 
@@ -109,6 +112,7 @@ class LocalStore:
             if self.get_meta(UID_KEY) is None:
                 self.set_meta(UID_KEY, uuid.uuid4().hex)
             self._uid = bytes.fromhex(self.get_meta(UID_KEY) or "")
+            self._cols_uid = _columns_uid(self._uid, self.get_meta(POSES_KEY))
         except BaseException:
             self._conn.close()
             self._closed = True
@@ -276,7 +280,7 @@ class LocalStore:
         self._vi.save(self._index_path, self._vi_upto, self._uid, self._deletions)
         self._saved_max, self._dirty = self._vi_upto, False
         if self._cols is not None and self._cols_saved != (self._last_id, self._deletions):
-            self._cols.save(self._cols_path, self._last_id, self._deletions, self._uid)
+            self._cols.save(self._cols_path, self._last_id, self._deletions, self._cols_uid)
             self._cols_saved = (self._last_id, self._deletions)
 
     def rebuild_index(self) -> None:
@@ -404,6 +408,22 @@ class LocalStore:
                 self._cols.remove(gone)
             self._dirty = True
         return len(gone)
+
+    def set_poses(self, ids: Sequence[int], poses: Sequence[Pose]) -> int:
+        """New poses in one SQLite transaction (all or none; KeyError for an id not stored).
+        The vectors and the index stay; the columns are reloaded from SQLite, and the pose
+        epoch the transaction bumps makes every `columns.cache` written before it (by this
+        process or a reader's) stale, so no old position is ever read back."""
+        want, new = check_poses(ids, poses)
+        if not want:
+            return 0
+        with self._lock:
+            self._check_open()
+            epoch = uuid.uuid4().hex
+            n = _sql.set_poses(self._conn, want, new, {POSES_KEY: epoch})
+            self._cols_uid = _columns_uid(self._uid, epoch)
+            self._cols, self._cols_saved = None, (-1, -1)
+        return n
 
     def select(self, filt: Filter | None = None) -> np.ndarray:
         """Ids (sorted, int64) of the memories a filter accepts; every id without one."""
@@ -635,7 +655,7 @@ class LocalStore:
             if self._saved_max != self._vi_upto or self._dirty:
                 self._save()
             elif self._cols is not None and self._cols_saved != (self._last_id, self._deletions):
-                self._cols.save(self._cols_path, self._last_id, self._deletions, self._uid)
+                self._cols.save(self._cols_path, self._last_id, self._deletions, self._cols_uid)
             self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
             self._conn.close()
             self._closed = True
@@ -657,7 +677,7 @@ class LocalStore:
         if self._cols is None:
             cols = None
             try:
-                cols, covered, dels = Columns.load(self._cols_path, self._uid)
+                cols, covered, dels = Columns.load(self._cols_path, self._cols_uid)
                 if dels > self._deletions:
                     raise ColumnsFileError("columns.cache reflects deletions the SQLite log does not hold")
                 if dels < self._deletions:
@@ -685,6 +705,14 @@ class LocalStore:
             a = np.array(rows, np.float64)
             cols.append(a[:, 0].astype(np.int64), a[:, 1], a[:, 2], a[:, 3], a[:, 4])
             last = int(a[-1, 0])
+
+
+def _columns_uid(uid: bytes, epoch: str | None) -> bytes:
+    """The id a columns cache must carry: the store's, mixed with its pose epoch when poses
+    were ever changed (16 bytes, as the file header holds)."""
+    if not epoch:
+        return uid
+    return hashlib.blake2b(uid + epoch.encode(), digest_size=16).digest()
 
 
 def _top(ids: np.ndarray, scores: np.ndarray, k: int) -> list[tuple[int, float]]:

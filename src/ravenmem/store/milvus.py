@@ -12,6 +12,7 @@ a bounding box in Milvus plus the exact disc test in Python.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -24,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, StoreUnavailableError, require
-from ..types import Filter, MemoryRecord
+from ..types import Filter, MemoryRecord, Pose
 from ._common import (
     DIM_KEY,
     QUAT_COLUMNS,
@@ -35,6 +36,7 @@ from ._common import (
     check_ids,
     check_limit,
     check_point,
+    check_poses,
     check_query,
     import_key,
     norm_text,
@@ -295,6 +297,31 @@ class MilvusStore:
             if have:
                 self.client.delete(self.name, ids=sorted(have))
         return len(have)
+
+    def set_poses(self, ids: Sequence[int], poses: Sequence[Pose]) -> int:
+        """New poses by upsert of the whole rows (Milvus has no partial update): each request
+        of at most 1,000 rows is applied as a whole; a killed re-anchoring is finished by the
+        memory's journal (`ravenmem.memory.anchor`), which sets every pose again. KeyError,
+        before anything is written, when an id is not stored."""
+        want, new = check_poses(ids, poses)
+        if not want:
+            return 0
+        with self._lock:
+            self._check_open()
+            recs = self.get(want, with_embeddings=True)
+            st = dict(self._state)
+            rows = []
+            for rec, p in zip(recs, new, strict=True):
+                assert rec.embedding is not None
+                rows.append(self._row(dataclasses.replace(rec, pose=p), rec.embedding) | {"id": rec.id})
+                for key, v in (("x", p.x), ("y", p.y), ("z", p.z)):
+                    st[f"{key}_min"] = min(v, st.get(f"{key}_min", math.inf))
+                    st[f"{key}_max"] = max(v, st.get(f"{key}_max", -math.inf))
+            self.set_meta(_STATE, json.dumps(st))
+            self._state = st
+            for s in range(0, len(rows), 1000):
+                self.client.upsert(self.name, rows[s : s + 1000])
+        return len(rows)
 
     def select(self, filt: Filter | None = None) -> np.ndarray:
         """Sorted ids the filter accepts (the disc test of a region is done here)."""

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-from ravenmem.ingest import rosmsg
+from ravenmem.ros import msgs as rosmsg
 from tests.ingest.bags import _Msgs
 
 MSGS = _Msgs(rosmsg.typestore(), ros1=False)

@@ -8,18 +8,12 @@ import numpy as np
 import pytest
 
 from ravenmem.errors import InputError
-from ravenmem.ingest import rosmsg
 from ravenmem.ingest.poses import SKIP_GAP, SKIP_OUTSIDE
-from ravenmem.server.zenoh_link import (
-    SKIP_NO_POSE,
-    SKIP_TYPE,
-    LinkConfig,
-    RosLink,
-    answer_goal,
-    parse_link_spec,
-)
+from ravenmem.nav.goals import pose_stamped, read_pose_stamped
+from ravenmem.ros import msgs as rosmsg
+from ravenmem.ros.link import SKIP_NO_POSE, SKIP_TYPE, LinkConfig, RosLink, goal_bytes, goal_of
 from ravenmem.types import Pose
-from tests.server import ros_wire as w
+from tests.ros import ros_wire as w
 
 POSE_TIMES = [9.95 + 0.1 * k for k in range(9)]  # 9.95 .. 10.75
 
@@ -50,7 +44,7 @@ class Clock:
 
 def link(spec: str, sink: Recorder, clock: Clock | None = None) -> RosLink:
     c = clock or Clock()
-    return RosLink(parse_link_spec(spec), sink, clock=lambda: 5000.0, monotonic=c)
+    return RosLink(LinkConfig.from_spec(spec), sink, clock=lambda: 5000.0, monotonic=c)
 
 
 def assert_pose(pose: Pose, x: float, y: float, yaw: float) -> None:
@@ -123,7 +117,7 @@ def test_images_before_the_poses_gaps_and_bad_messages_are_counted() -> None:
 
 def test_tf_chain_with_static_map_to_odom() -> None:
     sink = Recorder()
-    lk = link("image=cam,pose=tf,parent=map", sink)
+    lk = link("image=cam,pose=tf,tf_parent=map", sink)
     assert lk.cfg.tf and lk.cfg.tf_static_key == "tf_static"
     for t in POSE_TIMES[:3]:
         lk.pose("tf", w.tf(t))
@@ -134,7 +128,7 @@ def test_tf_chain_with_static_map_to_odom() -> None:
     assert_pose(sink.frames[0][1], *w.in_map(10.1))
 
 
-@pytest.mark.parametrize(("parent", "expect"), [("", w.in_map), (",parent=odom", w.motion)])
+@pytest.mark.parametrize(("parent", "expect"), [("", w.in_map), (",tf_parent=odom", w.motion)])
 def test_tf_parent_is_picked_once_or_given(parent: str, expect: object) -> None:
     sink = Recorder()
     lk = link("image=cam,pose=tf" + parent, sink)
@@ -162,7 +156,7 @@ def test_tf_parent_stays_once_chosen() -> None:
 
 def test_nearest_matching_and_receive_time() -> None:
     sink = Recorder()
-    lk = link("image=cam,pose=pose,pose_type=PoseStamped,match=nearest,max_gap=0.02", sink)
+    lk = link("image=cam,pose=pose,pose_type=PoseStamped,pose_match=nearest,max_gap=0.02", sink)
     for t in (10.0, 10.1):
         lk.pose("pose", w.pose_stamped(t))
     lk.image("cam", w.image(10.09, w.picture(0)))  # nearest: 10.1 (0.01 s away)
@@ -170,9 +164,9 @@ def test_nearest_matching_and_receive_time() -> None:
     assert lk.stats.stored == 1 and lk.stats.skipped == {SKIP_GAP: 1}
     assert_pose(sink.frames[0][1], *w.motion(10.1))
     assert sink.frames[0][2] == pytest.approx(10.09)
-    # time=receive: the stamp is ignored, the receive time given by the caller is used
+    # time_source=receive: the stamp is ignored, the receive time given by the caller is used
     sink2 = Recorder()
-    lk2 = link("image=cam,pose=pose,time=receive", sink2)
+    lk2 = link("image=cam,pose=pose,time_source=receive", sink2)
     for t in (20.0, 21.0):
         lk2.pose("pose", w.pose_stamped(10.0), recv_t=t)
     lk2.image("cam", w.image(10.0, w.picture(0)), recv_t=20.5)
@@ -192,21 +186,22 @@ def test_rmw_zenoh_keys_name_the_type() -> None:
     assert lk.stats.stored == 1 and lk.stats.skipped == {SKIP_TYPE: 1}
 
 
-def test_goal_pose_from_an_answer() -> None:
-    lk = link("image=cam,pose=odom,goal=/goal_pose,goal_frame=map", Recorder())
-    assert lk.cfg.goal == "goal_pose"
-    raw = lk.goal_bytes({"position": [1.5, -2.0, 0.25], "yaw": math.pi / 2, "found": True}, t=1700000000.25)
-    assert raw is not None
-    msg = rosmsg.deserialize(raw, rosmsg.POSE_STAMPED)
-    assert msg.header.frame_id == "map"
+def test_the_goal_is_the_answers_plan_in_its_frame() -> None:
+    """The link publishes the goal of an answer's plan (`nav.goals`), CDR of the very PoseStamped
+    the plan's JSON holds (its frame: the memory's); an answer without a path gives no goal."""
+    plan = {"ok": True, "pose_stamped": pose_stamped(1.5, -2.0, math.pi / 2, frame_id="odom")}
+    answer = {"found": True, "position": [1.5, -2.0, 0.25], "yaw": 0.3, "navigation": plan}
+    goal = goal_of(answer)
+    assert goal is not None
+    msg = rosmsg.deserialize(goal_bytes(goal, 1700000000.25), rosmsg.POSE_STAMPED)
+    assert msg.header.frame_id == "odom"
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1700000000, 250000000)
     p, q = msg.pose.position, msg.pose.orientation
-    assert (p.x, p.y, p.z) == (1.5, -2.0, 0.25)
+    assert (p.x, p.y, p.z) == (1.5, -2.0, 0.0)
     assert (q.x, q.y, q.z, q.w) == pytest.approx((0, 0, math.sin(math.pi / 4), math.cos(math.pi / 4)))
-    assert lk.goal_bytes({"position": None, "found": True}) is None
-    assert lk.goal_bytes({"position": [1, 2, 3], "failed": True}) is None
-    assert lk.goal_bytes({"position": [1, 2, 3], "found": False}) is None
-    assert answer_goal({"position": [1, 2, 3], "yaw": None}) == (1.0, 2.0, 3.0, None)
+    assert read_pose_stamped(rosmsg.to_dict(msg))[:3] == pytest.approx((1.5, -2.0, math.pi / 2))
+    assert goal_of({"position": [1, 2, 3], "found": True}) is None  # never planned: nothing to drive to
+    assert goal_of(answer | {"navigation": {"ok": False, "reason": "unreachable"}}) is None
 
 
 @pytest.mark.parametrize(
@@ -216,23 +211,52 @@ def test_goal_pose_from_an_answer() -> None:
         ("image=cam", "pose=KEY is missing"),
         ("image=cam,pose=odom,colour=red", "unknown key 'colour'"),
         ("image=cam,pose=odom,image=x", "image is given twice"),
-        ("image=cam,pose=odom,wait=soon", "wait='soon' is not a number"),
-        ("image=cam,pose=odom,wait=-1", "wait must be a finite number >= 0"),
-        ("image=cam,pose=odom,match=closest", "unknown pose matching 'closest'"),
-        ("image=cam,pose=odom,pose_type=Image", "pose_type='Image' is not one of"),
-        ("image=cam,pose=odom,time=gps", "time must be header or receive"),
+        ("image=cam,pose=odom,wait=soon", "wait='soon': Input should be a valid number"),
+        ("image=cam,pose=odom,wait=-1", "wait='-1': Input should be greater than or equal to 0"),
+        ("image=cam,pose=odom,pose_match=closest", "unknown pose matching 'closest'"),
+        ("image=cam,pose=odom,pose_type=Image", "pose_type='Image': not one of"),
+        ("image=cam,pose=odom,time_source=gps", "time_source must be 'header' or 'receive'"),
+        ("image=cam,pose=odom,parent=map", "unknown key 'parent'"),  # one vocabulary: tf_parent
         ("image=a//b,pose=odom", "not a Zenoh key expression"),
         ("image=cam,pose odom", "'pose odom' is not key=value"),
     ],
 )
 def test_bad_specs_name_the_problem(spec: str, message: str) -> None:
     with pytest.raises(InputError, match=message):
-        parse_link_spec(spec)
+        LinkConfig.from_spec(spec)
 
 
 def test_spec_defaults() -> None:
-    cfg = parse_link_spec("image=camera/color/image_raw,pose=odom")
+    cfg = LinkConfig.from_spec("image=camera/color/image_raw,pose=odom")
     assert cfg == LinkConfig(image="camera/color/image_raw", pose="odom")
     assert not cfg.tf and cfg.tf_static_key is None and cfg.max_gap is None
-    near = parse_link_spec("image=c,pose=odom,match=nearest", pose_type="Odometry")
+    near = LinkConfig.from_spec("image=c,pose=odom,pose_match=nearest", pose_type="Odometry")
     assert near.max_gap == 0.05 and near.pose_type == rosmsg.ODOMETRY
+
+
+def test_poses_of_another_frame_than_the_memorys_are_not_stored() -> None:
+    """The poses' frame (the odometry's header.frame_id, or the TF parent) is checked once
+    against the memory's; a memory in `map` takes no `odom` poses."""
+    seen: list[str] = []
+
+    def memory_in_map(frame: str) -> str | None:
+        seen.append(frame)
+        return None if frame == "map" else f"poses in frame {frame!r}, the memory's are in 'map'"
+
+    sink = Recorder()
+    lk = RosLink(
+        LinkConfig.from_spec("image=cam,pose=odom"), sink, clock=lambda: 5000.0, frame_check=memory_in_map
+    )
+    for t in POSE_TIMES:
+        lk.pose("odom", w.odom(t))
+    for i in range(3):
+        lk.image("cam", w.image(10.1 + 0.1 * i, w.picture(i)))
+    assert sink.calls == 0 and lk.stats.skipped == {"poses in frame 'odom', the memory's are in 'map'": 3}
+    assert seen == ["odom"] and lk.poses.frame == "odom"  # asked once
+    sink2 = Recorder()
+    lk2 = RosLink(LinkConfig.from_spec("image=cam,pose=tf,tf_parent=map"), sink2, frame_check=memory_in_map)
+    lk2.pose("tf_static", w.tf_static())
+    for t in POSE_TIMES[:3]:
+        lk2.pose("tf", w.tf(t))
+    lk2.image("cam", w.image(10.1, w.picture(0)))
+    assert lk2.stats.stored == 1 and lk2.poses.frame == "map"

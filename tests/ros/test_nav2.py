@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,10 +11,10 @@ import pytest
 from PIL import Image
 
 from ravenmem.errors import InputError
+from ravenmem.nav.goals import pose_stamped, read_pose_stamped
 from ravenmem.nav.grid import MapConfig, OccupancyGrid
-from ravenmem.nav.nav2 import export_map_server, import_map_server, pose_stamped, read_pose_stamped
-
-REPO = Path(__file__).resolve().parents[2]
+from ravenmem.ros.nav2 import export_map_server, import_map_server
+from tests.cli.helpers import run_cli
 
 
 def _grid() -> OccupancyGrid:
@@ -106,16 +103,7 @@ def test_map_command_exports_and_imports(tmp_path: Path, color_embedder) -> None
     g = _grid()
     export_map_server(g, tmp_path / "given.yaml")
     ravenmem.create(tmp_path / "m.mem", embedder=color_embedder, ocr=False).close()
-    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
-
-    def rm(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "-m", "ravenmem.cli.main", *args],
-            capture_output=True,
-            text=True,
-            env=env,
-            timeout=300,
-        )
+    rm = run_cli
 
     # the memory's embedder is a test class: importing a map never needs it
     r = rm(

@@ -1,10 +1,13 @@
-"""ROS message conversion shared by the bag source and the live robot link.
+"""ROS message conversion shared by the bag source, the live robot link and the services.
 
 One place turns ROS messages (as `rosbags` deserialises them, from a bag or from CDR bytes off
 the wire) into what ravenmem stores, and back: images into RGB arrays, pose messages and TF
-transforms into (time, position, quaternion) samples, and an answer's position into a
-`geometry_msgs/PoseStamped` for a planner. A message that cannot be used gives a skip reason
-(a string) rather than an exception, so every caller counts its drops the same way.
+transforms into (time, position, quaternion) samples, and plain dicts (the JSON of a goal's
+`geometry_msgs/PoseStamped`, built once by `ravenmem.nav.goals.pose_stamped`; a service reply)
+into messages and CDR bytes (`to_message`, `serialize`). A message that cannot be used gives a
+skip reason (a string) rather than an exception, so every caller counts its drops the same way.
+Types other than the ones `rosbags` knows (tf2_msgs, the `ravenmem_msgs` services, Nav2's
+action) are registered from their interface text (`register`).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from ._util import pil_to_rgb
+from ..ingest._util import pil_to_rgb
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -175,26 +178,68 @@ def tf_samples(msg: Any, fallback: float, use_header: bool = True) -> Iterator[T
         yield TfSample(tfm.header.frame_id, tfm.child_frame_id, stamp(tfm, fallback, use_header), xyz, q)
 
 
-def pose_stamped(
-    x: float, y: float, z: float, yaw: float | None, t: float, frame_id: str = "map", ros1: bool = False
-) -> Any:
-    """A geometry_msgs/PoseStamped at (x, y, z) heading `yaw` (identity rotation when None)."""
-    ts = typestore(ros1)
-    T = ts.types
-    sec = math.floor(t)
-    nanosec = min(int(round((t - sec) * 1e9)), 999_999_999)
-    stamp_msg = T["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=nanosec)
-    header = (
-        T["std_msgs/msg/Header"](seq=0, stamp=stamp_msg, frame_id=frame_id)
-        if ros1
-        else T["std_msgs/msg/Header"](stamp=stamp_msg, frame_id=frame_id)
-    )
-    half = 0.0 if yaw is None else yaw / 2.0
-    pose = T["geometry_msgs/msg/Pose"](
-        position=T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(z)),
-        orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
-    )
-    return T[POSE_STAMPED](header=header, pose=pose)
+def register(definitions: dict[str, str]) -> None:
+    """Teach the type store `{type name: .msg text}` (types it knows already are left alone)."""
+    ts = typestore()
+    new = {}
+    for name, text in definitions.items():
+        if (
+            name not in ts.types
+        ):  # keyed by the name given (rosbags would file srv types under .../srv/msg/...)
+            new[name] = next(iter(get_types_from_msg(text, name).values()))
+    if new:
+        ts.register(new)
+
+
+def to_message(data: Any, msgtype: str) -> Any:
+    """A message of `msgtype` from a plain dict (nested dicts for nested messages, lists for
+    arrays; fields left out take their zero value), e.g. `nav.goals.pose_stamped(...)`."""
+    ts = typestore()
+    cls = ts.types[msgtype]
+    fields = ts.fielddefs[msgtype][1]
+    values = {}
+    given = data if isinstance(data, dict) else {}
+    for name, (kind, spec) in fields:
+        values[name] = _field(ts, kind, spec, given.get(name))
+    return cls(**values)
+
+
+_ZERO = {"bool": False, "string": "", "wstring": ""}
+_NUMPY = {"uint8": np.uint8, "int8": np.int8, "octet": np.uint8, "char": np.uint8, "byte": np.uint8}
+
+
+def _field(ts: Any, kind: int, spec: Any, value: Any) -> Any:
+    """One field's value for the message class (rosbags' field kinds: 1 base, 2 name, 3 array, 4 sequence)."""
+    if kind == 1:  # a base type: (type name, string bound)
+        base = spec[0]
+        if value is None:
+            return _ZERO.get(base, 0.0 if base.startswith("float") else 0)
+        return str(value) if base in ("string", "wstring") else value
+    if kind == 2:  # a nested message
+        return to_message(value if value is not None else {}, spec)
+    # arrays (3) and sequences (4): ((element kind, element spec), length)
+    (ekind, espec), length = spec
+    items = list(value or [])
+    if kind == 3 and not items:
+        items = [None] * int(length)
+    if ekind == 1 and espec[0] in _NUMPY:
+        return np.asarray([0 if v is None else v for v in items], _NUMPY[espec[0]])
+    if ekind == 1 and espec[0] not in ("string", "wstring", "bool"):
+        dtype = np.float64 if espec[0] == "float64" else np.float32 if espec[0] == "float32" else np.int64
+        return np.asarray([_field(ts, 1, espec, v) for v in items]).astype(dtype)
+    return [_field(ts, ekind, espec, v) for v in items]
+
+
+def to_dict(msg: Any) -> Any:
+    """A message as plain dicts and lists (byte arrays as bytes), the inverse of `to_message`."""
+    if isinstance(msg, np.ndarray):
+        return msg.tobytes() if msg.dtype == np.uint8 else msg.tolist()
+    if isinstance(msg, (list, tuple)):
+        return [to_dict(v) for v in msg]
+    fields = getattr(msg, "__dataclass_fields__", None)
+    if fields is None:
+        return msg
+    return {name: to_dict(getattr(msg, name)) for name in fields if name != "__msgtype__"}
 
 
 def serialize(msg: Any, msgtype: str) -> bytes:

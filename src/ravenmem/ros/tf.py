@@ -14,7 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
-from .poses import PoseTrack
+from ..ingest.poses import PoseTrack
 
 
 @dataclass
@@ -25,9 +25,20 @@ class Edge:
     static: bool = False
 
 
+TIME_SOURCES = ("header", "receive")
+
+
 def norm_frame(name: str) -> str:
     """ROS 1 frame ids may carry a leading '/'; TF itself ignores it."""
     return name.strip().lstrip("/")
+
+
+def check_time_source(value: str, what: str) -> str:
+    """`header` (a message's header.stamp, its receive time when the stamp is zero) or
+    `receive` (the time it was received: logged by the bag, or seen by the link)."""
+    if value not in TIME_SOURCES:
+        raise InputError(f"{what}: time_source must be 'header' or 'receive', got {value!r}")
+    return value
 
 
 class TfTree:

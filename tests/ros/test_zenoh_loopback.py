@@ -18,12 +18,14 @@ import numpy as np
 import pytest
 
 import ravenmem
-from ravenmem.ingest import rosmsg
 from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer
-from ravenmem.server.zenoh_link import SKIP_NO_POSE, ZenohEndpoints, ZenohLink, parse_link_spec
+from ravenmem.nav.goals import pose_stamped
+from ravenmem.ros import msgs as rosmsg
+from ravenmem.ros.link import SKIP_NO_POSE, LinkConfig
+from ravenmem.ros.zenoh import ZenohEndpoints, ZenohLink
 from ravenmem.types import Frame, Pose
 from tests.conftest import ColorEmbedder
-from tests.server import ros_wire as w
+from tests.ros import ros_wire as w
 
 zenoh: Any = pytest.importorskip("zenoh", reason="the robot extra (eclipse-zenoh) is not installed")
 
@@ -77,7 +79,7 @@ def mem(tmp_path: Path) -> Iterator[ravenmem.Memory]:
 
 def test_frames_published_over_zenoh_become_memories(mem: ravenmem.Memory) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cfg = parse_link_spec("image=camera/color/image_raw,pose=odom,goal=goal_pose,wait=0.3")
+    cfg = LinkConfig.from_spec("image=camera/color/image_raw,pose=odom,goal=goal_pose,wait=0.3")
     link = ZenohLink(
         cfg, MemorySink(mem, KeyframeConfig(min_translation=0.15)), ZenohEndpoints(listen=(endpoint,))
     )
@@ -115,13 +117,19 @@ def test_frames_published_over_zenoh_become_memories(mem: ravenmem.Memory) -> No
             assert img is not None
             pic = w.picture(round((r.t - 10.0) / 0.1))
             assert np.abs(img.astype(int) - pic).mean() < 12  # the thumbnail is the published picture
-        # an answer with a position goes back to the robot as a PoseStamped in map
-        answer = {"found": True, "position": [recs[2].pose.x, recs[2].pose.y, 0.0], "yaw": recs[2].pose.yaw}
+        # an answer with a plan goes back to the robot as the plan's PoseStamped (here: odom)
+        goal_json = pose_stamped(recs[2].pose.x, recs[2].pose.y, recs[2].pose.yaw, frame_id="odom")
+        answer = {
+            "found": True,
+            "position": [0.0, 0.0, 0.0],
+            "navigation": {"ok": True, "pose_stamped": goal_json},
+        }
         assert link.publish_goal(answer)
         assert not link.publish_goal({"found": False, "position": None})
+        assert not link.publish_goal({"found": True, "position": [1.0, 2.0, 0.0]})  # no plan, no planner
         assert wait_until(lambda: len(goals) == 1)
         goal = rosmsg.deserialize(goals[0], rosmsg.POSE_STAMPED)
-        assert goal.header.frame_id == "map"
+        assert goal.header.frame_id == "odom"
         assert (goal.pose.position.x, goal.pose.position.y) == pytest.approx((recs[2].pose.x, recs[2].pose.y))
         q = goal.pose.orientation
         assert Pose.from_quaternion(0, 0, 0, q.x, q.y, q.z, q.w).yaw == pytest.approx(recs[2].pose.yaw)
@@ -140,7 +148,7 @@ def test_tf_over_zenoh_with_tf_static_sent_before_the_link_started(mem: ravenmem
         robot, "tf_static", cache=zenoh.ext.CacheConfig(max_samples=1), publisher_detection=True
     )
     static.put(w.tf_static())  # before anyone listens
-    cfg = parse_link_spec("image=camera/image_raw/compressed,pose=tf")  # parent: map, found in tf
+    cfg = LinkConfig.from_spec("image=camera/image_raw/compressed,pose=tf")  # parent: map, found in tf
     link = ZenohLink(cfg, MemorySink(mem, KeyframeConfig.only()), ZenohEndpoints(connect=(endpoint,))).start()
     try:
         pubs = {k: robot.declare_publisher(k) for k in ("camera/image_raw/compressed", "tf")}

@@ -5,8 +5,14 @@ image messages are decoded one at a time and posed by interpolation at their tim
 Images: sensor_msgs/Image (rgb8, bgr8, rgba8, bgra8, mono8, mono16) and CompressedImage (any
 format PIL decodes: jpeg, png, ...). Poses: nav_msgs/Odometry, geometry_msgs/PoseStamped,
 geometry_msgs/PoseWithCovarianceStamped, or /tf (+ /tf_static) from `tf_parent` to `tf_child`.
-Times come from header.stamp (`time_source="header"`, falling back to the bag's receive time
-when a stamp is zero) or from the bag's receive time (`time_source="bag"`).
+Times come from header.stamp (`time_source="header"`, falling back to the time the bag received
+the message when a stamp is zero) or from that receive time (`time_source="receive"`). The pose
+options are named as the live link's (`ravenmem.ros.link.LinkConfig`): `tf_parent`, `tf_child`,
+`time_source`, `pose_match`, `max_gap`.
+
+`frame_id` is the frame the poses are in (REP 105): the TF parent, or the pose messages'
+`header.frame_id`; `map` when they name none. Ingest records it (and a map identity derived
+from the bag) in the memory, see `ravenmem.memory.anchor`.
 
 Depth (for maps): `depth_topic` (sensor_msgs/Image, 16UC1 in mm or 32FC1 in m; by default the
 one other image topic with "depth" in its name) is paired with each colour frame by time
@@ -32,15 +38,15 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
+from ..ingest._util import build, existing
+from ..ingest.base import SOURCES, SourceStats
+from ..ingest.depth import camera_info_intrinsics, decode_depth_message, parse_intrinsics
+from ..ingest.identity import file_head, make_identity
+from ..ingest.poses import PoseTrack, check_match_mode
 from ..types import Frame, Intrinsics
-from . import rosmsg
-from ._tf import TfTree, norm_frame
-from ._util import build, existing
-from .base import SOURCES, SourceStats
-from .depth import camera_info_intrinsics, decode_depth_message, parse_intrinsics
-from .identity import file_head, make_identity
-from .poses import PoseTrack, check_match_mode
-from .rosmsg import IMAGE, IMAGE_TYPES, POSE_TYPES, SKIP_DECODE, TF, decode_image
+from . import msgs
+from .msgs import IMAGE, IMAGE_TYPES, POSE_TYPES, SKIP_DECODE, TF, decode_image
+from .tf import TfTree, check_time_source, norm_frame
 
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 # The optical frame (x right, y down, z forward) in a REP-103 camera body frame (x forward, z up).
@@ -48,7 +54,12 @@ _OPTICAL_IN_BODY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]
 
 
 def _stamp(msg: Any, bag_ns: int, time_source: str) -> float:
-    return rosmsg.stamp(msg, bag_ns * 1e-9, use_header=time_source == "header")
+    return msgs.stamp(msg, bag_ns * 1e-9, use_header=time_source == "header")
+
+
+def _frame_of(msg: Any) -> str:
+    header = getattr(msg, "header", None)
+    return norm_frame(str(getattr(header, "frame_id", "") or ""))
 
 
 def _pick(kind: str, available: dict[str, str], wanted: str | None, option: str) -> str:
@@ -84,9 +95,8 @@ class RosbagSource:
         self.path = existing(path, "ROS bag")
         self.name = f"rosbag:{self.path.name}"
         self.stats = SourceStats()
-        if time_source not in ("header", "bag"):
-            raise InputError(f"rosbag: time_source must be 'header' or 'bag', got {time_source!r}")
-        self.time_source = time_source
+        self.time_source = check_time_source(time_source, "rosbag")
+        self.frame_id = "map"
         self.pose_match = check_match_mode(pose_match)
         self.max_gap = max_gap if max_gap is not None or self.pose_match != "nearest" else 0.05
         with self._reader() as reader:
@@ -225,11 +235,13 @@ class RosbagSource:
             except Exception:
                 self.stats.skip(f"undecodable pose message on {topic}")
                 continue
-            pq = rosmsg.pose_of(msg, conn.msgtype)
+            pq = msgs.pose_of(msg, conn.msgtype)
             if pq is None:
                 self.stats.skip(f"invalid pose message on {topic}")
                 continue
             t.append(_stamp(msg, ns, self.time_source))
+            if len(t) == 1:
+                self.frame_id = _frame_of(msg) or self.frame_id
             xyz.append(pq[0])
             quat.append(pq[1])
         if not t:
@@ -246,7 +258,7 @@ class RosbagSource:
                 self.stats.skip("undecodable tf message")
                 continue
             static = conn.topic.endswith("tf_static")
-            for tf in rosmsg.tf_samples(msg, ns * 1e-9, use_header=self.time_source == "header"):
+            for tf in msgs.tf_samples(msg, ns * 1e-9, use_header=self.time_source == "header"):
                 tree.add(tf.parent, tf.child, tf.t, tf.xyz, tf.quat, static=static)
         tree.require(child, str(self.path))
         if parent is None:
@@ -257,6 +269,7 @@ class RosbagSource:
                     f"tf_child (frames: {', '.join(tree.frames) or 'none'})"
                 )
         self.tf_frames = (parent, child)
+        self.frame_id = norm_frame(parent)
         return tree.track(parent, child, name=str(self.path))
 
     def __iter__(self) -> Iterator[Frame]:
@@ -312,7 +325,7 @@ class RosbagSource:
                 except Exception:
                     self.stats.skip(SKIP_DECODE)
                     continue
-                self.stats.raw_bytes += rosmsg.raw_image_bytes(msg, conn.msgtype)
+                self.stats.raw_bytes += msgs.raw_image_bytes(msg, conn.msgtype)
                 t = _stamp(msg, ns, self.time_source)
                 pose = self.track.match(t, self.pose_match, self.max_gap)
                 if isinstance(pose, str):

@@ -1,4 +1,6 @@
-"""ROS 2 Nav2 interop: map_server maps (YAML + PGM) and goals as `geometry_msgs/PoseStamped`.
+"""ROS 2 Nav2 interop: map_server maps (YAML + PGM). Goals are `ravenmem.nav.goals` plans,
+sent as `geometry_msgs/PoseStamped` (`nav.goals.pose_stamped`) or a NavigateToPose action
+(`ravenmem.ros.action`).
 
 map_server conventions (nav2_map_server, `map_saver_cli` defaults), followed exactly:
 
@@ -29,9 +31,8 @@ from PIL import Image, UnidentifiedImageError
 
 from ..errors import InputError
 from ..fsio import atomic_write
-from ..types import yaw_of
-from .frame import MapFrame
-from .grid import MapConfig, OccupancyGrid
+from ..nav.frame import MapFrame
+from ..nav.grid import MapConfig, OccupancyGrid
 
 FREE, OCCUPIED, UNKNOWN = 254, 0, 205
 OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
@@ -134,31 +135,3 @@ def import_map_server(yaml_path: str | Path) -> OccupancyGrid:
         "from": str(yaml_path),
     }
     return grid
-
-
-def pose_stamped(
-    x: float, y: float, yaw: float, frame_id: str = "map", stamp: float | None = None
-) -> dict[str, Any]:
-    """A `geometry_msgs/msg/PoseStamped` as JSON (what `ros2 topic pub /goal_pose` takes):
-    position on the map plane (z = 0), orientation a rotation of `yaw` about the map's z."""
-    t = 0.0 if stamp is None else float(stamp)
-    sec = int(math.floor(t))
-    return {
-        "header": {"stamp": {"sec": sec, "nanosec": int(round((t - sec) * 1e9))}, "frame_id": frame_id},
-        "pose": {
-            "position": {"x": float(x), "y": float(y), "z": 0.0},
-            "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)},
-        },
-    }
-
-
-def read_pose_stamped(msg: dict[str, Any]) -> tuple[float, float, float, str]:
-    """(x, y, yaw, frame_id) from PoseStamped JSON; InputError naming the missing field."""
-    try:
-        p, q = msg["pose"]["position"], msg["pose"]["orientation"]
-        x, y = float(p["x"]), float(p["y"])
-        qx, qy, qz, qw = (float(q[k]) for k in ("x", "y", "z", "w"))
-        frame = str(msg["header"]["frame_id"])
-    except (KeyError, TypeError, ValueError) as e:
-        raise InputError(f"not a PoseStamped: missing or bad field {e}") from None
-    return x, y, yaw_of(qx, qy, qz, qw), frame

@@ -3,6 +3,7 @@ streams into the running service, and the service's answers come back to it as g
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -15,13 +16,13 @@ import httpx
 import pytest
 
 import ravenmem
-from ravenmem.ingest import rosmsg
-from ravenmem.types import Pose
+from ravenmem.ros import msgs as rosmsg
 from tests.agent.conftest import SCENE
+from tests.agent.test_ask_navigate import with_map
 from tests.cli.helpers import assert_one_line_error
-from tests.server import ros_wire as w
+from tests.ros import ros_wire as w
+from tests.ros.test_zenoh_loopback import free_port, peer, wait_until
 from tests.server.conftest import REPO, make_memory, serve_subprocess
-from tests.server.test_zenoh_loopback import free_port, peer, wait_until
 
 zenoh: Any = pytest.importorskip("zenoh", reason="the robot extra (eclipse-zenoh) is not installed")
 
@@ -35,6 +36,7 @@ def link_info(url: str) -> dict[str, Any]:
 def test_serve_zenoh_stores_frames_and_sends_goals(tmp_path: Path) -> None:
     mem_path = tmp_path / "scene.mem"
     make_memory(mem_path).close()
+    with_map(mem_path)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot = peer(endpoint, listen=True)  # the robot listens; the service connects to it
     goals: list[bytes] = []
@@ -71,7 +73,7 @@ def test_serve_zenoh_stores_frames_and_sends_goals(tmp_path: Path) -> None:
             x, y, yaw = w.motion(m["t"])
             assert (m["x"], m["y"], m["yaw"]) == pytest.approx((x, y, yaw), abs=1e-6)
             assert m["source"] == "zenoh"
-        # a question answered by the service: its position goes to the robot as a goal
+        # a question answered by the service: its plan's goal goes to the robot (nav.goals.goal_for)
         r = httpx.post(
             url + "/ask", json={"question": "where is the yellow thing?", "method": "offline"}, timeout=60
         )
@@ -79,11 +81,12 @@ def test_serve_zenoh_stores_frames_and_sends_goals(tmp_path: Path) -> None:
         assert r.status_code == 200 and answer["position"] is not None, answer
         assert wait_until(lambda: len(goals) == 1, 10)
         goal = rosmsg.deserialize(goals[0], rosmsg.POSE_STAMPED)
-        assert goal.header.frame_id == "map"
-        p, q = goal.pose.position, goal.pose.orientation
-        assert [p.x, p.y, p.z] == pytest.approx(answer["position"])
-        if answer["yaw"] is not None:
-            assert Pose.from_quaternion(0, 0, 0, q.x, q.y, q.z, q.w).yaw == pytest.approx(answer["yaw"])
+        # the memory had no frame yet: it took the odometry's (odom), and its goals are in it
+        assert goal.header.frame_id == "odom" and goal.header.stamp.sec > 0  # stamped when sent
+        assert httpx.get(url + "/info", timeout=10).json()["frame_id"] == "odom"
+        p = goal.pose.position
+        assert math.dist((p.x, p.y), answer["position"][:2]) < 0.1 and p.z == 0.0
+        assert "frame_id" in link_info(url) and link_info(url)["frame_id"] == "odom"  # the poses' frame
         assert link_info(url)["goals"] == 1
     finally:
         proc.send_signal(signal.SIGINT)

@@ -1,0 +1,82 @@
+"""`ravenmem bench`: the real command in a subprocess. The figures' structure and their
+consistency are checked (days per GB follow from the printed bytes and rate), never the speed."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from tests.cli.helpers import assert_one_line_error, make_memory, run_cli
+
+
+def _days(bytes_per_memory: float, rate: float) -> float:
+    return 1e9 / (bytes_per_memory * rate * 86_400)
+
+
+def test_bench_json_on_a_synthetic_store_is_consistent() -> None:
+    r = run_cli("bench", "--json", "--rate", "0.5", "--synthetic", "3000", "--seconds", "0.5", timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    doc = json.loads(r.stdout)
+    assert doc["rate"] == 0.5
+    st = doc["store"]
+    assert st["synthetic"] is True and st["memories"] == 3000 and st["dim"] == 384 and st["errors"] == {}
+    assert set(st["tools"]) == {"text", "image", "time", "position"}
+    for tool, t in st["tools"].items():
+        assert 0 < t["p50_ms"] <= t["p99_ms"], tool
+    offline = [e for e in doc["embedders"] if e["spec"] == "offline"]
+    assert len(offline) == 1 and offline[0]["error"] is None and offline[0]["frames_per_s"] > 0
+    assert offline[0]["name"].startswith("offline:effnet-lite0+minilm:")
+    # the sizing follows from the measured figures
+    assert doc["sizing_embedder"] == doc["embedders"][0]["name"]
+    assert doc["keyframes_per_s"] == doc["embedders"][0]["frames_per_s"]
+    if doc["ocr_frames_per_s"]:
+        want = 1 / (1 / doc["keyframes_per_s"] + 1 / doc["ocr_frames_per_s"])
+        assert doc["keyframes_per_s_with_ocr"] == pytest.approx(want, rel=1e-9)
+    assert doc["disk_includes_thumbnails"] is False and doc["bytes_per_memory_disk"] > 384 * 4
+    assert doc["days_per_gb_disk"] == pytest.approx(_days(doc["bytes_per_memory_disk"], 0.5), rel=1e-9)
+    if doc["bytes_per_memory_ram"] is not None:  # Linux: measured in a fresh process
+        assert doc["days_per_gb_ram"] == pytest.approx(_days(doc["bytes_per_memory_ram"], 0.5), rel=1e-9)
+    assert "accelerators" in doc["machine"] and doc["machine"]["cpus"] >= 1
+
+
+def test_bench_text_on_a_memory_reads_it_only_and_reports_what_cannot_run(tmp_path: Path) -> None:
+    """A memory whose embedder is not installed here (the tests' colour embedder): the text tool
+    and that embedder are reported as failed, the rest is measured, nothing in the memory changes."""
+    mem = make_memory(tmp_path / "m.mem", n=40)
+    # any reader leaves the store's derived caches (columns.cache) behind once; bench adds nothing
+    assert run_cli("search", "--time", "+0s", "-m", str(mem)).returncode == 0
+    before = {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in mem.rglob("*") if p.is_file()}
+    r = run_cli("bench", "-m", str(mem), "--seconds", "0.5", timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = r.stdout
+    after = {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in mem.rglob("*") if p.is_file()}
+    assert after == before  # read-only
+    assert re.search(r"test-color: unavailable \(", out), out
+    assert re.search(r"store: 40 memories \(this memory, dim 4\)", out), out
+    assert re.search(r"^  text +failed \(", out, re.M), out
+    for tool in ("image", "time", "position"):
+        assert re.search(rf"^  {tool} +p50 [\d.]+ ms, p99 [\d.]+ ms$", out, re.M), out
+    m = re.search(r"bytes per memory: disk ([\d,]+) B \(with thumbnails\)", out)
+    days = re.search(r"at 0.12 keyframes/s: ([\d,.]+) days of memory per GB of disk", out)
+    assert m and days, out
+    printed = float(days.group(1).replace(",", ""))
+    lo, hi = (_days(float(m.group(1).replace(",", "")) + d, 0.12) for d in (0.5, -0.5))  # bytes rounded
+    assert lo - 0.05 <= printed <= hi + 0.05, (printed, lo, hi)
+    assert re.search(r"sustainable: [\d.]+ keyframes/s", out), out  # from the offline embedder
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (["--rate", "0"], "--rate must be a positive"),
+        (["--rate", "nan"], "--rate must be a positive"),
+        (["--synthetic", "5"], "--synthetic must be"),
+        (["-m", "/nonexistent/x.mem"], "not a ravenmem memory"),
+    ],
+)
+def test_bench_bad_input_is_one_line(args: list[str], match: str) -> None:
+    line = assert_one_line_error(run_cli("bench", *args, timeout=120))
+    assert match in line

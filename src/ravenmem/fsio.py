@@ -5,6 +5,11 @@ fsynced, the temporary file is renamed over the target and the folder is fsynced
 any point leaves either the old file or the new one, never a mix. On an exception the
 temporary file is removed and the target is untouched.
 
+Reads are bounded too: `read_bounded` is the one way ravenmem reads a whole file a user names
+(pose tracks, TUM lists, configs, Nav2 maps, question and label files), so `/dev/zero` or a
+10 GB file is a one-line error naming the file and the limit after reading at most the limit.
+A write that finds the disk full is `DiskFullError` (`disk_full`), one line wherever it happens.
+
 A killed writer leaves its temporary file behind (`.NAME.<12 hex>.tmp`). The writer holds an
 exclusive `flock` on it while it writes, which the OS drops when the process dies, so
 `remove_stale_temp_files` can tell a leftover from a file another process is writing right now.
@@ -12,22 +17,176 @@ exclusive `flock` on it while it writes, which the OS drops when the process die
 
 from __future__ import annotations
 
+import errno
+import functools
 import json
 import os
 import re
+import sqlite3
+import stat
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, ParamSpec, TypeVar
+from urllib.parse import quote
 
 try:
     import fcntl
 except ImportError:  # pragma: no cover - not POSIX: temp files are then never reported stale
     fcntl = None  # type: ignore[assignment]
 
+from .errors import InputError, RavenmemError
+
+P = ParamSpec("P")
+R = TypeVar("R")
 _TEMP_NAME = re.compile(r"\..+\.[0-9a-f]{12}\.tmp")
+
+MAX_TEXT = 64 << 20  # a list, a table or a question file: 64 MiB (a pose track of 500,000 rows is 40)
+MAX_CONFIG = 1 << 20  # a settings file: 1 MiB
+MAX_IMAGE = 256 << 20  # a picture file sent to a service: 256 MiB (40 MP raw is 120)
+_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)  # no space, a quota, a file-size limit (ulimit -f)
+
+
+class DiskFullError(RavenmemError, OSError):
+    """A write found no space left (or a quota or file-size limit); nothing acknowledged is lost,
+    and reads go on. HTTP 507."""
+
+
+def disk_full(e: BaseException) -> DiskFullError | None:
+    """`e` as a one-line DiskFullError when it (or what caused it) is "no space left", else None:
+    SQLite says `database or disk is full` (or a write error: a quota, a file-size limit), the
+    OS says ENOSPC (EDQUOT, EFBIG)."""
+    seen: BaseException | None = e
+    while seen is not None:
+        if isinstance(seen, DiskFullError):
+            return seen
+        if isinstance(seen, OSError) and seen.errno in _FULL:
+            where = f" writing {seen.filename}" if seen.filename else ""
+            return DiskFullError(f"disk full{where} ({os.strerror(seen.errno)}); nothing stored was lost")
+        name = getattr(seen, "sqlite_errorname", "")
+        if name == "SQLITE_FULL" or "database or disk is full" in str(seen):
+            return DiskFullError(
+                "disk full: the store cannot grow (SQLite: database or disk is full); nothing stored was lost"
+            )
+        if name in ("SQLITE_IOERR_WRITE", "SQLITE_IOERR_FSYNC", "SQLITE_IOERR_TRUNCATE"):
+            # what SQLite says when a write fails with EFBIG (a file-size limit) or EDQUOT
+            return DiskFullError(
+                f"disk full or failing: the store cannot write (SQLite: {seen}); nothing stored was lost"
+            )
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
+def sqlite_reader(path: str | os.PathLike[str]) -> sqlite3.Connection:
+    """A connection that reads a WAL-mode SQLite database and writes nothing in its folder.
+
+    While a writer is at work (its `-wal` file is there) a read-only connection (`mode=ro`)
+    shares the writer's files. On a database at rest a read-only connection would create the
+    `-wal` and `-shm` files and leave them behind, so a normal connection is opened with
+    `query_only` set: its close removes the two files it created (an empty WAL: the database
+    file itself is untouched). Usable from any thread (callers serialise access)."""
+    p = Path(path)
+    if Path(f"{p}-wal").exists() or not os.access(p.parent, os.W_OK):
+        uri = f"file:{quote(str(p.resolve()))}?mode=ro"
+        conn = sqlite3.connect(uri, uri=True, check_same_thread=False, isolation_level=None, timeout=30.0)
+    else:
+        conn = sqlite3.connect(p, check_same_thread=False, isolation_level=None, timeout=30.0)
+    conn.execute("PRAGMA query_only=1")
+    return conn
+
+
+PICTURE_TAG = ("Software", "ravenmem")  # the PNG text chunk every picture ravenmem writes carries
+
+
+def is_our_picture(path: str | os.PathLike[str]) -> bool:
+    """Whether `path` is a PNG ravenmem wrote (its `Software` text chunk says so): the only kind
+    of existing file a picture output may replace."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except OSError:
+        return False
+    key, value = (v.encode() for v in PICTURE_TAG)
+    return head.startswith(b"\x89PNG\r\n\x1a\n") and b"tEXt" + key + b"\x00" + value in head
+
+
+def rollback(conn: sqlite3.Connection) -> None:
+    """Undo a connection's open transaction, if there still is one: a COMMIT that failed on a
+    full disk has already rolled back, and a second error would hide the first."""
+    if conn.in_transaction:
+        conn.execute("ROLLBACK")
+
+
+def reports_full_disk(fn: Callable[P, R]) -> Callable[P, R]:
+    """`fn` (a write) with a full disk raised as one `DiskFullError`, whatever raised it (SQLite,
+    a thumbnail, the manifest): callers and front ends see one line, "disk full ..."."""
+
+    @functools.wraps(fn)
+    def write(*args: P.args, **kwargs: P.kwargs) -> R:
+        try:
+            return fn(*args, **kwargs)
+        except DiskFullError:
+            raise
+        except Exception as e:
+            full = disk_full(e)
+            if full is None:
+                raise
+            raise full from e
+
+    return write
+
+
+def read_bounded(path: str | os.PathLike[str], limit: int = MAX_TEXT, what: str = "file") -> bytes:
+    """The bytes of `path`, at most `limit` of them: a larger file, or a device that never ends
+    (`/dev/zero`), is a one-line `InputError` naming the file and the limit once `limit + 1`
+    bytes were read. A folder, a FIFO or a socket is refused before it is opened (opening a
+    FIFO would wait for a writer)."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise InputError(f"{what} {p} does not exist") from None
+    except OSError as e:
+        raise InputError(f"{what} {p} cannot be read ({e.strerror or e})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{what} {p} is a folder, not a file")
+    if stat.S_ISFIFO(st.st_mode) or stat.S_ISSOCK(st.st_mode):
+        raise InputError(f"{what} {p} is not a regular file")
+    if stat.S_ISREG(st.st_mode) and st.st_size > limit:
+        raise InputError(
+            f"{what} {p} is larger than the limit of {size_text(limit)} ({size_text(st.st_size)})"
+        )
+    try:
+        with open(p, "rb") as f:
+            data = f.read(limit + 1)
+    except OSError as e:
+        raise InputError(f"{what} {p} cannot be read ({e.strerror or e})") from None
+    if len(data) > limit:
+        raise InputError(f"{what} {p} is larger than the limit of {size_text(limit)}")
+    return data
+
+
+def read_text(
+    path: str | os.PathLike[str], limit: int = MAX_TEXT, what: str = "file", errors: str = "strict"
+) -> str:
+    """`read_bounded` decoded as UTF-8 (a byte-order mark is dropped); invalid UTF-8 is a
+    one-line `InputError` unless `errors="replace"`."""
+    data = read_bounded(path, limit, what)
+    try:
+        return data.decode("utf-8-sig", errors=errors)
+    except UnicodeDecodeError as e:
+        raise InputError(f"{what} {path}: not UTF-8 text (byte {e.start})") from None
+
+
+def size_text(n: int) -> str:
+    """A size as people read it (`512 MiB`, `12.5 KiB`): limits, and what a command freed."""
+    for unit in ("bytes", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:g} {unit}" if unit == "bytes" else f"{n:.4g} {unit}"
+        n /= 1024  # type: ignore[assignment]
+    return str(n)
 
 
 def fsync_dir(folder: str | os.PathLike[str]) -> None:
@@ -94,6 +253,12 @@ def publish_dir(tmp: str | os.PathLike[str], final: str | os.PathLike[str]) -> N
         raise FileExistsError(f"{dest} already exists")
     os.rename(src, dest)
     fsync_dir(dest.parent)
+
+
+def move(src: str | os.PathLike[str], dest: str | os.PathLike[str]) -> None:
+    """Rename a file within its folder, durably (a file set aside, e.g. by crash recovery)."""
+    os.replace(src, dest)
+    fsync_dir(Path(dest).parent)
 
 
 def is_temp_file(path: Path) -> bool:

@@ -51,9 +51,14 @@ def fmt_time(t: float) -> str:
     """The one way ravenmem writes a time: ISO 8601 in UTC with milliseconds and a `Z`.
 
     Tables, JSON, the agent's listings and the models' answers all use it, and `parse_time`
-    reads it back exactly (to the millisecond).
+    reads it back exactly (to the millisecond). A time no calendar date can show (a memory
+    written before times were checked at the door, `ravenmem.types.check_time`) is shown as
+    its number rather than failing the listing it is part of.
     """
-    dt = datetime.fromtimestamp(t, tz=timezone.utc)
+    try:
+        dt = datetime.fromtimestamp(t, tz=timezone.utc)
+    except (OverflowError, OSError, ValueError):
+        return f"{t!r} s (no calendar date)"
     return dt.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 

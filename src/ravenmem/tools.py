@@ -19,16 +19,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, field_validator
 
 from .errors import InputError
 from .memory.diversity import SAME_VIEW
 from .memory.protocol import MAX_K, MemoryLike, check_k
 from .timeparse import fmt_time
-from .types import Hit, MemoryRecord
+from .types import MAX_COORD, MAX_ID, Hit, MemoryRecord, Region, check_id
 
 TimeArg = float | str
 Order = Literal["best first", "chronological", "nearest first"]
@@ -67,6 +67,8 @@ class _Near(ToolArgs):
     def _disc(cls, v: list[float] | None) -> list[float] | None:
         if v is not None and (len(v) != 3 or not all(math.isfinite(c) for c in v) or v[2] <= 0):
             raise ValueError("near must be [x, y, radius] with finite numbers and radius > 0")
+        if v is not None:
+            Region(*v)  # the map's range (ravenmem.types): a one-line error, not an overflow
         return v
 
     def disc(self) -> tuple[float, float, float] | None:
@@ -111,9 +113,9 @@ class TextArgs(_Diverse):
 
 
 class ImageArgs(_Diverse):
-    memory_id: int | None = Field(
+    memory_id: Annotated[int, BeforeValidator(check_id)] | None = Field(  # names an id past SQLite's INTEGER
         None,
-        ge=0,
+        json_schema_extra={"minimum": 0, "maximum": MAX_ID},
         description="search with the image of this memory ('more views like memory 12'); "
         "leave out to search with the image attached to the question",
     )
@@ -131,13 +133,18 @@ class TimeArgs(ToolArgs):
 
 
 class PositionArgs(ToolArgs):
-    x: float = Field(..., allow_inf_nan=False, description="map x in metres")
-    y: float = Field(..., allow_inf_nan=False, description="map y in metres")
+    # positions within the map's range (ravenmem.types): 1e308 is a one-line error, not an overflow
+    x: float = Field(..., ge=-MAX_COORD, le=MAX_COORD, allow_inf_nan=False, description="map x in metres")
+    y: float = Field(..., ge=-MAX_COORD, le=MAX_COORD, allow_inf_nan=False, description="map y in metres")
     z: float | None = Field(
-        None, allow_inf_nan=False, description="height in metres; planar distance when left out"
+        None,
+        ge=-MAX_COORD,
+        le=MAX_COORD,
+        allow_inf_nan=False,
+        description="height in metres; planar distance when left out",
     )
     radius: float | None = Field(
-        None, gt=0, allow_inf_nan=False, description="only memories within this many metres"
+        None, gt=0, le=4 * MAX_COORD, allow_inf_nan=False, description="only memories within this many metres"
     )
 
 

@@ -15,6 +15,78 @@ import numpy as np
 
 from .errors import InputError
 
+# ---------------------------------------------------------------- the ranges of every stored value
+# Checked at the door (`Frame.check`, which `Memory.add_frames` runs; the HTTP and MCP models and
+# the sources use the same functions), so that one absurd value is a one-line error for its
+# sender instead of a stored row that breaks every later read (a time `fmt_time` cannot print, a
+# thumbnail name too long for the file system, a distance that overflows).
+T_MIN = 0.0  # 1970-01-01T00:00:00Z: Unix seconds; a simulator's clock that starts at 0 fits
+T_MAX = 4_102_444_800.0  # 2100-01-01T00:00:00Z
+MAX_COORD = 1e7  # metres from the map origin: 10,000 km holds any map on Earth (UTM included)
+MAX_ANGLE = 1e6  # radians: an unwrapped heading of a robot that turned 160,000 times
+MAX_ID = 2**63 - 1  # memory ids and frame indices: SQLite's INTEGER
+MIN_IMAGE_SIDE = 2  # pixels: the smallest picture an embedder can crop and resize
+MAX_SOURCE = 200  # characters of a source (camera) name
+RANGES = {
+    "t": f"Unix seconds from {T_MIN:.0f} (1970-01-01) to {T_MAX:.0f} (2100-01-01)",
+    "coordinate": f"metres within +-{MAX_COORD:g} of the map origin",
+    "angle": f"radians within +-{MAX_ANGLE:g}",
+    "id": f"a whole number from 0 to {MAX_ID}",
+}
+
+
+def check_time(t: object, what: str = "t") -> float:
+    """`t` as Unix seconds within [T_MIN, T_MAX], or a one-line InputError naming `what`."""
+    v = _number(t, what)
+    if not T_MIN <= v <= T_MAX:
+        raise InputError(f"{what}: {t!r} is out of range ({RANGES['t']})")
+    return v
+
+
+def check_coord(v: object, what: str = "coordinate") -> float:
+    """A position in metres within +-MAX_COORD, or a one-line InputError naming `what`."""
+    f = _number(v, what)
+    if not abs(f) <= MAX_COORD:
+        raise InputError(f"{what}: {v!r} is out of range ({RANGES['coordinate']})")
+    return f
+
+
+def check_id(v: object, what: str = "memory id") -> int:
+    """A memory id (or frame index): a whole number from 0 to MAX_ID (SQLite's INTEGER); a
+    whole number written as text (a query string's) is read as one."""
+    if isinstance(v, str) and v.strip().lstrip("+-").isdigit():
+        v = int(v)
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer, float, np.floating)):
+        raise InputError(f"{what}: expected {RANGES['id']}, got {v!r}")
+    if isinstance(v, (float, np.floating)) and not (math.isfinite(v) and float(v).is_integer()):
+        raise InputError(f"{what}: expected {RANGES['id']}, got {v!r}")
+    if not 0 <= int(v) <= MAX_ID:
+        raise InputError(f"{what}: {v!r} is out of range ({RANGES['id']})")
+    return int(v)
+
+
+def check_picture(image: object, what: str = "image") -> np.ndarray:
+    """An RGB uint8 (H, W, 3) array at least MIN_IMAGE_SIDE pixels on each side."""
+    if not isinstance(image, np.ndarray) or image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        got = f"{image.dtype} {image.shape}" if isinstance(image, np.ndarray) else type(image).__name__
+        raise InputError(f"{what}: expected an RGB uint8 picture (height, width, 3), got {got}")
+    h, w = image.shape[:2]
+    if min(h, w) < MIN_IMAGE_SIDE:
+        raise InputError(f"{what}: {w}x{h} pixels is too small (at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE})")
+    return image
+
+
+def _number(v: object, what: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise InputError(f"{what}: expected a number, got {v!r}")
+    try:
+        f = float(v)
+    except OverflowError:  # an int beyond float
+        raise InputError(f"{what}: {v!r} is out of range") from None
+    if not math.isfinite(f):
+        raise InputError(f"{what}: {v!r} is not a finite number")
+    return f
+
 
 def yaw_of(qx: float, qy: float, qz: float, qw: float) -> float:
     """The heading (rad, the rotation about +z) of a unit quaternion (x, y, z, w)."""
@@ -39,6 +111,11 @@ class Pose:
         vals = (self.x, self.y, self.z, self.yaw, *(self.quat or ()))
         if not all(math.isfinite(v) for v in vals):
             raise InputError(f"pose has a non-finite value: {self}")
+        if max(abs(self.x), abs(self.y), abs(self.z)) > MAX_COORD or abs(self.yaw) > MAX_ANGLE:
+            raise InputError(
+                f"pose {self.xyz} yaw {self.yaw:g}: out of range ({RANGES['coordinate']}; "
+                f"yaw {RANGES['angle']})"
+            )
 
     @classmethod
     def from_quaternion(
@@ -135,6 +212,22 @@ class Frame:
     depth: np.ndarray | None = None
     path: str | None = None  # the image file, when the source reads one (kept if thumbnails are off)
 
+    def check(self) -> None:
+        """What a memory accepts (the ranges at the top of this module): an RGB uint8 picture at
+        least MIN_IMAGE_SIDE pixels a side, a pose, a time from T_MIN to T_MAX, a frame index
+        from 0 to MAX_ID and a source name of at most MAX_SOURCE characters; a one-line
+        InputError naming the frame otherwise."""
+        name = f"frame {str(self.source)[:MAX_SOURCE]}#{self.index}"
+        check_picture(self.image, f"{name}: image")
+        if self.pose is None:
+            raise InputError(f"{name}: no pose")
+        if not isinstance(self.pose, Pose):
+            raise InputError(f"{name}: pose must be a Pose, got {type(self.pose).__name__}")
+        check_time(self.t, f"{name}: t")
+        check_id(self.index, f"{name}: frame index")
+        if not isinstance(self.source, str) or len(self.source) > MAX_SOURCE:
+            raise InputError(f"{name}: source must be a name of at most {MAX_SOURCE} characters")
+
 
 @dataclass
 class MemoryRecord:
@@ -184,6 +277,13 @@ class Region:
     x: float
     y: float
     r: float
+
+    def __post_init__(self) -> None:
+        check_coord(self.x, "region x")
+        check_coord(self.y, "region y")
+        r = _number(self.r, "region radius")
+        if not 0 <= r <= 4 * MAX_COORD:
+            raise InputError(f"region radius: {self.r!r} must be from 0 to {4 * MAX_COORD:g} m")
 
 
 @dataclass(frozen=True)

@@ -71,9 +71,10 @@ def test_bench_text_on_a_memory_reads_it_only_and_reports_what_cannot_run(tmp_pa
 @pytest.mark.parametrize(
     "args, match",
     [
-        (["--rate", "0"], "--rate must be a positive"),
-        (["--rate", "nan"], "--rate must be a positive"),
-        (["--synthetic", "5"], "--synthetic must be"),
+        (["--rate", "0"], "--rate: expected a rate > 0"),  # checked by the option model
+        (["--rate", "nan"], "--rate: expected a rate > 0"),
+        (["--synthetic", "5"], "--synthetic: expected a whole number from 100"),
+        (["--seconds", "inf"], "--seconds: expected seconds > 0"),
         (["-m", "/nonexistent/x.mem"], "not a ravenmem memory"),
     ],
 )

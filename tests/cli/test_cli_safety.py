@@ -398,9 +398,9 @@ def test_a_manifest_cannot_choose_a_server_the_user_never_gave(tmp_path: Path, f
 @pytest.mark.parametrize(
     "opts,needle",
     [
-        (["--stride", "0"], "stride must be an integer >= 1"),
-        (["--fps", "nan"], "fps must be a finite number"),
-        (["--batch-size", "0"], "batch_size must be a whole number >= 1"),
+        (["--stride", "0"], "--stride: expected a whole number from 1"),
+        (["--fps", "nan"], "--fps: expected a rate > 0"),
+        (["--batch-size", "0"], "--batch-size: expected a whole number from 1"),
     ],
 )
 def test_nonsense_ingest_numbers_are_one_line(tmp_path: Path, frames: Path, opts: list[str], needle: str):

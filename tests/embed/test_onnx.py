@@ -181,7 +181,7 @@ def test_a_memory_built_by_the_torch_path_opens_and_searches_without_torch(
 def test_graphs_are_built_once_into_the_user_cache(tmp_path: Path, offline) -> None:
     """First use builds both graphs under $RAVENMEM_CACHE_DIR/onnx (not in the memory), later
     processes reuse them, a damaged cache file is rebuilt, and torch is never imported."""
-    from ravenmem.embed._text import cache_dir
+    from ravenmem.embed.base import cache_dir
 
     code = (
         "import sys, numpy as np\n"

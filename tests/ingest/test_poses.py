@@ -86,7 +86,7 @@ def test_bad_input_names_file_line_and_field(tmp_path: Path, text: str, message:
 
 
 def test_missing_file_is_input_error(tmp_path: Path) -> None:
-    with pytest.raises(InputError, match="cannot read pose file"):
+    with pytest.raises(InputError, match="pose file .*nope.csv does not exist"):
         load_pose_track(tmp_path / "nope.csv")
 
 

@@ -71,8 +71,9 @@ def test_after_region_ids_and_combinations(walk: Path) -> None:
     out = rm_json("forget", "-m", str(walk), "--before", "+100", "--region", "0,0,30")
     assert out["removed"] == 10 - 0  # runs 0 and 1 (t <= +90), run 2 already gone
     assert min(r.t for r in records(walk)) == T0 + 150
-    # --after alone; offsets count from the first memory left (T0 + 150 now), as in searches
-    out = rm_json("forget", "-m", str(walk), "--after", "+120")
+    # --after alone; offsets count from the first memory this memory ever held (T0), not from
+    # the first one left (T0 + 150 now): the same command run again means the same instant
+    out = rm_json("forget", "-m", str(walk), "--after", "+270")
     assert out["removed"] == 3 and max(r.t for r in records(walk)) == T0 + 260
     # --ids with ranges, some unknown, some not matching the other selector
     left = sorted(r.id for r in records(walk))

@@ -203,13 +203,12 @@ def test_align_refuses_what_it_cannot_do(
         assert message in assert_one_line_error(rm(tiny_plugin, "align", *args)), args
 
 
-def test_a_killed_reanchoring_is_finished_by_the_next_writer(tmp_path: Path) -> None:
-    """The writer dies after the store took the new poses, before the manifest named the new
-    map: the next writer finds the journal and finishes from the original poses."""
+def _killed_reanchoring(path: Path) -> None:
+    """A memory of five poses in map 'old' whose re-anchoring to 'new' (+10 m in x, a quarter
+    turn) was killed after the store took the new poses, before the manifest named the new map."""
     from ravenmem.types import Frame, Pose
     from tests.conftest import ColorEmbedder, solid
 
-    path = tmp_path / "m.mem"
     with ravenmem.create(path, embedder=ColorEmbedder(), ocr=False, thumb_size=0) as mem:
         mem.add_frames(
             [Frame(solid("red"), 100.0 + i, Pose(float(i), 0.0, 0.0, 0.1 * i), "s", i) for i in range(5)]
@@ -234,9 +233,38 @@ def test_a_killed_reanchoring_is_finished_by_the_next_writer(tmp_path: Path) -> 
     )
     assert r.returncode == 9, r.stderr
     assert (path / "anchor" / "pending.json").is_file()
+
+
+def test_a_killed_reanchoring_is_finished_by_the_next_writer(tmp_path: Path) -> None:
+    """The next writer finds the journal and finishes from the original poses."""
+    from tests.conftest import ColorEmbedder
+
+    path = tmp_path / "m.mem"
+    _killed_reanchoring(path)
     with ravenmem.open(path, embedder=ColorEmbedder()) as mem:  # a reader sees the moved poses
         assert mem.map_id == "old"  # not finished yet: the manifest was never written
     with ravenmem.open(path, embedder=ColorEmbedder(), writable=True) as mem:
         assert mem.map_id == "new" and not (path / "anchor" / "pending.json").exists()
         p = mem.get([3])[0].pose  # the third memory: (2, 0), turned 90 degrees, then +10 in x
         assert (p.x, p.y, p.yaw) == pytest.approx((10.0, 2.0, 0.2 + math.pi / 2))
+
+
+def test_an_unreadable_reanchoring_journal_is_set_aside_and_the_poses_follow_the_manifest(
+    tmp_path: Path,
+) -> None:
+    """A journal nobody can act on (damaged by hand or disk) does not wedge the memory: the next
+    writer logs it, sets it aside, and puts back the poses the manifest names (the originals
+    here: it was never re-anchored), undoing the half-applied move; a writer command works."""
+    from tests.conftest import ColorEmbedder
+
+    path = tmp_path / "m.mem"
+    _killed_reanchoring(path)
+    journal = path / "anchor" / "pending.json"
+    journal.write_text('{"anchor": {"transform": "not four numbers"}', encoding="utf-8")
+    with ravenmem.open(path, embedder=ColorEmbedder()) as mem:  # the half-applied move
+        assert mem.get([3])[0].pose.x == pytest.approx(10.0)
+    with ravenmem.open(path, embedder=ColorEmbedder(), writable=True) as mem:
+        assert mem.map_id == "old"
+        p = mem.get([3])[0].pose
+        assert (p.x, p.y, p.yaw) == pytest.approx((2.0, 0.0, 0.2))
+    assert not journal.exists() and (path / "anchor" / "pending.json.aside").is_file()

@@ -128,7 +128,7 @@ def test_errors_through_the_service_are_one_line(scene: Path, service: str):
     assert bad.startswith("error: service http://127.0.0.1:") and "time" in bad
     assert "VLM settings" in one_line(rm("ask", "where?", "--server", service, "--model", "gpt-x"))
     assert "needs a VLM" in one_line(rm("ask", "where?", "--server", service, "--method", "raven"))
-    assert "k must be" in one_line(rm("search", "red", "-k", "0", "--server", service))
+    assert "--k: expected" in one_line(rm("search", "red", "-k", "0", "--server", service))
 
 
 def test_token_from_the_environment(tmp_path):

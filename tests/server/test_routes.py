@@ -153,7 +153,7 @@ def test_memory_record_and_trajectory(served: Served):
         ("/search/text", {"q": "red", "after": "the day after never"}, 400, "time"),
         ("/search/position", {"x": "nan", "y": 1}, 422, "x"),
         ("/search/position", {"x": 1, "y": 1, "radius": -2}, 422, "radius"),
-        ("/search/image", {"memory_id": 999}, 400, "999"),
+        ("/search/image", {"memory_id": 999}, 404, "999"),  # an id not stored, as /memories/999
         ("/search/image", {}, 400, "memory_id"),
         ("/search/time", {}, 422, "time"),
         ("/memories/999", {}, 404, "999"),
@@ -336,7 +336,12 @@ def test_live_adds_follow_the_keyframe_rule(tmp_path):
         ({"image": ("f.png", png((1, 2, 3)), "image/png")}, {"y": "1"}, 422, "x"),
         ({"image": ("f.png", png((1, 2, 3)), "image/png")}, {"x": "inf", "y": "1"}, 400, "pose"),
         ({"image": ("f.png", png((1, 2, 3)), "image/png")}, {"x": "1", "y": "1", "qx": "0"}, 400, "qx"),
-        ({"image": ("f.png", png((1, 2, 3)), "image/png")}, {"x": "1", "y": "1", "t": "nan"}, 400, "t must"),
+        (
+            {"image": ("f.png", png((1, 2, 3)), "image/png")},
+            {"x": "1", "y": "1", "t": "nan"},
+            400,
+            "t: nan is not",
+        ),
         ({}, {"x": "1", "y": "1"}, 422, "image"),
     ],
 )
@@ -372,7 +377,7 @@ def test_request_sizes_are_bounded(tmp_path):
                 files={"image": ("f.png", png((0, 0, 0), (200, 200)), "image/png")},
                 data={"x": "1", "y": "1"},
             )
-            assert many.status_code == 400 and "pixels" in one_line_error(many)
+            assert many.status_code == 413 and "pixels" in one_line_error(many)
         assert s.mem.count() == len(SCENE)
 
 

@@ -104,5 +104,5 @@ def test_view_bad_input(memory: Path, tmp_path: Path) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("x")
     r = cli("view", "--memory", str(memory), "--out", str(blocker / "x.rrd"))
-    assert "cannot write the recording" in assert_one_line_error(r)
+    assert "--out: the folder" in assert_one_line_error(r)  # refused before anything is drawn
     assert not (tmp_path / "x.rrd").exists()

@@ -17,6 +17,7 @@ from typing import Any, Literal
 from urllib.parse import urlsplit
 
 from ..errors import InputError
+from ..fsio import MAX_CONFIG, read_text
 
 ToolMode = Literal["auto", "native", "json"]
 TOOL_MODES = ("auto", "native", "json")
@@ -202,7 +203,7 @@ def _read_file(path: Path | None) -> dict[str, Any]:
     except ModuleNotFoundError:  # pragma: no cover - Python 3.10
         import tomli as tomllib  # type: ignore[no-redef]
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(read_text(path, MAX_CONFIG, "config file"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: not valid TOML ({e})") from e
     section = data.get("vlm", {})

@@ -318,6 +318,8 @@ class OfflineReasoner:
             cands = {mid: Cand(rec, sc) for mid, (rec, sc) in _group_scores(table).items()}
             self._support(cands)
             out[name] = max((c.support for c in cands.values()), default=0.0)
+        if not getattr(self.memory, "is_writer", False):
+            return out  # a reader (ask, search) never writes in the memory folder: kept in RAM
         try:
             from ..fsio import atomic_write
 

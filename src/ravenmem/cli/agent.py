@@ -15,6 +15,23 @@ from rich.table import Table
 
 from ..timeparse import fmt_time
 from ._console import esc, out_console
+from .options import (
+    CONFIG,
+    COUNT,
+    IMAGE_SIDE,
+    OFFSET,
+    OUTPUT,
+    PICTURE,
+    POINT,
+    RETRIES,
+    ROBOT_RADIUS,
+    SEED,
+    TEMPERATURE,
+    TIMEOUT,
+    TOOL_CALLS,
+    TOP_K,
+    Force,
+)
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 BaseUrlOpt = Annotated[
@@ -25,14 +42,15 @@ KeyOpt = Annotated[
     str | None, typer.Option("--api-key", help="API key (default: RAVENMEM_VLM_API_KEY / OPENAI_API_KEY)")
 ]
 ConfigOpt = Annotated[
-    Path | None, typer.Option("--config", help="config file (default ~/.config/ravenmem/config.toml)")
+    Path | None, CONFIG, typer.Option("--config", help="config file (default ~/.config/ravenmem/config.toml)")
 ]
 TimeoutOpt = Annotated[
-    float | None, typer.Option("--timeout", help="seconds per VLM request, wall clock (default 60)")
+    float | None, TIMEOUT, typer.Option("--timeout", help="seconds per VLM request, wall clock (default 60)")
 ]
-RetriesOpt = Annotated[int | None, typer.Option("--max-retries", help="retries on 429/5xx/timeouts")]
+RetriesOpt = Annotated[int | None, RETRIES, typer.Option("--max-retries", help="retries on 429/5xx/timeouts")]
 SegmentOpt = Annotated[
     int | None,
+    COUNT,
     typer.Option(
         "--segment-frames", help="caption: keyframes per caption (default: the keyframes of each 3 s)"
     ),
@@ -43,6 +61,7 @@ ProviderOpt = Annotated[
 ]
 ImageSideOpt = Annotated[
     int | None,
+    IMAGE_SIDE,
     typer.Option("--image-max-side", help="longest side in px of images sent to the model (0 = as stored)"),
 ]
 
@@ -70,13 +89,18 @@ def ask(
     ] = None,
     top_k: Annotated[
         str | None,
+        TOP_K,
         typer.Option("--top-k", help="memories per tool call: N, or per tool 'text=30,time=200' (default 5)"),
     ] = None,
     max_tool_calls: Annotated[
-        int | None, typer.Option(help="tool calls before the model must answer (default 3)")
+        int | None, TOOL_CALLS, typer.Option(help="tool calls before the model must answer (default 3)")
     ] = None,
-    temperature: Annotated[float | None, typer.Option(help="sampling temperature sent to the model")] = None,
-    seed: Annotated[int | None, typer.Option(help="seed sent to the model (and the random baseline)")] = None,
+    temperature: Annotated[
+        float | None, TEMPERATURE, typer.Option(help="sampling temperature sent to the model")
+    ] = None,
+    seed: Annotated[
+        int | None, SEED, typer.Option(help="seed sent to the model (and the random baseline)")
+    ] = None,
     hide_scores: Annotated[
         bool, typer.Option("--hide-scores", help="do not show similarity scores/distances to the model")
     ] = False,
@@ -85,22 +109,24 @@ def ask(
     ] = None,
     frames: Annotated[
         int | None,
+        COUNT,
         typer.Option(help="vlm-only: most frames in the prompt (all memories if fewer; default 32)"),
     ] = None,
     segment_frames: SegmentOpt = None,
     image_max_side: ImageSideOpt = None,
     trace: Annotated[
-        Path | None, typer.Option(help="save the full request/response trace (JSON) here")
+        Path | None, OUTPUT, typer.Option(help="save the full request/response trace (JSON) here")
     ] = None,
     timeout: TimeoutOpt = None,
     question_timeout: Annotated[
-        float | None, typer.Option(help="seconds for the whole question, wall clock (default 300)")
+        float | None, TIMEOUT, typer.Option(help="seconds for the whole question, wall clock (default 300)")
     ] = None,
     max_retries: RetriesOpt = None,
     config: ConfigOpt = None,
     sheet: Annotated[
-        Path | None, typer.Option(help="also draw the evidence as a contact sheet (PNG) here")
+        Path | None, PICTURE, typer.Option(help="also draw the evidence as a contact sheet (PNG) here")
     ] = None,
+    force: Force = False,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
     server: Annotated[
         str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
@@ -114,10 +140,12 @@ def ask(
         ),
     ] = False,
     from_: Annotated[
-        str | None, typer.Option("--from", help="with --navigate: start 'x,y' in map metres")
+        str | None, POINT, typer.Option("--from", help="with --navigate: start 'x,y' in map metres")
     ] = None,
     robot_radius: Annotated[
-        float | None, typer.Option(help="with --navigate: robot radius in metres (default: the map's)")
+        float | None,
+        ROBOT_RADIUS,
+        typer.Option(help="with --navigate: robot radius in metres (default: the map's)"),
     ] = None,
     allow_unsupported: Annotated[
         bool,
@@ -129,6 +157,7 @@ def ask(
     ] = False,
     max_position_offset: Annotated[
         float | None,
+        OFFSET,
         typer.Option(
             help="metres from every memory shown beyond which a model's position is unsupported (default 3)"
         ),

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from ..errors import InputError
+from .options import MEASURE, RATE, SYNTHETIC
 
 
 def bench_cmd(
@@ -21,22 +21,18 @@ def bench_cmd(
             help="measure the store at this memory's size (read-only); default: a synthetic 100k",
         ),
     ] = None,
-    rate: Annotated[float, typer.Option(help="the robot's keyframes per second (the paper's: 0.12)")] = 0.12,
+    rate: Annotated[
+        float, RATE, typer.Option(help="the robot's keyframes per second (the paper's: 0.12)")
+    ] = 0.12,
     synthetic: Annotated[
-        int, typer.Option(help="memories in the synthetic store (without --memory)")
+        int, SYNTHETIC, typer.Option(help="memories in the synthetic store (without --memory)")
     ] = 100_000,
-    seconds: Annotated[float, typer.Option(help="seconds of embedding per embedder")] = 3.0,
+    seconds: Annotated[float, MEASURE, typer.Option(help="seconds of embedding per embedder")] = 3.0,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
 ) -> None:
     """Measure the embedders, OCR and the store here; print keyframes/s and days of memory per GB."""
     from ravenmem.capacity import measure
 
-    if not math.isfinite(rate) or rate <= 0:
-        raise InputError(f"--rate must be a positive number of keyframes per second, got {rate}")
-    if not 100 <= synthetic <= 10_000_000:
-        raise InputError(f"--synthetic must be from 100 to 10,000,000 memories, got {synthetic}")
-    if not math.isfinite(seconds) or not 0 < seconds <= 600:
-        raise InputError(f"--seconds must be in (0, 600], got {seconds}")
     if memory is not None and not (memory / "memory.json").is_file():
         raise InputError(f"{memory}: not a ravenmem memory (no memory.json)")
     cap = measure(memory, rate=rate, synthetic_n=synthetic, embedder_seconds=seconds)

@@ -10,20 +10,14 @@ from typing import Annotated, Any
 
 import typer
 
+from ..fsio import size_text
 from ._console import esc, out_console
+from .options import COUNT, GAP, SIMILARITY, SPAN
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
 DryRun = Annotated[bool, typer.Option("--dry-run", help="only report what would happen")]
 Wait = Annotated[bool, typer.Option("--wait", help="wait while another process writes this memory")]
-
-
-def _bytes(n: int) -> str:
-    for unit in ("B", "KB", "MB", "GB"):
-        if n < 1024 or unit == "GB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024  # type: ignore[assignment]
-    return str(n)
 
 
 def _open(memory: Path, dry_run: bool, wait: bool) -> Any:
@@ -68,25 +62,31 @@ def forget(
     verb = "would forget" if dry_run else "forgot"
     span = f" from {out['first_time']} to {out['last_time']}" if rep.removed else ""
     unknown = f"; {rep.unknown_ids} of the given ids are not in the memory" if rep.unknown_ids else ""
+    used = [f"--{k} {v!r} = {out[f'{k}_time']}" for k, v in (("before", before), ("after", after)) if v]
     line = (
         f"{verb} {rep.removed} memories{span}, {rep.thumbnails} thumbnails, "
-        f"{_bytes(rep.bytes_freed)} ({_bytes(rep.thumbnail_bytes)} of thumbnails); "
+        f"{size_text(rep.bytes_freed)} ({size_text(rep.thumbnail_bytes)} of thumbnails); "
         f"{rep.memories_left} left{unknown}"
+        + (
+            f" ({'; '.join(used)}: resolved against all the memory ever held, so a rerun means the same)"
+            if used
+            else ""
+        )
     )
     _print(out, json_out, line)
 
 
 def consolidate(
     memory: MemoryOpt,
-    budget: Annotated[int | None, typer.Option(help="keep at most this many memories")] = None,
+    budget: Annotated[int | None, COUNT, typer.Option(help="keep at most this many memories")] = None,
     max_similarity: Annotated[
-        float | None, typer.Option(help="merge neighbours more similar than this cosine")
+        float | None, SIMILARITY, typer.Option(help="merge neighbours more similar than this cosine")
     ] = None,
     max_distance: Annotated[
-        float, typer.Option(help="a merged run fits in a box this many metres across (inf: no limit)")
+        float, SPAN, typer.Option(help="a merged run fits in a box this many metres across (inf: no limit)")
     ] = 1.0,
     max_gap: Annotated[
-        float | None, typer.Option(help="never merge across a gap in time longer than this (s)")
+        float | None, GAP, typer.Option(help="never merge across a gap in time longer than this (s)")
     ] = None,
     dry_run: DryRun = False,
     wait: Wait = False,
@@ -109,7 +109,7 @@ def consolidate(
     line = (
         f"{verb} {rep.merged} memories into {rep.groups} representatives{sim}: "
         f"{rep.before} -> {rep.after} memories standing for {rep.represented}; "
-        f"{_bytes(rep.thumbnail_bytes + rep.store_bytes_est)} freed"
+        f"{size_text(rep.thumbnail_bytes + rep.store_bytes_est)} freed"
     )
     if rep.budget_met is False:
         line += (

@@ -21,9 +21,24 @@ import typer
 from rich.table import Table
 
 from ..errors import InputError, RavenmemError
+from ..fsio import disk_full
 from ..timeparse import fmt_time
 from ..tools import TextArgs
 from ._console import esc, out_console, print_error, print_warning
+from .options import (
+    BATCH,
+    DEPTH_SCALE,
+    MEMORY_ID,
+    PICTURE,
+    RATE,
+    SECONDS,
+    STRIDE,
+    THUMB_SIZE,
+    Force,
+    check_commands,
+)
+from .options import DISTANCE as DISTANCE_KIND
+from .options import K as K_KIND
 
 DIVERSE_HELP = TextArgs.model_fields["diverse"].description  # the tools table says what it does
 
@@ -137,18 +152,22 @@ def ingest(
         ),
     ] = None,
     stride: Annotated[
-        int | None, typer.Option(help="keep every Nth frame (alone: instead of the default rules)")
+        int | None, STRIDE, typer.Option(help="keep every Nth frame (alone: instead of the default rules)")
     ] = None,
     fps: Annotated[
-        float | None, typer.Option(help="at most this many keyframes/s (alone: instead of the default rules)")
+        float | None,
+        RATE,
+        typer.Option(help="at most this many keyframes/s (alone: instead of the default rules)"),
     ] = None,
     ocr: Annotated[bool, typer.Option(help="read text in keyframes (slower)")] = True,
-    thumb_size: Annotated[int, typer.Option(help="thumbnail longer side in px (0 = off)")] = 320,
-    batch_size: Annotated[int, typer.Option(help="frames embedded per batch")] = 16,
+    thumb_size: Annotated[int, THUMB_SIZE, typer.Option(help="thumbnail longer side in px (0 = off)")] = 320,
+    batch_size: Annotated[int, BATCH, typer.Option(help="frames embedded per batch")] = 16,
     depth: Annotated[Path | None, typer.Option(help="image folders: the matching depth images")] = None,
     depth_topic: Annotated[str | None, typer.Option(help="bag depth topic (16UC1 mm / 32FC1 m)")] = None,
     depth_scale: Annotated[
-        float | None, typer.Option(help="image folders: 16-bit depth units per metre (default 1000 = mm)")
+        float | None,
+        DEPTH_SCALE,
+        typer.Option(help="image folders: 16-bit depth units per metre (default 1000 = mm)"),
     ] = None,
     camera_frame: Annotated[
         str | None,
@@ -180,7 +199,9 @@ def ingest(
     pose_match: Annotated[
         str | None, typer.Option(help="interpolate between poses, or the nearest within --max-gap")
     ] = None,
-    max_gap: Annotated[float | None, typer.Option(help="seconds a frame may be from its pose(s)")] = None,
+    max_gap: Annotated[
+        float | None, SECONDS, typer.Option(help="seconds a frame may be from its pose(s)")
+    ] = None,
     wait: Annotated[
         bool, typer.Option("--wait", help="wait while another process writes this memory")
     ] = False,
@@ -310,14 +331,18 @@ def search(
     memory: MemoryOrServerOpt = None,
     text: Annotated[str | None, typer.Argument(help="text query")] = None,
     image: Annotated[Path | None, typer.Option(help="query image file")] = None,
-    like: Annotated[int | None, typer.Option("--like", help="memory id: more views like this memory")] = None,
+    like: Annotated[
+        int | None, MEMORY_ID, typer.Option("--like", help="memory id: more views like this memory")
+    ] = None,
     time: Annotated[str | None, typer.Option("--time", help="K memories forward from this time")] = None,
     position: Annotated[str | None, typer.Option(help="x,y or x,y,z: spatially nearest memories")] = None,
-    k: Annotated[int, typer.Option("-k", "--k", help="how many results")] = 5,
+    k: Annotated[int, K_KIND, typer.Option("-k", "--k", help="how many results")] = 5,
     after: Annotated[str | None, typer.Option(help="only memories at or after this time")] = None,
     before: Annotated[str | None, typer.Option(help="only memories at or before this time")] = None,
     near: Annotated[str | None, typer.Option(help="only memories within x,y,r (metres)")] = None,
-    radius: Annotated[float | None, typer.Option(help="with --position: max distance (m)")] = None,
+    radius: Annotated[
+        float | None, DISTANCE_KIND, typer.Option(help="with --position: max distance (m)")
+    ] = None,
     server: ServerOpt = None,
     diverse: Annotated[
         bool, typer.Option("--diverse/--no-diverse", help=f"text/image: {DIVERSE_HELP}")
@@ -331,8 +356,9 @@ def search(
         ),
     ] = False,
     sheet: Annotated[
-        Path | None, typer.Option(help="also draw the hits as a contact sheet (PNG) here")
+        Path | None, PICTURE, typer.Option(help="also draw the hits as a contact sheet (PNG) here")
     ] = None,
+    force: Force = False,
     json_out: JsonOpt = False,
 ) -> None:
     """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
@@ -501,6 +527,7 @@ def _register_extensions() -> None:
 
 
 _register_extensions()
+check_commands(app)  # every command's options, checked once by its option model (cli.options)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -529,6 +556,12 @@ def main(argv: list[str] | None = None) -> None:
     except typer.Abort:
         print_error("aborted")
         sys.exit(1)
+    except Exception as e:  # a full disk is the user's to fix: one line, not a traceback
+        full = disk_full(e)
+        if full is None:
+            raise
+        print_error(full)
+        sys.exit(2)
     sys.exit(rc if isinstance(rc, int) else 0)
 
 

@@ -10,6 +10,20 @@ from typing import Annotated, Any
 
 import typer
 
+from .options import (
+    ANGLE,
+    CELL_SIZE,
+    COUNT,
+    DISTANCE,
+    GOAL,
+    OUTPUT,
+    PICTURE,
+    POINT,
+    ROBOT_RADIUS,
+    STEPS,
+    Force,
+)
+
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
 EnvOpt = Annotated[
@@ -61,7 +75,7 @@ def _layers(grid: Any, mem: Any, title: str) -> Any:
 
 def map_cmd(
     memory: MemoryOpt,
-    out: Annotated[Path | None, typer.Option("--out", help="draw the map here (PNG)")] = None,
+    out: Annotated[Path | None, PICTURE, typer.Option("--out", help="draw the map here (PNG)")] = None,
     from_: Annotated[
         list[Path] | None,
         typer.Option("--from", help="recording(s) of this memory to build the map from (repeatable)"),
@@ -73,15 +87,20 @@ def map_cmd(
     intrinsics: Annotated[
         str | None, typer.Option(help="depth camera when building: fr1 | fr2 | fr3 | kinect | fx,fy,cx,cy")
     ] = None,
-    resolution: Annotated[float | None, typer.Option(help="cell size (m) when building")] = None,
-    robot_radius: Annotated[float | None, typer.Option(help="robot radius (m) when building")] = None,
+    resolution: Annotated[float | None, CELL_SIZE, typer.Option(help="cell size (m) when building")] = None,
+    robot_radius: Annotated[
+        float | None, ROBOT_RADIUS, typer.Option(help="robot radius (m) when building")
+    ] = None,
     nav2: Annotated[
-        Path | None, typer.Option("--nav2", help="also export a Nav2 map_server map: NAME.yaml (+ NAME.pgm)")
+        Path | None,
+        OUTPUT,
+        typer.Option("--nav2", help="also export a Nav2 map_server map: NAME.yaml (+ NAME.pgm)"),
     ] = None,
     import_nav2: Annotated[
         Path | None, typer.Option("--import-nav2", help="store this map_server YAML as the memory's map")
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="with --import-nav2: replace an existing map")] = False,
+    force: Force = False,
     json_out: JsonOpt = False,
 ) -> None:
     """Build (if missing) or refresh the memory's occupancy map, draw it, export it for Nav2."""
@@ -144,19 +163,26 @@ def map_cmd(
 
 def navigate(
     memory: MemoryOpt,
-    to: Annotated[str, typer.Option("--to", help="goal 'x,y' (map metres) or what to go to ('the red box')")],
+    to: Annotated[
+        str, GOAL, typer.Option("--to", help="goal 'x,y' (map metres) or what to go to ('the red box')")
+    ],
     from_: Annotated[
-        str | None, typer.Option("--from", help="start 'x,y' (default: the robot's last pose)")
+        str | None, POINT, typer.Option("--from", help="start 'x,y' (default: the robot's last pose)")
     ] = None,
     method: Annotated[
         str, typer.Option(help="how a text goal is answered: offline | embedder-only | ...")
     ] = "offline",
-    robot_radius: Annotated[float | None, typer.Option(help="robot radius (m); default: the map's")] = None,
+    robot_radius: Annotated[
+        float | None, ROBOT_RADIUS, typer.Option(help="robot radius (m); default: the map's")
+    ] = None,
     drive: Annotated[
         bool, typer.Option(help="simulated memories: also drive there in the simulator, from its start")
     ] = False,
-    max_steps: Annotated[int, typer.Option(help="with --drive: driving budget in control steps")] = 1500,
-    png: Annotated[Path | None, typer.Option(help="draw the map with the path here")] = None,
+    max_steps: Annotated[
+        int, STEPS, typer.Option(help="with --drive: driving budget in control steps")
+    ] = 1500,
+    png: Annotated[Path | None, PICTURE, typer.Option(help="draw the map with the path here")] = None,
+    force: Force = False,
     json_out: JsonOpt = False,
 ) -> None:
     """Plan with A* on the memory's own map to a position or to an answer (`nav.goals.goal_for`,
@@ -290,11 +316,12 @@ def _drive(memory: Path, grid: Any, goal: Any, max_steps: int) -> dict[str, Any]
 def explore(
     memory: MemoryOpt,
     env: EnvOpt = "vizdoom:freedoom2/MAP02",
-    steps: Annotated[int, typer.Option(help="control steps (one step = 2 Doom tics)")] = 3000,
+    steps: Annotated[int, STEPS, typer.Option(help="control steps (one step = 2 Doom tics)")] = 3000,
     embedder: Annotated[str, typer.Option(help="embedder spec for the new memory")] = "offline",
-    png: Annotated[Path | None, typer.Option(help="also draw the map here")] = None,
-    keyframe_dist: Annotated[float, typer.Option(help="metres moved between keyframes")] = 2.0,
-    keyframe_turn: Annotated[float, typer.Option(help="degrees turned between keyframes")] = 45.0,
+    png: Annotated[Path | None, PICTURE, typer.Option(help="also draw the map here")] = None,
+    keyframe_dist: Annotated[float, DISTANCE, typer.Option(help="metres moved between keyframes")] = 2.0,
+    keyframe_turn: Annotated[float, ANGLE, typer.Option(help="degrees turned between keyframes")] = 45.0,
+    force: Force = False,
     json_out: JsonOpt = False,
 ) -> None:
     """Phase I: explore with frontiers, build the occupancy map and the memory."""
@@ -349,9 +376,13 @@ def demo(
     maps: Annotated[
         str | None, typer.Option(help="comma-separated environments (default: the two demo maps)")
     ] = None,
-    steps: Annotated[int | None, typer.Option(help="exploration budget in control steps per map")] = None,
-    queries: Annotated[int, typer.Option(help="object queries per map")] = 8,
-    success_radius: Annotated[float, typer.Option(help="metres from the nearest true instance")] = 3.0,
+    steps: Annotated[
+        int | None, STEPS, typer.Option(help="exploration budget in control steps per map")
+    ] = None,
+    queries: Annotated[int, COUNT, typer.Option(help="object queries per map")] = 8,
+    success_radius: Annotated[
+        float, DISTANCE, typer.Option(help="metres from the nearest true instance")
+    ] = 3.0,
     pictures: Annotated[
         str, typer.Option(help="image queries: view (rendered elsewhere) | sprite (from the WAD)")
     ] = "view",

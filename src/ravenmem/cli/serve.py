@@ -10,6 +10,7 @@ from typing import Annotated, Any
 import typer
 
 from ..errors import InputError
+from .options import CONFIG, MEGABYTES, PORT, SECONDS, TIMEOUT, TOOL_CALLS, TOP_K
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 MethodOpt = Annotated[
@@ -20,9 +21,10 @@ ModelOpt = Annotated[str | None, typer.Option("--model", help="VLM model name (o
 BaseUrlOpt = Annotated[
     str | None, typer.Option("--base-url", help="OpenAI-compatible VLM endpoint (or RAVENMEM_VLM_BASE_URL)")
 ]
-ConfigOpt = Annotated[Path | None, typer.Option("--config", help="config file with a [vlm] section")]
+ConfigOpt = Annotated[Path | None, CONFIG, typer.Option("--config", help="config file with a [vlm] section")]
 TopKOpt = Annotated[
     str | None,
+    TOP_K,
     typer.Option("--top-k", help="default memories per tool call: N, or per tool 'text=30,time=200'"),
 ]
 PresetOpt = Annotated[
@@ -46,7 +48,7 @@ def serve(
     host: Annotated[
         str, typer.Option(help="address to listen on; anything but loopback needs --token")
     ] = "127.0.0.1",
-    port: Annotated[int, typer.Option(help="port (0: a free one, printed)")] = 8765,
+    port: Annotated[int, PORT, typer.Option(help="port (0: a free one, printed)")] = 8765,
     token: Annotated[
         str | None,
         typer.Option(
@@ -64,11 +66,22 @@ def serve(
     config: ConfigOpt = None,
     preset: PresetOpt = None,
     top_k: TopKOpt = None,
-    max_tool_calls: Annotated[int | None, typer.Option(help="default tool-call budget per question")] = None,
-    max_upload_mb: Annotated[float, typer.Option(help="largest request body (uploads), MiB")] = 16.0,
-    timeout: Annotated[float, typer.Option(help="seconds a search, question or add may take")] = 120.0,
+    max_tool_calls: Annotated[
+        int | None, TOOL_CALLS, typer.Option(help="default tool-call budget per question")
+    ] = None,
+    max_upload_mb: Annotated[
+        float, MEGABYTES, typer.Option(help="largest request body (uploads), MiB")
+    ] = 16.0,
+    timeout: Annotated[
+        float, TIMEOUT, typer.Option(help="seconds a search, question or add may take")
+    ] = 120.0,
+    body_timeout: Annotated[
+        float, TIMEOUT, typer.Option(help="seconds a client may take to send a request body (then 408)")
+    ] = 30.0,
     read_only: Annotated[bool, typer.Option("--read-only", help="no live adds (and no writer lock)")] = False,
-    wait: Annotated[float, typer.Option(help="seconds to wait for another writer of the memory")] = 0.0,
+    wait: Annotated[
+        float, SECONDS, typer.Option(help="seconds to wait for another writer of the memory")
+    ] = 0.0,
     intrinsics: Annotated[
         str | None,
         typer.Option(
@@ -125,6 +138,7 @@ def serve(
         max_tool_calls=max_tool_calls,
         max_upload_bytes=int(max_upload_mb * 2**20),
         timeout_s=timeout,
+        body_timeout_s=body_timeout,
         writable=not read_only,
         intrinsics=parse_intrinsics(intrinsics) if intrinsics else None,
         camera_frame=camera_frame,

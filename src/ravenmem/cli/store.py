@@ -10,6 +10,8 @@ from typing import Annotated
 
 import typer
 
+from .options import COUNT
+
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder (created if needed)")]
 
 
@@ -23,7 +25,7 @@ def import_cmd(
         str, typer.Option(help="the embedder that computed the vectors (for a new memory)")
     ] = "offline",
     store: Annotated[str | None, typer.Option(help="store URI for a new memory (default: embedded)")] = None,
-    chunk: Annotated[int, typer.Option(help="memories per transaction")] = 50_000,
+    chunk: Annotated[int, COUNT, typer.Option(help="memories per transaction")] = 50_000,
     again: Annotated[
         bool, typer.Option("--again", help="import these files again instead of resuming")
     ] = False,

@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from ._console import esc, out_console
+from .options import COUNT, OUTPUT, Force, K
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 
@@ -23,18 +24,19 @@ def default_out(memory: Path) -> Path:
 def view(
     memory: MemoryOpt,
     out: Annotated[
-        Path | None, typer.Option(help="the .rrd file to write (default: next to the memory)")
+        Path | None, OUTPUT, typer.Option(help="the .rrd file to write (default: next to the memory)")
     ] = None,
     query: Annotated[str | None, typer.Option(help="a text query whose hits are marked")] = None,
-    k: Annotated[int, typer.Option("-k", "--k", help="hits of the query")] = 10,
+    k: Annotated[int, K, typer.Option("-k", "--k", help="hits of the query")] = 10,
     max_images: Annotated[
-        int, typer.Option(help="at most this many keyframe pictures (evenly spread)")
+        int, COUNT, typer.Option(help="at most this many keyframe pictures (evenly spread)")
     ] = 5000,
     camera_axes: Annotated[
         str,
         typer.Option(help="flu: poses of a robot (x forward, z up); rdf: of an optical frame (z forward)"),
     ] = "flu",
     spawn: Annotated[bool, typer.Option("--spawn", help="then open the file in the rerun viewer")] = False,
+    force: Force = False,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
 ) -> None:
     """Write a rerun recording of a memory: trajectory, keyframes with poses, and a query's hits."""

@@ -1,7 +1,7 @@
 """Building, caching and running the offline embedder's ONNX graphs (onnxruntime, no torch).
 
 The graphs are built with the `onnx` package from the weights that ship in the model packages,
-on first use, and cached as `.onnx` files under the user cache directory (`_text.cache_dir()`:
+on first use, and cached as `.onnx` files under the user cache directory (`base.cache_dir()`:
 `$RAVENMEM_CACHE_DIR`, else `$XDG_CACHE_HOME/ravenmem`, else `~/.cache/ravenmem`, in `onnx/`),
 never in a memory folder. A cache file's name carries a key over the graph version and the
 weights file, so a new package version or a changed graph builds a new file; a missing or
@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import RavenmemError
 from ..fsio import atomic_open
+from .base import cache_dir as user_cache_dir
 
 OPSET = 17
 MAX_DEFAULT_THREADS = 4
@@ -88,9 +89,7 @@ class GraphBuilder:
 
 
 def cache_dir() -> Path:
-    from ._text import cache_dir as root
-
-    return root() / "onnx"
+    return user_cache_dir() / "onnx"
 
 
 def fingerprint(path: Path) -> str:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,7 +19,7 @@ import numpy as np
 
 from ..errors import MissingDependencyError, RavenmemError, require
 from ..fsio import atomic_open
-from .base import l2_normalize
+from .base import cache_dir, l2_normalize
 
 TEXT_MODEL_ID = "minilm"
 TEXT_DIM = 384
@@ -28,14 +27,6 @@ TEXT_DIM = 384
 # TUM labels within noise (hybrid bal 0.703 vs 0.706) and double the one-off build time
 TEMPLATES = ("{}", "a photo of a {}.")
 BANK_VERSION = 1
-
-
-def cache_dir() -> Path:
-    """`$RAVENMEM_CACHE_DIR`, else `$XDG_CACHE_HOME/ravenmem`, else `~/.cache/ravenmem`."""
-    if os.environ.get("RAVENMEM_CACHE_DIR"):
-        return Path(os.environ["RAVENMEM_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "ravenmem"
 
 
 class MiniLM:

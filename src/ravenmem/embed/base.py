@@ -8,12 +8,23 @@ and checked on open.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from ..registry import Registry
+
+
+def cache_dir() -> Path:
+    """Where embedders keep what they build once from packaged weights (ONNX graphs, label
+    banks): `$RAVENMEM_CACHE_DIR`, else `$XDG_CACHE_HOME/ravenmem`, else `~/.cache/ravenmem`."""
+    if os.environ.get("RAVENMEM_CACHE_DIR"):
+        return Path(os.environ["RAVENMEM_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "ravenmem"
 
 
 @runtime_checkable

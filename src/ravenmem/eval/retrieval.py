@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..fsio import read_text
 
 MIN_POSITIVES = 3
 
@@ -54,7 +55,7 @@ def load_labels(path: str | Path) -> Labels:
     """Read a labels file (see the module docstring); one-line errors name what is wrong."""
     p = Path(path)
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = json.loads(read_text(p, what="label file"))
     except (OSError, ValueError) as e:  # ValueError: not UTF-8, not JSON
         raise InputError(f"{p}: cannot read the labels JSON ({e})") from e
     queries, frames = (

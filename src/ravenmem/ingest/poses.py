@@ -27,8 +27,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import InputError
-from ..types import Pose
+from ..fsio import read_text
+from ..types import MAX_ANGLE, MAX_COORD, RANGES, T_MAX, T_MIN, Pose
 
+MAX_POSES = 512 << 20  # bytes of a pose file: 6 million rows (16 hours at 100 Hz)
 SKIP_OUTSIDE = "outside pose track"
 SKIP_GAP = "pose gap too large"
 
@@ -156,10 +158,7 @@ def read_pose_table(path: str | Path) -> PoseTable:
     refuses, a line-by-line pass finds and names the first bad line and field.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8", errors="replace")
-    except OSError as e:
-        raise InputError(f"{p}: cannot read pose file ({e.strerror or e})") from e
+    text = read_text(p, MAX_POSES, "pose file", errors="replace")
     lines = text.splitlines()
     first = next((n for n, raw in enumerate(lines, 1) if raw.split("#", 1)[0].strip()), None)
     if first is None:
@@ -235,6 +234,7 @@ def _table(
     p: Path, lines: np.ndarray, names: list[str], data: np.ndarray, files: list[str] | None
 ) -> PoseTable:
     col = {name: data[:, j] for j, name in enumerate(names)}
+    _check_ranges(p, lines, col)
     zeros = np.zeros(len(data))
     xyz = np.stack([col["x"], col["y"], col.get("z", zeros)], axis=1)
     quat = None
@@ -246,6 +246,21 @@ def _table(
             raise InputError(f"{p} line {lines[bad[0]]}, columns qx..qw: quaternion has zero norm")
         quat = quat / norm[:, None]
     return PoseTable(str(p), lines, col.get("t"), xyz, col.get("yaw"), quat, files)
+
+
+def _check_ranges(p: Path, lines: np.ndarray, col: dict[str, np.ndarray]) -> None:
+    """Times, positions and headings within the ranges a memory stores (`ravenmem.types`),
+    naming the first line outside them."""
+    limits = {"t": (T_MIN, T_MAX, RANGES["t"]), "yaw": (-MAX_ANGLE, MAX_ANGLE, RANGES["angle"])}
+    limits |= {c: (-MAX_COORD, MAX_COORD, RANGES["coordinate"]) for c in "xyz"}
+    for name, (lo, hi, what) in limits.items():
+        if name not in col:
+            continue
+        bad = np.flatnonzero((col[name] < lo) | (col[name] > hi))
+        if bad.size:
+            raise InputError(
+                f"{p} line {lines[bad[0]]}, column {name!r}: {col[name][bad[0]]!r} is out of range ({what})"
+            )
 
 
 class PoseTrack:

@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..types import Frame, Intrinsics
+from ..fsio import read_text
+from ..types import Frame, Intrinsics, check_time
 from ._util import build, existing, pose_track_arg, read_rgb
 from .base import SOURCES, SourceStats
 from .depth import parse_intrinsics, preset_from_name, read_depth_file
@@ -36,7 +37,7 @@ DEPTH_SCALE = 5000.0
 def read_index(path: Path) -> list[tuple[float, str]]:
     """Parse a TUM `timestamp filename` list; bad rows raise InputError naming file and line."""
     out: list[tuple[float, str]] = []
-    for n, raw in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
+    for n, raw in enumerate(read_text(path, what="TUM list", errors="replace").splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if not line:
             continue
@@ -47,8 +48,7 @@ def read_index(path: Path) -> list[tuple[float, str]]:
             t = float(parts[0])
         except ValueError:
             raise InputError(f"{path} line {n}, column 'timestamp': not a number: {parts[0]!r}") from None
-        if not np.isfinite(t):
-            raise InputError(f"{path} line {n}, column 'timestamp': not finite: {parts[0]!r}")
+        check_time(t, f"{path} line {n}, column 'timestamp'")
         out.append((t, parts[1]))
     return out
 
@@ -84,7 +84,7 @@ class TumSource:
         if groundtruth is None:
             groundtruth = poses  # the name every other source uses for its pose track
         gt = groundtruth if groundtruth is not None else self.root / "groundtruth.txt"
-        if not isinstance(gt, PoseTrack) and not Path(gt).is_file():
+        if groundtruth is None and not (self.root / "groundtruth.txt").is_file():
             raise InputError(f"{self.root}: no groundtruth.txt (pass groundtruth=FILE with poses)")
         self.track = pose_track_arg(gt, sort=True)
         self.pose_match = check_match_mode(pose_match)

@@ -23,10 +23,7 @@ journal goes. A writer killed in between leaves the journal, and the next writer
 from __future__ import annotations
 
 import io
-import json
-import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,71 +31,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..fsio import atomic_write, atomic_write_json
-from ..store.base import Store
 from ..types import Pose
 from .core import Core
 from .folder import ANCHOR, ANCHOR_JOURNAL, ANCHOR_POSES
 from .manifest import Manifest, is_name
+from .transform import Transform, chunks, finish, load_originals, pose_table
 
 DEFAULT_FRAME = "map"
-_CHUNK = 5000  # records read or written per store call
-
-
-@dataclass(frozen=True)
-class Transform:
-    """A rigid transform of the map plane (REP 103: z up): a rotation of `yaw` radians about z,
-    then a translation (x, y, z) in metres. `apply` maps a pose of the source map into the
-    target map."""
-
-    x: float = 0.0
-    y: float = 0.0
-    z: float = 0.0
-    yaw: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not all(math.isfinite(v) for v in (self.x, self.y, self.z, self.yaw)):
-            raise InputError(f"transform: every value must be finite, got {self.as_list()}")
-
-    @classmethod
-    def of(cls, values: Any) -> Transform:
-        """From [x, y, z, yaw] (yaw in radians)."""
-        try:
-            x, y, z, yaw = (float(v) for v in values)
-        except (TypeError, ValueError):
-            raise InputError(f"transform: expected [x, y, z, yaw], got {values!r}") from None
-        return cls(x, y, z, yaw)
-
-    def as_list(self) -> list[float]:
-        return [self.x, self.y, self.z, self.yaw]
-
-    @property
-    def is_identity(self) -> bool:
-        return self.as_list() == [0.0, 0.0, 0.0, 0.0]
-
-    def inverse(self) -> Transform:
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        return Transform(-(c * self.x + s * self.y), -(-s * self.x + c * self.y), -self.z, -self.yaw)
-
-    def then(self, other: Transform) -> Transform:
-        """This transform followed by `other` (other . self)."""
-        x, y = other.xy(self.x, self.y)
-        yaw = math.atan2(math.sin(self.yaw + other.yaw), math.cos(self.yaw + other.yaw))
-        return Transform(x, y, self.z + other.z, yaw)
-
-    def xy(self, x: float, y: float) -> tuple[float, float]:
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        return (c * x - s * y + self.x, s * x + c * y + self.y)
-
-    def apply(self, p: Pose) -> Pose:
-        """The pose moved: position rotated and shifted, orientation turned about z."""
-        x, y = self.xy(p.x, p.y)
-        yaw = math.atan2(math.sin(p.yaw + self.yaw), math.cos(p.yaw + self.yaw))
-        if p.quat is None:
-            return Pose(x, y, p.z + self.z, yaw)
-        qx, qy, qz, qw = p.quat
-        s, c = math.sin(self.yaw / 2.0), math.cos(self.yaw / 2.0)
-        turned = (c * qx - s * qy, c * qy + s * qx, c * qz + s * qw, c * qw - s * qz)
-        return Pose.from_quaternion(x, y, p.z + self.z, *turned)
 
 
 def map_identity(manifest: Manifest, folder: Path) -> dict[str, Any]:
@@ -215,7 +154,7 @@ def _keep_originals(mem: Anchoring) -> None:
     back = mem.current_transform().inverse()
     new_ids: list[int] = []
     new_poses: list[Pose] = []
-    for chunk in _chunks(mem.store.select()):
+    for chunk in chunks(mem.store.select()):
         todo = [i for i in chunk if i not in have]
         for rec in mem.store.get(todo) if todo else []:
             new_ids.append(rec.id)
@@ -223,62 +162,8 @@ def _keep_originals(mem: Anchoring) -> None:
     if not new_ids:
         return
     all_ids = np.concatenate([ids, np.asarray(new_ids, np.int64)])
-    table = np.concatenate([poses, _pose_table(new_poses)])
+    table = np.concatenate([poses, pose_table(new_poses)])
     buf = io.BytesIO()
     np.savez(buf, ids=all_ids, poses=table)
     (mem.path / ANCHOR).mkdir(exist_ok=True)
     atomic_write(mem.path / ANCHOR_POSES, buf.getvalue())
-
-
-def load_originals(folder: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(ids, (N, 8) x y z yaw qx qy qz qw, NaN quaternion when none) of the saved originals."""
-    p = folder / ANCHOR_POSES
-    if not p.is_file():
-        return np.empty(0, np.int64), np.empty((0, 8), np.float64)
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            ids, table = np.asarray(z["ids"], np.int64), np.asarray(z["poses"], np.float64)
-    except (OSError, ValueError, KeyError) as e:
-        raise InputError(f"{p}: the saved original poses cannot be read ({e})") from None
-    if table.shape != (len(ids), 8):
-        raise InputError(f"{p}: malformed original poses (shape {table.shape})")
-    return ids, table
-
-
-def finish(folder: Path, store: Store, manifest: Manifest) -> Manifest | None:
-    """Apply a re-anchoring journal left in `folder` (by this writer, or one that was killed):
-    every memory's pose becomes the journal's transform of its original, the manifest takes the
-    journal's identity, the journal goes. Returns the new manifest, None when there was none."""
-    path = folder / ANCHOR_JOURNAL
-    if not path.is_file():
-        return None
-    try:
-        journal = json.loads(path.read_text(encoding="utf-8"))
-        anchor = journal["anchor"]
-        map_id, frame_id = str(journal["map_id"]), str(journal["frame_id"])
-        t = Transform.of(anchor["transform"]) if anchor else Transform()
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise InputError(f"{path}: unreadable re-anchoring journal ({e}); nothing was moved by it") from None
-    ids, table = load_originals(folder)
-    stored = set(store.select().tolist())
-    keep = [k for k, i in enumerate(ids.tolist()) if i in stored]
-    for part in _chunks(np.asarray(keep, np.int64)):
-        store.set_poses(ids[part].tolist(), [t.apply(_pose(table[k])) for k in part])
-    manifest.anchor, manifest.map_id, manifest.frame_id = anchor, map_id, frame_id
-    manifest.save(folder)
-    path.unlink(missing_ok=True)
-    return manifest
-
-
-def _pose_table(poses: list[Pose]) -> np.ndarray:
-    return np.asarray([[p.x, p.y, p.z, p.yaw, *(p.quat or (np.nan,) * 4)] for p in poses], np.float64)
-
-
-def _pose(row: np.ndarray) -> Pose:
-    x, y, z, yaw, *q = (float(v) for v in row)
-    return Pose(x, y, z, yaw, None if math.isnan(q[0]) else (q[0], q[1], q[2], q[3]))
-
-
-def _chunks(a: np.ndarray) -> list[list[int]]:
-    v = np.asarray(a).tolist()
-    return [v[s : s + _CHUNK] for s in range(0, len(v), _CHUNK)]

@@ -53,7 +53,7 @@ import numpy as np
 from ..errors import InputError
 from ..imageio import read_image
 from ..timeparse import fmt_time
-from ..types import Filter, Hit, MemoryRecord
+from ..types import Filter, Hit, MemoryRecord, check_picture
 from .core import Core, check_text
 from .places import Place, Verdict, Whereabouts
 from .protocol import MAX_K, Near, TimeLike
@@ -133,13 +133,10 @@ def _query_vector(
             raise InputError("last_seen: empty text query")
         return np.asarray(mem.embedder.embed_texts([query])[0], np.float32), query
     if image is not None:
+        check_picture(image, "query image")
         return np.asarray(mem.embedder.embed_images([image])[0], np.float32), "the image"
     if memory_id is not None:
-        try:
-            (rec,) = mem.store.get([int(memory_id)], with_embeddings=True)
-        except KeyError:
-            raise InputError(f"memory_id {memory_id}: no such memory") from None
-        assert rec.embedding is not None
+        rec = mem.embedded(memory_id)
         return np.asarray(rec.embedding, np.float32), f"memory m{rec.id}"
     v = np.asarray(vector, np.float32).reshape(-1)
     if v.shape != (mem.dim,) or not np.all(np.isfinite(v)):

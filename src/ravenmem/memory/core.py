@@ -22,9 +22,10 @@ from ..embed.base import Embedder, create_embedder
 from ..errors import EmbedderMismatchError, EmptyMemoryError, InputError, MemoryNotFoundError, NotFoundError
 from ..imageio import read_image
 from ..store.base import Store, open_store
+from ..store.presence import check_present
 from ..timeparse import TimeContext, parse_time
-from ..types import Filter, Hit, MemoryRecord, Region
-from .folder import MANIFEST, Created, is_memory
+from ..types import Filter, Hit, MemoryRecord, Region, check_id
+from .folder import MANIFEST, Created, has_thumbs, is_memory
 from .groups import Group, GroupView, annotate
 from .lock import WriterLock
 from .manifest import Manifest, check_trusted, confine, store_kind
@@ -104,6 +105,7 @@ class Core:
                 return
             if self._closed:
                 raise InputError(f"memory {self.path} is closed")
+            check_store_present(self.path, self.manifest)  # before the lock file is touched
             lock = WriterLock(self.path)
             lock.acquire(wait)
             try:
@@ -111,7 +113,7 @@ class Core:
                 # memories (the store hands out ids from its own count) or ingest records since.
                 # Closed first: Milvus Lite serves one client per file.
                 self.store.close()
-                self.manifest, self.store, _ = read_folder(self.path, None)
+                self.manifest, self.store, _ = read_folder(self.path, None, writable=True)
                 self._span = None
             except BaseException:
                 lock.release()
@@ -125,7 +127,7 @@ class Core:
         given up when that fails."""
         self._writer.recover(self.store)
         try:
-            from .anchor import finish
+            from .transform import finish
 
             self.manifest = finish(self.path, self.store, self.manifest) or self.manifest
         except BaseException:
@@ -186,7 +188,10 @@ class Core:
                 raise InputError(f"near must be (x, y, radius) numbers, got {near!r}") from None
             if not all(math.isfinite(v) for v in (x, y, r)) or r <= 0:
                 raise InputError(f"near must be finite (x, y, radius > 0), got {near!r}")
-            region = Region(x, y, r)
+            try:
+                region = Region(x, y, r)
+            except InputError as e:
+                raise InputError(f"near {list(near)!r}: {e}") from None
         return Filter(
             after=None if after is None else self.parse_time(after),
             before=None if before is None else self.parse_time(before),
@@ -195,6 +200,7 @@ class Core:
 
     def get(self, ids: Sequence[int]) -> list[MemoryRecord]:
         """The records of `ids`, in the order given; `NotFoundError` names the ids not stored."""
+        ids = [check_id(i) for i in ids]  # 10**30 is a one-line error, not an OverflowError
         try:
             return self.store.get(list(ids))
         except KeyError:
@@ -207,6 +213,7 @@ class Core:
         the memory before another process ran `forget` or `consolidate` (a read-only service,
         `ravenmem mcp`) still has the removed memories in its index; they are skipped here
         rather than failing the search."""
+        ids = [check_id(i) for i in ids]
         try:
             return self.store.get(list(ids), with_embeddings=with_embeddings)
         except KeyError:
@@ -217,6 +224,17 @@ class Core:
                 except KeyError:
                     continue
             return out
+
+    def embedded(self, memory_id: object) -> MemoryRecord:
+        """One record with its embedding (a search "like memory N"); `NotFoundError` when it is
+        not stored, a one-line `InputError` when `memory_id` is no id at all."""
+        mid = check_id(memory_id, "memory_id")
+        try:
+            (rec,) = self.store.get([mid], with_embeddings=True)
+        except KeyError:
+            raise NotFoundError(f"memory_id {mid}: no such memory") from None
+        assert rec.embedding is not None
+        return rec
 
     def all_records(self) -> list[MemoryRecord]:
         """Every memory in chronological order (no embeddings)."""
@@ -281,9 +299,15 @@ def resolve_embedder(embedder: str | Embedder) -> Embedder:
     return create_embedder(embedder) if isinstance(embedder, str) else embedder
 
 
-def read_folder(p: Path, embedder: str | Embedder | None) -> tuple[Manifest, Store, Embedder | None]:
+def read_folder(
+    p: Path, embedder: str | Embedder | None, writable: bool = False
+) -> tuple[Manifest, Store, Embedder | None]:
     """A memory folder's manifest (checked before anything else), its store, and the embedder
-    asked for (checked against the manifest)."""
+    asked for (checked against the manifest).
+
+    Unless `writable`, the embedded store is opened read-only: a reader writes nothing in the
+    folder. A store that is missing while the memory's thumbnails are there is refused
+    (`store.local.check_present`) rather than created empty beside them."""
     if not is_memory(p):
         what = "does not exist" if not p.exists() else f"is not a ravenmem memory (no {MANIFEST})"
         raise MemoryNotFoundError(f"memory {p} {what}")
@@ -294,7 +318,16 @@ def read_folder(p: Path, embedder: str | Embedder | None) -> tuple[Manifest, Sto
     if embedder is not None:
         emb = resolve_embedder(embedder)
         check_embedder(emb, manifest, p)
-    return manifest, open_store(manifest.store_uri(p), dim=manifest.dim), emb
+    check_store_present(p, manifest)
+    opts = {"read_only": not writable} if store_kind(manifest.store) == "local" else {}
+    return manifest, open_store(manifest.store_uri(p), dim=manifest.dim, **opts), emb
+
+
+def check_store_present(p: Path, manifest: Manifest) -> None:
+    """Refuse (before anything is created or locked) a memory whose embedded store is missing or
+    empty while its index, columns or thumbnails are there (`store.local.check_present`)."""
+    if store_kind(manifest.store) == "local":
+        check_present(p, has_thumbs(p))
 
 
 def check_text(q: object) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 from ..embed.base import Embedder
 from ..errors import InputError, MemoryBusyError
 from ..store.base import open_store
-from .core import read_folder, resolve_embedder
+from .core import check_store_present, read_folder, resolve_embedder
 from .facade import Memory
 from .folder import LOCK, MANIFEST, Created, is_memory
 from .lock import WriterLock
@@ -117,10 +117,11 @@ def open(  # noqa: A001
     p = Path(path)
     if not writable or not is_memory(p):
         return Memory(p, *read_folder(p, embedder), external_images=external_images)
+    check_store_present(p, Manifest.load(p))  # before the lock file is touched
     lock = WriterLock(p)
     lock.acquire(wait)
     try:
-        mem = Memory(p, *read_folder(p, embedder), external_images=external_images, lock=lock)
+        mem = Memory(p, *read_folder(p, embedder, writable=True), external_images=external_images, lock=lock)
     except BaseException:
         lock.release()
         raise

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..fsio import reports_full_disk
 from ..imageio import write_jpeg
 from ..types import Frame, MemoryRecord, Pose
 from .anchor import Anchoring
@@ -57,6 +58,7 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
         """Append one observation (thread-safe; another thread may search meanwhile)."""
         return self.add_frames([Frame(image=image, t=t, pose=pose, source=source, index=frame_index)])[0]
 
+    @reports_full_disk
     def add_frames(self, frames: Sequence[Frame], embeddings: np.ndarray | None = None) -> list[int]:
         """Embed, OCR, thumbnail and store frames; durable when this returns.
 
@@ -66,9 +68,9 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
         """
         if not frames:
             return []
-        writer = self.writer()
         for f in frames:
-            _validate_frame(f)
+            f.check()  # the ranges of ravenmem.types, before anything is written
+        writer = self.writer()
         if embeddings is None:
             embeddings = self.embedder.embed_images([f.image for f in frames])
         embeddings = np.asarray(embeddings, dtype=np.float32)
@@ -110,6 +112,7 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
             writer.end(journal)
         return ids
 
+    @reports_full_disk
     def import_embeddings(
         self, batches: Iterable[tuple[Sequence[MemoryRecord], np.ndarray]], resume: str | None = None
     ) -> int:
@@ -160,6 +163,7 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
         )
         return rel
 
+    @reports_full_disk
     def record_ingest(self, report: dict[str, Any]) -> None:
         """Append an ingest run's counts to the manifest (frames seen/kept, raw bytes)."""
         with self.writer().change():
@@ -209,16 +213,3 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
 
     def __repr__(self) -> str:
         return f"Memory({str(self.path)!r}, embedder={self.manifest.embedder!r}, memories={self.count()})"
-
-
-def _validate_frame(f: Frame) -> None:
-    img = f.image
-    if not isinstance(img, np.ndarray) or img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
-        shape = getattr(img, "shape", None)
-        raise InputError(
-            f"frame {f.source}#{f.index}: image must be an RGB uint8 array (H, W, 3), got {shape}"
-        )
-    if f.pose is None:
-        raise InputError(f"frame {f.source}#{f.index}: no pose")
-    if not np.isfinite(f.t):
-        raise InputError(f"frame {f.source}#{f.index}: timestamp is not finite ({f.t})")

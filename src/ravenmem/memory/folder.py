@@ -10,6 +10,7 @@ here, so the folder's layout can be read, and changed, in one file:
 | `memory.json` | the manifest: embedder, store, thumbnail and OCR settings, ingest history | `memory.manifest` |
 | `writer.lock` | the one writer's lock (pid, command, since) | `memory.lock` |
 | `pending-thumbs-<id>.json` | a thumbnail journal while a batch commits | `memory.recovery` |
+| `pending-thumbs-<id>.json.aside` | a journal recovery could not act on, kept for a person | `memory.recovery` |
 | `thumbs/<ms>_<hex>.jpg` | thumbnails | `Memory.add_frames` |
 | `lifelong.sqlite` | consolidated groups (count, span) | `memory.groups` |
 | `map.npz`, `map.json` | the occupancy grid and its settings | `nav.grid` |
@@ -19,6 +20,7 @@ here, so the folder's layout can be read, and changed, in one file:
 | `study_memory.json` | an ablation study's copy of a memory is complete | `eval.studies` |
 | `anchor/poses.npz` | every memory's pose before `ravenmem align --apply` moved it | `memory.anchor` |
 | `anchor/pending.json` | a re-anchoring under way (finished by the next writer) | `memory.anchor` |
+| `anchor/pending.json.aside` | an unreadable re-anchoring journal, kept for a person (the poses follow the manifest) | `memory.transform` |
 | `anchor/map.npz`, `anchor/map.json` | the occupancy map before it was re-anchored | `nav.align` |
 
 The store's own files (`store.sqlite`, `index.faiss`, `columns.cache` for the embedded store; a
@@ -57,6 +59,11 @@ def journal_name(token: str) -> str:
     return f"{JOURNAL_PREFIX}{token}.json"
 
 
+def aside_name(journal: str) -> str:
+    """Where recovery moves a journal it cannot act on (kept for a person to look at)."""
+    return f"{journal}.aside"
+
+
 def thumb_name(t: float, token: str) -> str:
     """A new thumbnail's path relative to the folder: its time in ms (so `ls` sorts by time)
     and 8 hex digits (`token`) that keep two frames of one millisecond apart."""
@@ -88,6 +95,15 @@ def file_size(p: Path) -> int:
         return p.stat().st_size
     except OSError:
         return 0
+
+
+def has_thumbs(folder: Path) -> bool:
+    """Whether the folder holds any thumbnail (then its store must be there too)."""
+    try:
+        with os.scandir(folder / THUMBS) as it:
+            return any(THUMB_NAME.fullmatch(e.name) for e in it)
+    except OSError:
+        return False
 
 
 def thumbs_bytes(folder: Path) -> int:

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fsio import rollback, sqlite_reader
 from ..store.base import Store
 from .folder import GROUPS
 
@@ -65,7 +66,7 @@ def exists(store: Store, mid: int) -> bool:
 
 def _connect(path: Path, readonly: bool) -> sqlite3.Connection:
     if readonly:
-        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True, check_same_thread=False, timeout=30.0)
+        conn = sqlite_reader(path)  # mode=ro would leave -wal and -shm files behind
     else:
         conn = sqlite3.connect(path, check_same_thread=False, isolation_level=None, timeout=30.0)
         conn.execute("PRAGMA journal_mode=WAL")
@@ -101,7 +102,7 @@ class GroupTable:
             )
             c.execute("COMMIT")
         except BaseException:
-            c.execute("ROLLBACK")
+            rollback(c)
             raise
         return batch
 
@@ -122,7 +123,7 @@ class GroupTable:
             c.execute("DELETE FROM batches WHERE id = ?", (batch,))
             c.execute("COMMIT")
         except BaseException:
-            c.execute("ROLLBACK")
+            rollback(c)
             raise
 
     def abort(self, batch: int) -> None:
@@ -175,7 +176,10 @@ class _txn:
         self.conn.execute("BEGIN IMMEDIATE")
 
     def __exit__(self, exc_type: object, *_: object) -> None:
-        self.conn.execute("ROLLBACK" if exc_type is not None else "COMMIT")
+        if exc_type is not None:
+            rollback(self.conn)
+        else:
+            self.conn.execute("COMMIT")
 
 
 class GroupView:

@@ -35,7 +35,8 @@ from .folder import MANIFEST
 FORMAT_VERSION = 1  # the newest manifest format this code reads and writes
 MAX_MANIFEST_BYTES = 64 << 20  # the ingest history grows ~0.5 KB per run: 64 MB is ~100k runs
 LOCAL = "local"
-_UNSET_LEFT_OUT = ("frame_id", "map_id", "anchor")  # written only once known
+# written only once known (span_seen: once `forget` resolved a relative time)
+_UNSET_LEFT_OUT = ("frame_id", "map_id", "anchor", "span_seen")
 LITE = "milvus-lite:"
 _REMOTE = re.compile(r"(?:https?://)?[A-Za-z0-9_.\-]+:\d{1,5}/?|https?://[A-Za-z0-9_.\-]+/?")
 
@@ -52,6 +53,7 @@ class Manifest:
     ocr: bool = False
     created: float = 0.0
     ingests: list[dict[str, Any]] = field(default_factory=list)
+    span_seen: list[float] | None = None  # [first, last] time this memory ever held (`forget`)
     format_version: int = FORMAT_VERSION
     # where the poses are (REP 105): their frame (`map`, or `odom` when there was no map frame)
     # and the map's identity; None in memories written before they were recorded (read as
@@ -82,6 +84,14 @@ class Manifest:
             _bad("created", "a finite number", self.created)
         if not isinstance(self.ingests, list) or not all(isinstance(r, dict) for r in self.ingests):
             _bad("ingests", "a list of objects", self.ingests)
+        if self.span_seen is not None and not (
+            isinstance(self.span_seen, list)
+            and len(self.span_seen) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in self.span_seen)
+            and all(math.isfinite(v) for v in self.span_seen)
+            and self.span_seen[0] <= self.span_seen[1]
+        ):
+            _bad("span_seen", "[first, last] Unix seconds", self.span_seen)
         if not isinstance(self.store, str):
             _bad("store", "a string", self.store)
         store_kind(self.store)

@@ -23,13 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fsio import atomic_write_json, remove_stale_temp_files
+from ..fsio import atomic_write_json, move, read_text, remove_stale_temp_files
 from ..store.base import Store
-from .folder import JOURNAL_NAME, JOURNAL_PREFIX, MANIFEST, THUMBS, journal_name, thumb_file
+from .folder import JOURNAL_NAME, JOURNAL_PREFIX, MANIFEST, THUMBS, aside_name, journal_name, thumb_file
 
 log = logging.getLogger(__name__)
 
 _WRITER_ONLY = (f"{MANIFEST}.", JOURNAL_PREFIX)  # files only the lock holder writes
+
+MAX_JOURNAL = 256 << 20  # bytes: a forget of a million memories lists ~80 MB
 
 # (thumbnail path relative to the memory folder, source, frame index, time)
 Entry = tuple[str, str, int, float]
@@ -49,31 +51,57 @@ def end(journal: Path) -> None:
 
 
 def settle(folder: Path, store: Store, journal: Path) -> int:
-    """Delete the journal's thumbnails that no stored memory references, then the journal."""
+    """Delete the journal's thumbnails that no stored memory references, then the journal.
+
+    It never fails (so that a journal can never keep a memory from opening): a journal it cannot
+    read, or an entry it cannot act on (a name the file system refuses, a source the store
+    refuses), is logged and the journal moved aside (`folder.aside_name`) with whatever it could
+    not settle; the thumbnails it could settle are."""
     try:
-        raw = json.loads(journal.read_text(encoding="utf-8"))["thumbs"]
+        raw = json.loads(read_text(journal, limit=MAX_JOURNAL, what="thumbnail journal"))["thumbs"]
         entries = [(str(n), str(s), int(i), float(t)) for n, s, i, t in raw]
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        log.warning("%s: unreadable thumbnail journal, left as is (%s)", journal, e)
-        return 0
+    except Exception as e:  # anything at all: the memory must open
+        return _aside(journal, f"unreadable ({e})")
+    failed: list[str] = []
     referenced: set[str] = set()
     for source in {e[1] for e in entries}:
-        sf = store.source_frames(source)
-        want = {(i, t) for _, s, i, t in entries if s == source}
-        near = np.flatnonzero(np.isin(sf.frame_index, [i for i, _ in want]))
-        hit = [int(k) for k in near if (int(sf.frame_index[k]), float(sf.t[k])) in want]
-        if hit:
-            referenced.update(r.image_path or "" for r in store.get(np.asarray(sf.ids)[hit].tolist()))
+        try:
+            sf = store.source_frames(source)
+            want = {(i, t) for _, s, i, t in entries if s == source}
+            near = np.flatnonzero(np.isin(sf.frame_index, [i for i, _ in want]))
+            hit = [int(k) for k in near if (int(sf.frame_index[k]), float(sf.t[k])) in want]
+            if hit:
+                referenced.update(r.image_path or "" for r in store.get(np.asarray(sf.ids)[hit].tolist()))
+        except Exception as e:  # the store cannot say: keep this source's thumbnails
+            failed.append(f"source {source[:80]!r}: {e}")
+            referenced.update(n for n, s, _, _ in entries if s == source)
     removed = 0
     for name, *_ in entries:
-        p = thumb_file(folder, name)
-        if name in referenced or p is None:
-            continue
-        if p.is_file():
-            p.unlink()
-            removed += 1
-    end(journal)
+        try:
+            p = thumb_file(folder, name)
+            if name in referenced or p is None:
+                continue
+            if p.is_file():
+                p.unlink()
+                removed += 1
+        except OSError as e:  # e.g. a name too long for the file system (ENAMETOOLONG)
+            failed.append(f"thumbnail {name[:80]!r}: {e.strerror or e}")
+    if failed:
+        _aside(journal, "; ".join(failed[:3]))
+    else:
+        end(journal)
     return removed
+
+
+def _aside(journal: Path, why: str) -> int:
+    """Log a journal recovery cannot act on and move it out of recovery's way; 0 removed."""
+    target = journal.with_name(aside_name(journal.name))
+    try:
+        move(journal, target)
+        log.warning("%s: thumbnail journal set aside as %s: %s", journal, target.name, why)
+    except OSError as e:
+        log.warning("%s: thumbnail journal left as is (%s; cannot move it: %s)", journal, why, e)
+    return 0
 
 
 def recover(folder: Path, store: Store) -> dict[str, int]:
@@ -92,7 +120,7 @@ def recover(folder: Path, store: Store) -> dict[str, int]:
     in the middle of a cache save would otherwise keep its temporary file.
     """
     journals = [e for e in sorted(os.listdir(folder)) if JOURNAL_NAME.fullmatch(e)]
-    removed = sum(settle(folder, store, folder / j) for j in journals)
+    removed = sum(settle(folder, store, folder / j) for j in journals)  # never raises
     temps = [p for t in _WRITER_ONLY for p in remove_stale_temp_files(folder, min_age=0.0, target=t)]
     temps += remove_stale_temp_files(folder, wait=True)
     if journals:

@@ -17,7 +17,7 @@ import numpy as np
 from ..embed.ocr import OCR_WEIGHT, ocr_terms
 from ..errors import EmptyMemoryError, InputError
 from ..imageio import read_image
-from ..types import Filter, Hit, MemoryRecord
+from ..types import Filter, Hit, MemoryRecord, check_picture
 from .core import Core, check_text, finite
 from .diversity import top_hits
 from .protocol import MAX_K, Near, TimeLike, check_k
@@ -119,17 +119,14 @@ class Search(Core):
             raise InputError("search_image needs either an image or a memory_id, not both")
         filt = self.make_filter(after, before, near)
         if memory_id is not None:
-            try:
-                (rec,) = self.store.get([int(memory_id)], with_embeddings=True)
-            except KeyError:
-                raise InputError(f"memory_id {memory_id}: no such memory") from None
+            rec = self.embedded(memory_id)
             q = rec.embedding
             assert q is not None
         else:
             assert image is not None
             img = read_image(Path(image)) if isinstance(image, (str, os.PathLike)) else image
-            q = self.embedder.embed_images([img])[0]
-        skip = -1 if memory_id is None else int(memory_id)
+            q = self.embedder.embed_images([check_picture(img, "query image")])[0]
+        skip = -1 if memory_id is None else rec.id
 
         def ranked(n: int) -> list[Hit]:  # equal scores: the earlier memory first, as in text search
             scored = sorted(self.store.search_vector(q, n + 1, filt), key=lambda p: (-p[1], p[0]))

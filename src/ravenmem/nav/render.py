@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fsio import PICTURE_TAG
 from .grid import OccupancyGrid
 
 UNKNOWN, FREE, EXPLORED, OCCUPIED = (
@@ -187,6 +188,6 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     fig.tight_layout()
     out = Path(path)
-    fig.savefig(out, dpi=dpi)
+    fig.savefig(out, dpi=dpi, metadata=dict([PICTURE_TAG]))  # a later --force may replace only such a file
     plt.close(fig)
     return out

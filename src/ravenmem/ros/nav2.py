@@ -30,9 +30,10 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from ..errors import InputError
-from ..fsio import atomic_write
+from ..fsio import MAX_CONFIG, atomic_write, read_text
 from ..nav.frame import MapFrame
 from ..nav.grid import MapConfig, OccupancyGrid
+from ..types import check_coord
 
 FREE, OCCUPIED, UNKNOWN = 254, 0, 205
 OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
@@ -89,18 +90,20 @@ def import_map_server(yaml_path: str | Path) -> OccupancyGrid:
     if not yaml_path.is_file():
         raise InputError(f"{yaml_path}: no such map YAML")
     try:
-        meta = YAML(typ="safe").load(yaml_path.read_text(encoding="utf-8"))
+        meta = YAML(typ="safe").load(read_text(yaml_path, MAX_CONFIG, "map YAML"))
     except (YAMLError, UnicodeDecodeError) as e:
         raise InputError(f"{yaml_path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(meta, dict):
         raise InputError(f"{yaml_path}: expected a mapping of map_server keys")
     res = _num(meta, "resolution", yaml_path)
-    if res <= 0:
-        raise InputError(f"{yaml_path}, field 'resolution': must be > 0, got {res}")
+    if not 1e-3 <= res <= 10:  # a millimetre to 10 m a cell: anything else makes no map
+        raise InputError(f"{yaml_path}, field 'resolution': must be from 0.001 to 10 m, got {res}")
     origin = meta.get("origin")
     if not isinstance(origin, (list, tuple)) or len(origin) != 3:
         raise InputError(f"{yaml_path}, field 'origin': expected [x, y, yaw], got {origin!r}")
     ox, oy, oyaw = (_num({"origin": v}, "origin", yaml_path) for v in origin)
+    for corner in (ox, oy):
+        check_coord(corner, f"{yaml_path}, field 'origin'")
     if abs(oyaw) > 1e-9:
         raise InputError(f"{yaml_path}, field 'origin': yaw {oyaw} is not supported (only 0)")
     mode = str(meta.get("mode", "trinary"))

@@ -10,7 +10,7 @@ import asyncio
 import json
 import logging
 import math
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from importlib import resources
 from typing import Annotated, Any, TypeVar
@@ -18,15 +18,16 @@ from typing import Annotated, Any, TypeVar
 from fastapi import FastAPI, File, Form, Query, Request, UploadFile
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException
 from starlette.routing import Route
 
 from ..agent.ask import AskResult
 from ..errors import InputError, NotFoundError
+from ..fsio import disk_full
 from ..memory.protocol import MAX_K
-from ..types import MemoryRecord, Pose
+from ..types import Frame, MemoryRecord, Pose, check_id, check_time
 from .events import StreamRefused
 from .http_errors import add_error_handlers
 from .images import decode_base64_image, decode_depth, decode_image
@@ -57,8 +58,8 @@ class AskBody(BaseModel):
         None, ge=1, le=20, description="tool calls before the model must answer"
     )
     image: str | None = Field(None, description="a query picture: base64 JPEG/PNG or a data: URL")
-    image_memory_id: int | None = Field(
-        None, ge=0, description="use this memory's picture as the query picture"
+    image_memory_id: Annotated[int, BeforeValidator(check_id)] | None = Field(
+        None, description="use this memory's picture as the query picture"
     )
     navigate: bool = Field(
         False, description="also plan a path on the memory's map to the answer (its goal: `navigation`)"
@@ -102,7 +103,10 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         summary="A robot's long-term visual memory: search it, ask it, add to it.",
         lifespan=lifespan,
     )
-    app.add_middleware(Guard, token=token, loopback=loopback, max_body=cfg.max_upload_bytes)
+    app.add_middleware(
+        Guard, token=token, loopback=loopback, max_body=cfg.max_upload_bytes, body_timeout=cfg.body_timeout_s
+    )
+    gate = service.gate  # what the pictures being decoded may hold at once
     add_error_handlers(app, service.mem.path)
     if token:
         _document_bearer(app)
@@ -116,9 +120,10 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         return lambda rec: f"{base}/memories/{rec.id}/image" if service.image_file(rec) else None
 
     async def blocking(fn: Callable[[], T]) -> T:
-        """Run memory work off the event loop, bounded in time (504 when it takes too long)."""
+        """Run memory work off the event loop, bounded in time (504 when it takes too long); a
+        full disk is one line (507), and reads go on."""
         try:
-            return await asyncio.wait_for(run_in_threadpool(fn), cfg.timeout_s)
+            return await no_space(asyncio.wait_for(run_in_threadpool(fn), cfg.timeout_s))
         except asyncio.TimeoutError:
             raise HTTPException(504, f"no answer within {cfg.timeout_s:g} s") from None
 
@@ -134,7 +139,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         return await blocking(service.info)
 
     # ---------------------------------------------------------------- searches (from TOOLS)
-    add_search_routes(app, service, blocking, image_url_for)
+    add_search_routes(app, service, blocking, image_url_for, gate)
 
     # ---------------------------------------------------------------- questions
     @app.post("/ask", tags=["ask"], response_model=None)
@@ -146,7 +151,7 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         if body.image is not None and body.image_memory_id is not None:
             raise InputError("give image or image_memory_id, not both")
         if body.image is not None:
-            picture = await run_in_threadpool(decode_base64_image, body.image, cfg.max_pixels)
+            picture = await run_in_threadpool(decode_base64_image, body.image, cfg.max_pixels, "image", gate)
 
         def run() -> tuple[AskResult, dict[str, Any]]:
             img = picture
@@ -204,16 +209,19 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         if service.writer is None:
             raise InputError("this service is read-only")
         pose = _pose(x, y, z, yaw, (qx, qy, qz, qw))
+        when = _now() if t is None else check_time(t, "t")
         data = await image.read()
-        rgb = await run_in_threadpool(decode_image, data, cfg.max_pixels, "image")
+        rgb = await run_in_threadpool(decode_image, data, cfg.max_pixels, "image", gate)
+        Frame(
+            image=rgb, t=when, pose=pose, source=source
+        ).check()  # what the memory takes, before it is queued
         metres = None
         if depth is not None:
             raw = await depth.read()
             metres = await run_in_threadpool(decode_depth, raw, cfg.max_pixels, depth_scale, "depth")
-        when = _now() if t is None else t
         fut = service.writer.submit(rgb, pose, when, source, metres)
         try:
-            res = await asyncio.wait_for(asyncio.wrap_future(fut), cfg.timeout_s)
+            res = await no_space(asyncio.wait_for(asyncio.wrap_future(fut), cfg.timeout_s))
         except asyncio.TimeoutError:
             raise HTTPException(504, f"the frame was not stored within {cfg.timeout_s:g} s") from None
         body = res.as_json()
@@ -337,6 +345,18 @@ def _document_bearer(app: FastAPI) -> None:
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
+
+
+async def no_space(work: Awaitable[T]) -> T:
+    """`work`, with a full disk as one `DiskFullError` (HTTP 507) instead of whatever raised it."""
+    try:
+        return await work
+    except Exception as e:
+        full = disk_full(e)
+        if full is None:
+            raise
+        log.warning("%s", full)
+        raise full from None
 
 
 def _pose(x: float, y: float, z: float, yaw: float | None, quat: tuple[float | None, ...]) -> Pose:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..fsio import MAX_IMAGE, read_bounded
 from ..tools import Tool, ToolArgs
 
 ENV_SERVER = "RAVENMEM_SERVER"
@@ -128,7 +129,5 @@ class ServerClient:
 
 
 def _read(path: Path) -> bytes:
-    try:
-        return Path(path).read_bytes()
-    except OSError as e:
-        raise InputError(f"image file {path} cannot be read: {e.strerror}") from None
+    """A query picture's bytes, bounded (`/dev/zero` is one line, not a read without end)."""
+    return read_bounded(path, MAX_IMAGE, "image file")

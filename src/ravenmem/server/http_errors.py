@@ -1,5 +1,6 @@
-"""Every failure as `{"error": "<one line>"}`: a 4xx for what the caller can fix, and a bare 500
-(details in the service log, never in the response) for anything else."""
+"""Every failure as `{"error": "<one line>"}`: a 4xx for what the caller can fix, 503 when the
+service is busy, 507 when the disk is full (reads go on), and a bare 500 (details in the
+service log, never in the response) for anything else."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
 from ..errors import NotFoundError, RavenmemError
+from ..fsio import DiskFullError, disk_full
+from .images import TooLargeError
 from .live import BusyError
 
 log = logging.getLogger(__name__)
@@ -38,6 +41,14 @@ def add_error_handlers(app: FastAPI, folder: Path) -> None:
     @app.exception_handler(BusyError)
     async def busy(request: Request, exc: BusyError) -> JSONResponse:
         return reply(503, str(exc), {"Retry-After": "1"})
+
+    @app.exception_handler(TooLargeError)
+    async def too_large(request: Request, exc: TooLargeError) -> JSONResponse:
+        return reply(413, str(exc))
+
+    @app.exception_handler(DiskFullError)
+    async def full(request: Request, exc: DiskFullError) -> JSONResponse:
+        return reply(507, private(str(exc)))
 
     @app.exception_handler(RavenmemError)
     async def user_error(request: Request, exc: RavenmemError) -> JSONResponse:
@@ -72,5 +83,9 @@ def add_error_handlers(app: FastAPI, folder: Path) -> None:
 
     @app.exception_handler(Exception)
     async def crash(request: Request, exc: Exception) -> JSONResponse:
+        no_space = disk_full(exc)  # SQLite's "database or disk is full", an OSError ENOSPC, ...
+        if no_space is not None:
+            log.warning("%s %s: %s", request.method, request.url.path, no_space)
+            return reply(507, private(str(no_space)))
         log.error("%s %s failed", request.method, request.url.path, exc_info=exc)
         return reply(500, "internal error; the service log has the details")

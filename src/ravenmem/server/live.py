@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, RavenmemError
 from ..ingest.keyframes import KeyframeConfig, Keyframer
 from ..memory import Memory
 from ..types import Frame, MemoryRecord, Pose
@@ -219,7 +219,7 @@ class LiveWriter:
         try:
             self._store(jobs)
         except Exception as e:  # a failed batch fails its frames, not the writer
-            if not isinstance(e, InputError):
+            if not isinstance(e, RavenmemError):  # bad input, a full disk: the client is told
                 log.exception("storing %d live frame(s) failed", len(jobs))
             for j in jobs:
                 if not j.future.done():
@@ -323,4 +323,6 @@ def _checked_frame(image: np.ndarray, pose: Pose, t: float, source: str) -> Fram
         raise InputError(f"t must be a finite number of Unix seconds, got {t!r}")
     if not source or len(source) > 200 or not source.isprintable():
         raise InputError("source must be a printable name of 1 to 200 characters")
-    return Frame(image=image, t=float(t), pose=pose, source=source, index=0)
+    frame = Frame(image=image, t=float(t), pose=pose, source=source, index=0)
+    frame.check()  # what a memory stores (ravenmem.types): refused here, not in the writer's batch
+    return frame

@@ -156,7 +156,7 @@ def _search(service: Service, tool: Tool, args: dict[str, Any], base: str | None
     if picture is not None:
         if not isinstance(picture, str):
             raise RavenmemError("image must be a base64 string")
-        image = decode_base64_image(picture, service.cfg.max_pixels)
+        image = decode_base64_image(picture, service.cfg.max_pixels, "image", service.gate)
     call = tool.validate(args)
     hits = service.search(tool, call, k, image=image)
     rows = service.rows(hits, _url(base))

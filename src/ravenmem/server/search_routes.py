@@ -18,7 +18,7 @@ from ..errors import InputError
 from ..memory.protocol import MAX_K
 from ..tools import TOOLS, Tool, ToolArgs
 from ..types import MemoryRecord
-from .images import decode_image
+from .images import DecodeGate, decode_image
 from .service import Service
 
 SHORT_NAMES = {"q": "query", "t": "time"}  # short query names some clients prefer
@@ -26,11 +26,14 @@ Blocking = Callable[[Callable[[], Any]], Awaitable[Any]]
 UrlFor = Callable[[Request], Callable[[MemoryRecord], str | None]]
 
 
-def add_search_routes(app: FastAPI, service: Service, blocking: Blocking, image_url_for: UrlFor) -> None:
-    """`GET /search/{key}` for every tool, and `POST /search/image` with an uploaded picture."""
+def add_search_routes(
+    app: FastAPI, service: Service, blocking: Blocking, image_url_for: UrlFor, gate: DecodeGate | None = None
+) -> None:
+    """`GET /search/{key}` for every tool, and `POST /search/image` with an uploaded picture
+    (decoded within `gate`, the service's bound on pictures in RAM)."""
     for tool in TOOLS.values():
         _search_route(app, tool, service, blocking, image_url_for)
-    _image_upload_route(app, service, blocking, image_url_for)
+    _image_upload_route(app, service, blocking, image_url_for, gate)
 
 
 class _Short(BaseModel):
@@ -97,6 +100,7 @@ def _image_upload_route(
     service: Service,
     blocking: Blocking,
     image_url_for: UrlFor,
+    gate: DecodeGate | None,
 ) -> None:
     tool = TOOLS["search_image"]
     model = query_model(tool)
@@ -110,7 +114,8 @@ def _image_upload_route(
         args, k = _split(params, tool)
         if getattr(args, "memory_id", None) is not None:
             raise InputError("give memory_id or an uploaded image, not both")
-        rgb = await run_in_threadpool(decode_image, await image.read(), service.cfg.max_pixels, "image")
+        data = await image.read()
+        rgb = await run_in_threadpool(decode_image, data, service.cfg.max_pixels, "image", gate)
         hits = await blocking(lambda: service.search(tool, args, k, image=rgb))
         return {"mode": tool.key, "tool": tool.name, "results": service.rows(hits, image_url_for(request))}
 

@@ -9,14 +9,20 @@
   they hold nothing of the memory.
 - A body over the size limit is refused (413): before it is read when its Content-Length says
   so, and at the limit while it is read otherwise (chunked uploads).
+- A body must arrive within a deadline (`body_timeout`, 30 s by default, from the first read
+  of it): a client that sends a byte a second (slowloris) is answered 408 and cut off.
+- A query string that is not UTF-8 once percent-decoded (`q=%FF%FE`) is refused (400) rather
+  than searched as replacement characters.
 """
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 import ipaddress
 import json
-from urllib.parse import urlsplit
+import time
+from urllib.parse import unquote_to_bytes, urlsplit
 
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -58,11 +64,19 @@ def is_public(path: str) -> bool:
 class Guard:
     """ASGI middleware enforcing the rules of the module docstring on HTTP and WebSocket."""
 
-    def __init__(self, app: ASGIApp, token: str | None, loopback: bool, max_body: int | None = None) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        token: str | None,
+        loopback: bool,
+        max_body: int | None = None,
+        body_timeout: float | None = 30.0,
+    ) -> None:
         self.app = app
         self.token = token.encode() if token else None
         self.loopback = loopback
         self.max_body = max_body
+        self.body_timeout = body_timeout
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] not in ("http", "websocket"):
@@ -72,7 +86,8 @@ class Guard:
         host = headers.get("host", "")
         refusal = self._refuse(scope, headers, host)
         if refusal is None:
-            await self.app(scope, self._limited(receive) if self.max_body else receive, send)
+            limited = scope["type"] == "http" and (self.max_body or self.body_timeout)
+            await self.app(scope, self._limited(receive) if limited else receive, send)
             return
         status, message = refusal
         if scope["type"] == "websocket":
@@ -94,16 +109,32 @@ class Guard:
         await send({"type": "http.response.body", "body": body})
 
     def _limited(self, receive: Receive) -> Receive:
-        """`receive` that stops a body at the limit (the app answers the HTTPException with 413)."""
-        limit, seen = self.max_body or 0, 0
+        """`receive` that stops a body at the size limit (the app answers the HTTPException with
+        413) and at the deadline (408), counted from the first time the app reads the body."""
+        limit, seen = self.max_body, 0
+        deadline: float | None = None
+        timeout = self.body_timeout
 
         async def counted() -> Message:
-            nonlocal seen
-            message = await receive()
+            nonlocal seen, deadline, timeout
+            if timeout is None:
+                message = await receive()
+            else:
+                if deadline is None:
+                    deadline = time.monotonic() + timeout
+                try:
+                    message = await asyncio.wait_for(receive(), max(deadline - time.monotonic(), 0.001))
+                except asyncio.TimeoutError:
+                    raise HTTPException(
+                        408, f"the request body did not arrive within {timeout:g} s"
+                    ) from None
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
-                if seen > limit:
+                if limit is not None and seen > limit:
                     raise HTTPException(413, f"request body is over the limit of {limit} bytes")
+                if not message.get("more_body", False):
+                    deadline = None  # the body is complete: later reads (disconnects) wait freely
+                    timeout = None
             return message
 
         return counted
@@ -122,7 +153,20 @@ class Guard:
         size = headers.get("content-length", "")
         if self.max_body is not None and size.isdigit() and int(size) > self.max_body:
             return 413, f"request body of {int(size)} bytes is over the limit of {self.max_body}"
+        bad = _not_utf8(scope.get("query_string", b""))
+        if bad is not None:
+            return 400, f"query string: {bad!r} is not valid UTF-8 once percent-decoded"
         return None
+
+
+def _not_utf8(query: bytes) -> str | None:
+    """The first `name=value` of a query string that is not UTF-8 once percent-decoded, else None."""
+    for part in query.split(b"&"):
+        try:
+            unquote_to_bytes(part.replace(b"+", b" ")).decode("utf-8")
+        except UnicodeDecodeError:
+            return part.decode("latin-1")[:60]
+    return None
 
 
 def _hostname(host: str) -> str:

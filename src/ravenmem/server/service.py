@@ -36,6 +36,7 @@ from ..memory.protocol import check_k
 from ..tools import TOOLS, Tool, ToolArgs, hit_json
 from ..types import Hit, Intrinsics, MemoryRecord
 from .events import EventBus
+from .images import DecodeGate
 from .live import AddResult, LiveWriter
 
 if TYPE_CHECKING:
@@ -64,6 +65,8 @@ class ServiceConfig:
     max_upload_bytes: int = 16 * 2**20
     max_pixels: int = 40_000_000
     timeout_s: float = 120.0
+    body_timeout_s: float = 30.0  # a request body must arrive within this (slow senders: 408)
+    decode_budget: int | None = None  # RAM for pictures decoded at once (None: sized to the machine)
     writable: bool = True
     intrinsics: Intrinsics | None = None  # the depth camera of live adds: they update the map
     camera_frame: str = "body"  # live poses are of a body (x forward, z up) or the optical frame
@@ -74,8 +77,14 @@ class ServiceConfig:
         check_top_k(self.top_k)
         check_calls(self.max_tool_calls)
         get_preset(self.preset)
-        if self.max_upload_bytes <= 0 or self.max_pixels <= 0 or self.timeout_s <= 0:
-            raise InputError("upload size, pixel count and timeout must be > 0")
+        if self.max_upload_bytes <= 0 or self.max_pixels <= 0:
+            raise InputError("upload size and pixel count must be > 0")
+        for name in ("timeout_s", "body_timeout_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0 < v <= 86_400):
+                raise InputError(f"{name} must be a number of seconds from 0 to 86400, got {v!r}")
+        if self.decode_budget is not None and self.decode_budget <= 0:
+            raise InputError(f"decode_budget must be > 0 bytes, got {self.decode_budget}")
         if self.method is not None:
             METHODS.get(self.method)  # an unknown name is a one-line error now, not on the first question
             if needs_vlm(self.method) and not (self.vlm is not None and self.vlm.configured):
@@ -136,6 +145,9 @@ class Service:
             if self.cfg.writable
             else None
         )
+        self.gate = DecodeGate(
+            self.cfg.decode_budget
+        )  # RAM of uploaded pictures decoded at once (503 past it)
         self._traj_lock = threading.Lock()
         self._traj: tuple[int, list[list[float]]] | None = None
         self._map: tuple[int, tuple[bytes, dict[str, Any]]] | None = None

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import EmbedderMismatchError, InputError
-from ..types import Filter, MemoryRecord, Pose
+from ..types import Filter, MemoryRecord, Pose, check_coord
 
 DIM_KEY = "store.dim"
 _WORD = re.compile(r"[^\W_]+")
@@ -149,6 +149,8 @@ def check_point(x: float, y: float, z: float | None, radius: float | None) -> No
         raise InputError(f"nearest: x, y, z and radius must be finite numbers, got {vals}")
     if radius is not None and radius < 0:
         raise InputError(f"radius: must be >= 0, got {radius}")
+    for v in vals[: 3 if z is not None else 2]:
+        check_coord(v, "nearest: x, y, z")  # 1e308 would overflow the distances
 
 
 def check_add(records: Sequence[MemoryRecord], embeddings: np.ndarray, dim: int) -> np.ndarray:

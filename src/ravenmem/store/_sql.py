@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import InputError
+from ..fsio import rollback
 from ..types import Filter, MemoryRecord, Pose
 from ._common import POSE_COLUMNS, RECORD_COLUMNS, norm_text, pose_values, record_from, record_values
 
@@ -76,6 +78,16 @@ def create_schema(conn: sqlite3.Connection) -> str:
     return tokenizer
 
 
+def read_schema(conn: sqlite3.Connection, where: str) -> str:
+    """What `create_schema` returns, for a reader (writes nothing): the FTS5 tokenizer in use;
+    a database without the store's tables is a missing store."""
+    tables = {str(r[0]) for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    if not {"memories", "vectors", "meta", "deleted", "ocr"} <= tables:
+        raise InputError(f"{where}: store missing; nothing was changed (the store's tables are not there)")
+    row = conn.execute("SELECT value FROM meta WHERE key = 'store.fts_tokenizer'").fetchone()
+    return str(row[0]) if row else "trigram"
+
+
 def migrate(conn: sqlite3.Connection) -> None:
     """Build the indexes a memory created by an older version lacks.
 
@@ -123,7 +135,7 @@ def insert(
             conn.executemany("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", list(meta.items()))
         conn.execute("COMMIT")
     except BaseException:
-        conn.execute("ROLLBACK")
+        rollback(conn)
         raise
 
 
@@ -175,7 +187,7 @@ def delete(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
             gone += have
         conn.execute("COMMIT")
     except BaseException:
-        conn.execute("ROLLBACK")
+        rollback(conn)
         raise
     return np.array(sorted(gone), np.int64)
 

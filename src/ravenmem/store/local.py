@@ -8,6 +8,13 @@ now and then and on close with the highest id and the number of deletions they c
 newer rows are added from SQLite and logged deletions applied, and a missing or corrupt file is
 rebuilt from SQLite.
 
+`read_only=True` (every reader: search, info, ask, a read-only service) writes nothing in the
+folder: the SQLite connection is one that cannot write (`fsio.sqlite_reader`), and an index or
+columns file that is stale or unusable is brought up to date in RAM only, never saved. A store
+whose `store.sqlite` is missing or empty while its index or columns files are there (or, with
+a reader, at all) is refused before anything is created: opening it would build an empty store
+beside them and rewrite the index without its vectors (the memory checks its thumbnails too).
+
 The index is exact (flat) below `ann_threshold` memories and an IVF above it (8-bit codes,
 the best candidates re-ranked with the exact vectors from SQLite); crossing the threshold, or
 growing `retrain_growth`-fold since the last training, rebuilds it from SQLite, by default in
@@ -29,8 +36,8 @@ from urllib.parse import quote
 import numpy as np
 
 from ..errors import InputError
-from ..fsio import remove_stale_temp_files
-from ..types import Filter, MemoryRecord, Pose
+from ..fsio import disk_full, remove_stale_temp_files, sqlite_reader
+from ..types import MAX_ID, Filter, MemoryRecord, Pose
 from . import _sql
 from ._columns import Columns, ColumnsFileError
 from ._common import (
@@ -50,6 +57,7 @@ from ._common import (
 )
 from ._vindex import CODES, IndexFileError, VectorIndex, nlist_for
 from .base import STORES, SourceFrames
+from .presence import check_present
 
 log = logging.getLogger(__name__)
 UID_KEY = "store.uid"
@@ -80,6 +88,7 @@ class LocalStore:
         codes: str = "sq8",
         rerank: int = 4,
         max_nlist: int = 4096,
+        read_only: bool = False,
     ) -> None:
         if folder.exists() and not folder.is_dir():
             raise InputError(f"{folder}: not a folder (the local store needs a memory folder)")
@@ -91,9 +100,11 @@ class LocalStore:
             raise InputError(f"codes: expected one of {', '.join(CODES)}, got {codes!r}")
         if rerank < 1 or max_nlist < 1:
             raise InputError(f"rerank and max_nlist must be >= 1, got {rerank} and {max_nlist}")
-        folder.mkdir(parents=True, exist_ok=True)
+        check_present(folder, read_only)
+        if not read_only:
+            folder.mkdir(parents=True, exist_ok=True)
         check_own_database(folder / "store.sqlite")
-        self.folder, self.dim = folder, dim
+        self.folder, self.dim, self.read_only = folder, dim, read_only
         self.ann_threshold, self.nprobe, self.retrain_growth = ann_threshold, nprobe, retrain_growth
         self.filter_budget, self.codes, self.rerank, self.max_nlist = filter_budget, codes, rerank, max_nlist
         self.background, self.save_min, self.save_fraction = background, save_min, save_fraction
@@ -102,14 +113,20 @@ class LocalStore:
         self._cols_path = folder / "columns.cache"
         self._lock = threading.RLock()
         self._closed = False
-        self._conn = _sql.connect(str(self._db_path), synchronous.upper())
+        if read_only:
+            self._conn = sqlite_reader(self._db_path)
+        else:
+            self._conn = _sql.connect(str(self._db_path), synchronous.upper())
         try:
-            self._conn.execute("PRAGMA journal_size_limit=8388608")
-            self._tokenizer = _sql.create_schema(self._conn)
+            if read_only:
+                self._tokenizer = _sql.read_schema(self._conn, str(self._db_path))
+            else:
+                self._conn.execute("PRAGMA journal_size_limit=8388608")
+                self._tokenizer = _sql.create_schema(self._conn)
             check_dim(str(folder), self.get_meta(DIM_KEY), dim)
-            if self.get_meta(DIM_KEY) is None:
+            if self.get_meta(DIM_KEY) is None and not read_only:
                 self.set_meta(DIM_KEY, str(dim))
-            if self.get_meta(UID_KEY) is None:
+            if self.get_meta(UID_KEY) is None and not read_only:
                 self.set_meta(UID_KEY, uuid.uuid4().hex)
             self._uid = bytes.fromhex(self.get_meta(UID_KEY) or "")
             self._cols_uid = _columns_uid(self._uid, self.get_meta(POSES_KEY))
@@ -128,11 +145,15 @@ class LocalStore:
         self._retry_at = 0
         self._deferred = False  # a bulk import is skipping the index (it is rebuilt at the end)
         self._dirty = False  # deletions the index file does not reflect
-        for target in ("index.faiss.", "columns.cache."):  # never one a live process writes
-            remove_stale_temp_files(folder, target=target)
+        if not read_only:
+            for target in ("index.faiss.", "columns.cache."):  # never one a live process writes
+                remove_stale_temp_files(folder, target=target)
         self._vi, self._saved_max = self._open_index()
         self._vi_upto = self._last_id  # every row up to this id is in the index, none after
-        self._maintain()
+        if read_only:
+            self._saved_max = self._vi_upto  # nothing to save, ever
+        else:
+            self._maintain()
 
     # --- index lifecycle ---------------------------------------------------------------------------
     def _open_index(self) -> tuple[VectorIndex, int]:
@@ -153,8 +174,10 @@ class LocalStore:
         except IndexFileError as e:
             if self._count:
                 log.warning("%s: rebuilding the vector index from SQLite (%s)", self.folder, e)
+            if self.read_only:
+                return self._build(self._conn, self._last_id), self._last_id
             return self._build_and_save()
-        if tail and vi.kind == "flat" and self._count >= self.ann_threshold:
+        if tail and vi.kind == "flat" and self._count >= self.ann_threshold and not self.read_only:
             # e.g. a bulk import was killed: build the IVF now rather than fill a flat index
             # (float32, in RAM) far past the size it is meant for
             return self._build_and_save()
@@ -285,6 +308,7 @@ class LocalStore:
 
     def rebuild_index(self) -> None:
         """Rebuild the vector index from SQLite now (e.g. after changing `ann_threshold`)."""
+        self._check_writable()
         self._join_worker()
         with self._lock:
             self._check_open()
@@ -308,6 +332,7 @@ class LocalStore:
     # --- writes ----------------------------------------------------------------------------------
     def add(self, records: Sequence[MemoryRecord], embeddings: np.ndarray) -> list[int]:
         """Store a batch durably (one transaction) and index it; returns the new ids."""
+        self._check_writable()
         emb = check_add(records, embeddings, self.dim)
         if not len(records):
             return []
@@ -345,6 +370,7 @@ class LocalStore:
         (crossing `ann_threshold`, or doubling), and done once, from SQLite, at the end; the
         imported memories are searchable when this returns.
         """
+        self._check_writable()
         key = import_key(resume)
         done = int(self.get_meta(key) or 0) if key else 0
         added = 0
@@ -393,6 +419,7 @@ class LocalStore:
         """Forget memories: their rows, vectors and OCR entries go in one SQLite transaction
         (a crash leaves all of them or none), then the index and columns drop them. Unknown
         ids are ignored; returns how many memories were deleted."""
+        self._check_writable()
         want = check_ids(ids)
         if len(want) == 0:
             return 0
@@ -562,7 +589,7 @@ class LocalStore:
         """Records in the order of `ids`; an unknown id raises KeyError."""
         want = [int(i) for i in ids]
         found: dict[int, MemoryRecord] = {}
-        uniq = sorted(set(want))
+        uniq = sorted({i for i in want if 0 <= i <= MAX_ID})  # others cannot be stored: unknown
         with self._lock:
             self._check_open()
             for s in range(0, len(uniq), 900):
@@ -640,6 +667,7 @@ class LocalStore:
             raise InputError(
                 f"meta: key and value must be strings, got {type(key).__name__}, {type(value).__name__}"
             )
+        self._check_writable()
         with self._lock:
             self._check_open()
             self._conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", (key, value))
@@ -652,13 +680,27 @@ class LocalStore:
         with self._lock:
             if self._closed:
                 return
-            if self._saved_max != self._vi_upto or self._dirty:
-                self._save()
-            elif self._cols is not None and self._cols_saved != (self._last_id, self._deletions):
-                self._cols.save(self._cols_path, self._last_id, self._deletions, self._cols_uid)
-            self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-            self._conn.close()
-            self._closed = True
+            if self.read_only:  # nothing of this store was written: nothing to save
+                self._conn.close()
+                self._closed = True
+                return
+            try:
+                if self._saved_max != self._vi_upto or self._dirty:
+                    self._save()
+                elif self._cols is not None and self._cols_saved != (self._last_id, self._deletions):
+                    self._cols.save(self._cols_path, self._last_id, self._deletions, self._cols_uid)
+                self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            except Exception as e:  # the caches are rebuilt from SQLite on the next open
+                if disk_full(e) is None:
+                    raise
+                log.warning(
+                    "%s: index and columns not saved (%s); rebuilt at the next open",
+                    self.folder,
+                    disk_full(e),
+                )
+            finally:
+                self._conn.close()
+                self._closed = True
 
     def __enter__(self) -> LocalStore:
         return self
@@ -670,6 +712,10 @@ class LocalStore:
     def _check_open(self) -> None:
         if self._closed:
             raise InputError(f"{self.folder}: the store is closed")
+
+    def _check_writable(self) -> None:
+        if getattr(self, "read_only", False):
+            raise InputError(f"{self.folder}: the store was opened read-only (open it writable to change it)")
 
     def _columns(self) -> Columns:
         """The in-RAM columns, loaded on first use from `columns.cache` brought up to date
@@ -729,6 +775,7 @@ def _finite(v: object) -> bool:
 
 
 _OPTIONS = {
+    "read_only": bool,
     "ann_threshold": int,
     "nprobe": int,
     "retrain_growth": float,

@@ -17,9 +17,10 @@ from typing import Any
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
+from PIL.PngImagePlugin import PngInfo
 
 from ..errors import InputError, NotFoundError
-from ..fsio import atomic_open
+from ..fsio import PICTURE_TAG, atomic_open
 from ..timeparse import fmt_time
 
 BACKGROUND = (255, 255, 255)
@@ -156,9 +157,11 @@ def draw_sheet(
                 fill=TEXT if j == 0 else MUTED,
                 font=font,
             )
+    tag = PngInfo()
+    tag.add_text(*PICTURE_TAG)  # a later --force may replace only such a file
     try:
-        with atomic_open(out) as f:
-            im.save(f, format="PNG")
+        with atomic_open(out) as f:  # a new file renamed into place: never through a symlink
+            im.save(f, format="PNG", pnginfo=tag)
     except OSError as e:
         raise InputError(f"cannot write the contact sheet {out}: {e.strerror or e}") from None
     return layout

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from ...errors import InputError, require
+from ...fsio import read_text
 from ...types import Pose
 from ..types import Episode, Question, Truth, horizon_of
 from . import DATASETS
@@ -82,7 +83,7 @@ def read_rows(root: Path, split: str) -> tuple[list[dict[str, Any]], Path]:
         try:
             if ext == "jsonl":
                 out = []
-                for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), start=1):
+                for n, line in enumerate(read_text(p, what="question file").splitlines(), start=1):
                     if line.strip():
                         try:
                             out.append(json.loads(line))
@@ -90,7 +91,7 @@ def read_rows(root: Path, split: str) -> tuple[list[dict[str, Any]], Path]:
                             raise InputError(f"{p} line {n}: not JSON ({e.msg})") from None
                 return out, p
             if ext == "json":
-                data = json.loads(p.read_text(encoding="utf-8"))
+                data = json.loads(read_text(p, what="question file"))
                 return (data if isinstance(data, list) else data.get("data", [])), p
             with open(p, newline="", encoding="utf-8") as f:
                 return list(csv.DictReader(f)), p

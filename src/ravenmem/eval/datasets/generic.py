@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from ...errors import InputError
+from ...fsio import read_text
 from ...types import Pose
 from ..types import EVAL_TYPES, Episode, EvalType, Question, Truth
 from . import DATASETS, SOURCE_FORMATS
@@ -47,7 +48,7 @@ class FrameIndex:
         self.poses: dict[str, Pose] = {}
         rgb = root / "rgb.txt" if root.is_dir() else None
         if rgb is not None and rgb.exists():
-            for line in rgb.read_text(encoding="utf-8").splitlines():
+            for line in read_text(rgb, what="TUM list").splitlines():
                 parts = line.split("#", 1)[0].split()
                 if len(parts) >= 2:
                     self.times[parts[1]] = float(parts[0])
@@ -196,7 +197,7 @@ def load(
             f"--dataset {fmt}:{path} needs --queries QUESTIONS.json (see docs/evaluation.md, 'Datasets and their exact layouts')"
         )
     try:
-        doc = json.loads(qfile.read_text(encoding="utf-8"))
+        doc = json.loads(read_text(qfile, what="question file"))
     except (OSError, ValueError) as e:  # ValueError: not UTF-8, not JSON
         raise InputError(f"{qfile}: cannot read JSON ({e})") from e
     if not isinstance(doc, dict) or not isinstance(doc.get("questions"), list):

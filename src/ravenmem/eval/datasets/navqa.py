@@ -58,6 +58,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 import numpy as np
 
 from ...errors import InputError
+from ...fsio import read_text
 from ...ingest.poses import read_pose_table
 from ...types import Pose
 from ..types import Episode, EvalType, Question, Truth, horizon_of
@@ -302,7 +303,7 @@ def load_frames(folder: Path) -> SeqFrames:
 def read_data_csv(path: Path) -> list[dict[str, str]]:
     """The NaVQA question table, columns renamed to uuid/seq/question/stamp/type/text/parsable/category."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_text(path, what="question file")
     except OSError as e:
         raise InputError(f"{path}: cannot read ({e.strerror or e})") from e
     reader = csv.reader(io.StringIO(text))
@@ -462,7 +463,7 @@ def _context(q: str, pose: Pose) -> str:
 
 def _read_items(path: Path, what: str) -> list[dict[str, Any]]:
     try:
-        items = json.loads(path.read_text(encoding="utf-8"))["data"]
+        items = json.loads(read_text(path, what="question file"))["data"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError(f"{path}: not a {what} ({e})") from e
     if not isinstance(items, list):

@@ -56,6 +56,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import InputError
+from ...fsio import read_text
 from ...types import Frame, Pose
 from ..types import Episode, EvalType, Question, Truth, horizon_of
 from . import DATASETS
@@ -151,7 +152,7 @@ def load_video(
     """One RAVEN-QA video folder as an Episode."""
     qpath = vdir / "questions.json"
     try:
-        data = json.loads(qpath.read_text(encoding="utf-8"))
+        data = json.loads(read_text(qpath, what="question file"))
     except (OSError, ValueError) as e:  # ValueError: not UTF-8, not JSON
         raise InputError(f"{qpath}: cannot read JSON ({e})") from e
     if not isinstance(data, dict):

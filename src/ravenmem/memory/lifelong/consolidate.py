@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import InputError
+from ...fsio import reports_full_disk
 from ...types import MemoryRecord
 from ..core import Core
 from ..folder import file_size, thumb_file
@@ -184,6 +185,7 @@ def plan(
 class Consolidation(Core):
     """`Memory.consolidate`."""
 
+    @reports_full_disk
     def consolidate(
         self,
         budget: int | None = None,

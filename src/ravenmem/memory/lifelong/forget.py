@@ -13,20 +13,26 @@ journal, sees the thumbnails referenced and keeps them); killed after, the memor
 and the next writer deletes the thumbnails left over. Sidecar rows of forgotten ids are never
 shown (ids never repeat) and are pruned by the next writer. Every step goes through the
 writer handle (`ravenmem.memory.writer`).
+
+Relative times (`+3600`, `10 minutes ago`) are resolved once, before anything is deleted,
+against the span of everything the memory has ever held (the manifest's `span_seen`, saved
+before the delete), not against what is left: the same command run again, or again after a
+kill, resolves to the same instant and removes nothing more. The report gives the instants used.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ...errors import InputError
-from ...timeparse import fmt_time
+from ...fsio import reports_full_disk
+from ...timeparse import TimeContext, fmt_time, parse_time
 from ...types import MemoryRecord
 from ..core import Core
 from ..folder import file_size, thumb_file
@@ -47,6 +53,8 @@ class ForgetReport:
     unknown_ids: int = 0
     memories_left: int = 0
     dry_run: bool = False
+    before_t: float | None = None  # the instants `before` and `after` resolved to
+    after_t: float | None = None
 
     @property
     def bytes_freed(self) -> int:
@@ -57,6 +65,8 @@ class ForgetReport:
         out["bytes_freed"] = self.bytes_freed
         out["first_time"] = fmt_time(self.t_first) if self.t_first is not None else None
         out["last_time"] = fmt_time(self.t_last) if self.t_last is not None else None
+        out["before_time"] = fmt_time(self.before_t) if self.before_t is not None else None
+        out["after_time"] = fmt_time(self.after_t) if self.after_t is not None else None
         return out
 
 
@@ -84,12 +94,13 @@ def parse_ids(text: str) -> list[int]:
 
 def select(
     mem: Core,
-    before: TimeLike = None,
-    after: TimeLike = None,
+    before: float | None = None,
+    after: float | None = None,
     region: Near | None = None,
     ids: Iterable[int] | None = None,
 ) -> tuple[np.ndarray, int]:
-    """The ids every given selector accepts (sorted) and how many of `ids` are not stored."""
+    """The ids every given selector accepts (sorted) and how many of `ids` are not stored;
+    `before` and `after` are resolved instants (Unix seconds, see `clock`)."""
     if before is None and after is None and region is None and ids is None:
         raise InputError("forget: say what to forget: --before T, --after T, --region x,y,r or --ids ...")
     want: np.ndarray | None = None
@@ -101,7 +112,7 @@ def select(
         want = np.unique(np.asarray(vals, np.int64))
     if mem.count() == 0:  # nothing to forget (and no recording for relative times to refer to)
         return np.empty(0, np.int64), 0 if want is None else len(want)
-    filt = mem.make_filter(after=after, before=before, near=region)
+    filt = replace(mem.make_filter(near=region), after=after, before=before)
     chosen = mem.store.select(None if filt.empty else filt)
     if want is None:
         return np.asarray(chosen, np.int64), 0
@@ -112,6 +123,7 @@ def select(
 class Forgetting(Core):
     """`Memory.forget`."""
 
+    @reports_full_disk
     def forget(
         self,
         before: TimeLike = None,
@@ -130,11 +142,23 @@ class Forgetting(Core):
         writer lock; `dry_run=True` only reports what would go.
         """
         writer = None if dry_run else self.writer()
-        chosen, unknown = select(self, before, after, region, ids)
+        before_t = after_t = None
+        if (before is not None or after is not None) and self.count():
+            ctx = self.clock(save=not dry_run)
+            before_t = None if before is None else parse_time(before, ctx)
+            after_t = None if after is None else parse_time(after, ctx)
+        chosen, unknown = select(self, before_t, after_t, region, ids)
         stats = self.store.stats()
         n_before = int(stats.get("count") or 0)  # type: ignore[call-overload]
         per_mem = float(stats.get("bytes") or 0) / n_before if n_before else 0.0  # type: ignore[arg-type]
-        report = ForgetReport(removed=0, unknown_ids=unknown, memories_left=n_before, dry_run=dry_run)
+        report = ForgetReport(
+            removed=0,
+            unknown_ids=unknown,
+            memories_left=n_before,
+            dry_run=dry_run,
+            before_t=before_t,
+            after_t=after_t,
+        )
         if len(chosen) == 0:
             return report
         thumbs: list[tuple[Path, MemoryRecord]] = []
@@ -162,6 +186,20 @@ class Forgetting(Core):
         report.store_bytes_est = round(per_mem * report.removed)
         report.memories_left = self.count()
         return report
+
+    def clock(self, save: bool) -> TimeContext:
+        """What forget's relative times are resolved against: the span of everything this
+        memory has held, i.e. what it holds now and the manifest's `span_seen`, which is saved
+        (`save`, under the writer lock) before anything is deleted."""
+        lo, hi = self.time_span()
+        seen = self.manifest.span_seen
+        if seen:
+            lo, hi = min(lo, seen[0]), max(hi, seen[1])
+        if save and seen != [lo, hi]:
+            with self.writer().change():
+                self.manifest.span_seen = [lo, hi]
+                self.manifest.save(self.path)
+        return TimeContext(lo, hi)
 
 
 def journal_entries(folder: Path, thumbs: list[tuple[Path, MemoryRecord]]) -> list[Entry]:

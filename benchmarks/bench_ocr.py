@@ -7,7 +7,7 @@ number from a fixed list, text 18-48 px high, at a seeded random place), where a
 when `ocr_match_score(word, text) == 1`. Prints seconds per frame (median, 90th percentile),
 frames/s (1 / mean), sign recall and false reads.
 
-    PYTHONPATH=src python benchmarks/bench_ocr.py --threads 2
+    PYTHONPATH=src python benchmarks/bench_ocr.py --threads 2 [--det-sides 736,480,320]
 """
 
 from __future__ import annotations
@@ -79,6 +79,9 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--every", type=int, default=24, help="use every Nth frame")
+    ap.add_argument(
+        "--det-sides", default="736,480", help="detector short sides to compare (736: RapidOCR's)"
+    )
     args = ap.parse_args()
     files = sorted((args.data / "rgb").glob("*.jpg"))[:: args.every]
     if not files:
@@ -93,8 +96,10 @@ def main() -> None:
     print(
         f"{'detector short side':<24} {'frames':<7} {'median s':>9} {'p90 s':>7} {'frames/s':>9} {'signs read':>11} {'false reads':>12}"
     )
-    for label, det_side in (("736 (RapidOCR default)", None), ("480 (ravenmem default)", 480)):
-        reader = OcrReader(det_side=det_side, threads=args.threads)
+    names = {736: "736 (RapidOCR default)", 480: "480 (ravenmem default)"}
+    for side in (int(v) for v in args.det_sides.split(",")):
+        label = names.get(side, str(side))
+        reader = OcrReader(det_side=None if side == 736 else side, threads=args.threads)
         reader.read(frames[0])  # load the models outside the timing
         for kind, imgs in (("plain", frames), ("signed", signed)):
             times, texts = run(reader, imgs)

@@ -138,13 +138,15 @@ def sweep(mem: object, times: list[float], seen: dict[str, list[int]], tol: floa
 
 
 def build(path: Path, keyframes: str) -> None:
-    from ravenmem.ingest.keyframes import parse_keyframes
+    from ravenmem.ingest.keyframes import KeyframeConfig
     from ravenmem.ingest.pipeline import ingest
     from ravenmem.ingest.tum import TumSource
 
     t = time.perf_counter()
     with ravenmem.create(path, embedder="offline", ocr=False) as mem:
-        rep = ingest(TumSource(DATA, depth=False), mem, keyframes=parse_keyframes(keyframes), progress=False)
+        rep = ingest(
+            TumSource(DATA, depth=False), mem, keyframes=KeyframeConfig.from_spec(keyframes), progress=False
+        )
     print(f"built {path}: {rep.kept} memories in {time.perf_counter() - t:.0f} s", file=sys.stderr)
 
 

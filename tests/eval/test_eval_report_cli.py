@@ -16,7 +16,7 @@ from ravenmem.eval.report import write_report
 from ravenmem.eval.retrieval import embedder_study
 from ravenmem.eval.runner import Runner, read_rows
 from ravenmem.eval.studies import compression_study, coverage_cut, coverage_study, keyframe_spec, option_study
-from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
+from ravenmem.ingest.keyframes import KeyframeConfig
 from tests.eval.eval_helpers import (
     TARGETS,
     CountingColorEmbedder,
@@ -249,8 +249,8 @@ def test_keyframes_default_to_every_frame() -> None:
     assert eval_keyframes(None) == KeyframeConfig.only() == eval_keyframes("all")  # every rule off
     assert eval_keyframes("stride=5") == KeyframeConfig.only(stride=5)
     assert eval_keyframes("fps=2,max_similarity=0.9") == KeyframeConfig.only(fps=2.0, max_similarity=0.9)
-    cfg = parse_keyframes("stride=5,fps=2,max_similarity=0.9")
-    assert parse_keyframes(keyframe_spec(cfg)) == cfg
+    cfg = KeyframeConfig.from_spec("stride=5,fps=2,max_similarity=0.9")
+    assert KeyframeConfig.from_spec(keyframe_spec(cfg)) == cfg
     assert keyframe_spec(eval_keyframes(None)) == "all"
 
 

@@ -21,7 +21,6 @@ from ravenmem.ingest.keyframes import (
     KeyframeStats,
     NoveltyFilter,
     describe,
-    parse_keyframes,
     rotation_between,
     select_frames,
 )
@@ -38,7 +37,7 @@ def frames(ts: Sequence[float], poses: Sequence[Pose | None] | None = None) -> l
 def test_only_without_rules_keeps_everything() -> None:
     fs = frames([0.0, 0.0, 1.0])
     assert list(select_frames(fs, KeyframeConfig.only())) == fs
-    assert KeyframeConfig.only() == parse_keyframes("all")
+    assert KeyframeConfig.only() == KeyframeConfig.from_spec("all")
 
 
 def test_stride_keeps_every_nth() -> None:
@@ -108,12 +107,16 @@ def test_novelty_filter_against_last_kept() -> None:
     assert nf.stats.kept == 3 and nf.stats.dropped == {DROP_SIMILAR: 2}
 
 
-def test_parse_keyframes_full_spec_and_units() -> None:
-    cfg = parse_keyframes("stride=5, fps=2hz,min_translation=10cm,min_rotation=10deg,max_similarity=0.95")
+def test_from_spec_full_spec_and_units() -> None:
+    cfg = KeyframeConfig.from_spec(
+        "stride=5, fps=2hz,min_translation=10cm,min_rotation=10deg,max_similarity=0.95"
+    )
     assert cfg.stride == 5 and cfg.fps == 2.0 and cfg.min_translation == pytest.approx(0.1)
     assert cfg.min_rotation == pytest.approx(math.radians(10)) and cfg.max_similarity == 0.95
-    assert parse_keyframes("min_rotation=0.3").min_rotation == 0.3
-    assert parse_keyframes("") == KeyframeConfig.only() == parse_keyframes(None) == parse_keyframes("all")
+    assert KeyframeConfig.from_spec("min_rotation=0.3").min_rotation == 0.3
+    assert KeyframeConfig.from_spec("all") == KeyframeConfig.only() == KeyframeConfig.from_spec("none")
+    # no spec is the default rules, as for every front end
+    assert KeyframeConfig.from_spec(None) == KeyframeConfig() == KeyframeConfig.from_spec("")
     assert cfg.max_interval is None and cfg.novelty_window is None  # rules not named are off
 
 
@@ -132,9 +135,9 @@ def test_parse_keyframes_full_spec_and_units() -> None:
         ("fps=1,fps=2", "fps is given twice"),
     ],
 )
-def test_parse_keyframes_errors(spec: str, message: str) -> None:
+def test_from_spec_errors(spec: str, message: str) -> None:
     with pytest.raises(InputError) as e:
-        parse_keyframes(spec)
+        KeyframeConfig.from_spec(spec)
     assert message in str(e.value)
 
 
@@ -160,7 +163,7 @@ def test_default_rules_are_motion_and_novelty() -> None:
     assert cfg.min_translation == 0.5 and cfg.min_rotation == pytest.approx(math.radians(15))
     assert cfg.max_interval == 5.0 and cfg.max_similarity == 0.97 and cfg.novelty_window == 30.0
     assert cfg.stride == 1 and cfg.fps is None
-    assert parse_keyframes("default") == cfg
+    assert KeyframeConfig.from_spec("default") == cfg
     assert KeyframeConfig(stride=3) == replace(cfg, stride=3)  # the constructor starts from the defaults
     text = describe(cfg)
     assert "moved 0.5 m or turned 15 deg or 5 s passed" in text and "cosine <= 0.97" in text
@@ -168,13 +171,13 @@ def test_default_rules_are_motion_and_novelty() -> None:
 
 
 def test_parse_default_with_changes_and_units() -> None:
-    cfg = parse_keyframes("default, max_similarity=0.9, novelty_window=2min, max_interval=500ms")
+    cfg = KeyframeConfig.from_spec("default, max_similarity=0.9, novelty_window=2min, max_interval=500ms")
     assert cfg == replace(KeyframeConfig(), max_similarity=0.9, novelty_window=120.0, max_interval=0.5)
-    assert parse_keyframes("fps=2").min_rotation is None  # without 'default' only the named rules
+    assert KeyframeConfig.from_spec("fps=2").min_rotation is None  # without 'default' only the named rules
     with pytest.raises(InputError, match="max_interval must be > 0"):
-        parse_keyframes("max_interval=0")
+        KeyframeConfig.from_spec("max_interval=0")
     with pytest.raises(InputError, match="'default' is not key=value"):
-        parse_keyframes("fps=2,default")  # 'default' only leads the spec
+        KeyframeConfig.from_spec("fps=2,default")  # 'default' only leads the spec
 
 
 def test_still_camera_is_looked_at_every_max_interval() -> None:

@@ -26,7 +26,7 @@ import pytest
 from PIL import Image
 
 from ravenmem.fsio import is_temp_file
-from ravenmem.ingest.keyframes import Keyframer, parse_keyframes
+from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer
 from ravenmem.ingest.tum import TumSource
 from tests.cli.helpers import run_cli
 
@@ -103,7 +103,7 @@ def all_memories(mem: Path) -> list[dict]:  # type: ignore[type-arg]
 def expected_frames(tum: Path, spec: str) -> list[int]:
     """The frame indices one uninterrupted run keeps: the posed frames the keyframe rules pass
     (the novelty threshold of 1.0 drops none of these distinct camera images)."""
-    kf = Keyframer(parse_keyframes(spec))
+    kf = Keyframer(KeyframeConfig.from_spec(spec))
     return [f.index for f in TumSource(tum) if f.pose is not None and kf.pre(f) is None]
 
 

@@ -78,3 +78,41 @@ def test_unknown_option_is_named(tmp_path: Path, tum_path: Path) -> None:
     gt.write_text("t,x,y\n1305031229.0,0,0\n1305031230.0,1,0\n")
     src = open_source(tum_path, poses=gt, pose_match="interpolate", max_gap=None)
     assert isinstance(src, TumSource) and src.track.span == (1305031229.0, 1305031230.0)
+
+
+def test_each_source_has_a_typed_config_checked_before_any_file_is_read(
+    tmp_path: Path, tum_path: Path
+) -> None:
+    from ravenmem.ingest.folder import FolderConfig
+    from ravenmem.ingest.tum import TumConfig
+    from ravenmem.ingest.video import VideoConfig
+    from ravenmem.ros.bag import RosbagConfig
+
+    gone = tmp_path / "not-there"  # the values are wrong before the path is looked at
+    for make, message in (
+        (lambda: TumConfig(gone, max_gap=-1.0), "tum: max_gap must be >= 0 seconds"),
+        (lambda: TumConfig(gone, max_gap=None), "nearest pose matching needs max_gap"),
+        (lambda: TumConfig(gone, depth="yes"), "tum: depth must be true or false"),
+        (lambda: FolderConfig(gone, fps=0), "folder: fps must be > 0"),
+        (lambda: FolderConfig(gone, depth_scale=float("nan")), "depth_scale must be a finite number"),
+        (lambda: FolderConfig(gone, camera_frame="up"), "camera_frame must be 'body' or 'optical'"),
+        (lambda: VideoConfig(gone, pose_match="best"), "unknown pose matching 'best'"),
+        (lambda: RosbagConfig(gone, time_source="wall"), "time_source must be 'header' or 'receive'"),
+        (lambda: RosbagConfig(gone, intrinsics="fr9"), "preset"),
+        (lambda: open_source(gone, "folder", fps=-2), "folder: fps must be > 0"),
+    ):
+        with pytest.raises(InputError, match=message):
+            make()
+    # defaults that depend on other options are settled in the config
+    assert VideoConfig(gone, pose_match="nearest").max_gap == 0.05
+    assert FolderConfig(gone).max_gap is None
+    # a config opens its source (with options changed on the way), through the registry too
+    cfg = TumConfig(tum_path, depth=False)
+    src = open_source(cfg)
+    assert isinstance(src, TumSource) and src.config is cfg and src.depth_entries == []
+    assert open_source(cfg, max_gap=0.05).max_gap == 0.05
+    assert isinstance(SOURCES.create(f"tum:{tum_path}", depth=False), TumSource)
+    with pytest.raises(InputError, match="a tum config cannot open a folder source"):
+        open_source(cfg, "folder")
+    with pytest.raises(InputError, match="tum source has no option fps; options: groundtruth"):
+        open_source(cfg, fps=2.0)

@@ -22,7 +22,7 @@ import pytest
 SRC = Path(__file__).resolve().parents[2] / "src" / "ravenmem"
 
 # What each package may import from ravenmem (anything else is a sideways or upward arrow).
-_GROUND = {"types", "errors", "registry", "fsio", "timeparse", "imageio"}
+_GROUND = {"types", "errors", "registry", "fsio", "timeparse", "imageio", "threads"}
 _DATA = _GROUND | {"memory", "tools", "store", "embed", "ingest"}
 ALLOWED = {
     "sim": _GROUND | {"sim"},

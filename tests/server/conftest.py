@@ -103,19 +103,24 @@ def served_token(tmp_path) -> Iterator[Served]:
 
 
 def serve_subprocess(
-    mem_path: Path, *extra: str, colour: bool = True, health_token: str | None = None
+    mem_path: Path,
+    *extra: str,
+    colour: bool = True,
+    health_token: str | None = None,
+    entry: Path | None = None,
 ) -> tuple[subprocess.Popen[str], str]:
     """`ravenmem serve --port 0` in a subprocess (with the colour test embedder registered unless
-    `colour=False`); returns it and its URL once /health answers. Its log goes to a file (a pipe
-    nobody reads could fill up and stop it)."""
+    `colour=False`; `entry`: another script that runs it); returns it and its URL once /health
+    answers. Its log goes to a file (a pipe nobody reads could fill up and stop it)."""
     env = {k: v for k, v in os.environ.items() if k not in ("RAVENMEM_TOKEN", "RAVENMEM_SERVER")}
     env["PYTHONPATH"] = f"{REPO / 'src'}{os.pathsep}{REPO}"
-    entry = [str(REPO / "tests" / "server" / "serve_color.py")] if colour else ["-m", "ravenmem.cli.main"]
+    script = entry or REPO / "tests" / "server" / "serve_color.py"
+    command = [str(script)] if colour or entry else ["-m", "ravenmem.cli.main"]
     log = tempfile.TemporaryFile("w+")  # noqa: SIM115 - lives as long as the process
     proc = subprocess.Popen(
         [
             sys.executable,
-            *entry,
+            *command,
             "serve",
             "--memory",
             str(mem_path),

@@ -21,7 +21,7 @@ from ravenmem.server.live import BusyError, LiveWriter
 from ravenmem.types import Pose
 from tests.agent.conftest import SCENE, T0
 from tests.conftest import ColorEmbedder, solid
-from tests.server.conftest import Served, make_memory, serve_subprocess
+from tests.server.conftest import Served, make_memory, serve_subprocess, stop
 
 COLOURS = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0), (0, 255, 255), (255, 0, 255)]
 
@@ -314,3 +314,33 @@ def test_live_adds_with_depth_update_the_memory_map(tmp_path):
     with ravenmem.open(path) as mem:
         assert mem.count() == 3  # stride 4: three keyframes; the map took every frame
         assert mem.manifest.ingests[-1]["map"]["frames_mapped"] == 12
+
+
+def test_serve_without_keyframe_options_stores_the_same_frame_once(tmp_path):
+    """`ravenmem serve` with no --keyframes uses the default rules, as ingest does: the same
+    frame posted twice is one memory (the same pose: too little motion; the same picture from
+    a pose 2 m on: similar to the last keyframe), and `--keyframes all` keeps both."""
+    path = tmp_path / "m.mem"
+    make_memory(path).close()
+    outcomes: dict[str, list[object]] = {}
+    for name, extra in (("default", ()), ("all", ("--keyframes", "all"))):
+        proc, url = serve_subprocess(path, *extra)
+        try:
+            with httpx.Client(base_url=url, timeout=30) as c:
+                base = 5000 if name == "default" else 6000
+                got = []
+                for dt, x in ((0, 50.0), (1, 50.0), (2, 52.0)):
+                    r = c.post(
+                        "/memories",
+                        files={"image": ("f.png", png(0), "image/png")},
+                        data={"x": str(x), "y": "7", "t": str(T0 + base + dt), "source": "cam"},
+                    )
+                    assert r.status_code in (200, 201), r.text
+                    got.append(r.json()["skipped"] or "stored")
+                outcomes[name] = got
+        finally:
+            stop(proc)
+    assert outcomes["default"] == ["stored", "too little motion", "similar to last keyframe"]
+    assert outcomes["all"] == ["stored", "stored", "stored"]
+    with ravenmem.open(path) as mem:
+        assert mem.count() == len(SCENE) + 1 + 3

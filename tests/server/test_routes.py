@@ -308,10 +308,10 @@ def test_add_memory_live(served: Served):
 
 
 def test_live_adds_follow_the_keyframe_rule(tmp_path):
-    from ravenmem.ingest.keyframes import parse_keyframes
+    from ravenmem.ingest.keyframes import KeyframeConfig
     from tests.server.conftest import make_memory
 
-    kf = parse_keyframes("min_translation=1.0,max_similarity=0.99")
+    kf = KeyframeConfig.from_spec("min_translation=1.0,max_similarity=0.99")
     for s in serve_memory(make_memory(tmp_path / "m.mem"), keyframes=kf):
         outcomes = []
         with s.client() as c:

@@ -22,6 +22,7 @@ from rich.table import Table
 
 from ..errors import InputError, RavenmemError
 from ..fsio import disk_full
+from ..threads import share_cores
 from ..timeparse import fmt_time
 from ..tools import TextArgs
 from ._console import esc, out_console, print_error, print_warning
@@ -212,14 +213,14 @@ def ingest(
     where it stopped."""
     import ravenmem
     from ravenmem.ingest.identity import derived_map_id
-    from ravenmem.ingest.keyframes import KeyframeConfig, parse_keyframes
+    from ravenmem.ingest.keyframes import KeyframeConfig
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
     from ravenmem.memory.folder import MANIFEST
 
     if keyframes is not None:
-        cfg = parse_keyframes(keyframes)
+        cfg = KeyframeConfig.from_spec(keyframes)
     else:  # `--stride 5` alone means every 5th frame, not the default rules thinned further
         cfg = KeyframeConfig.only() if stride is not None or fps is not None else KeyframeConfig()
     # replace() checks the rules again (a stride of 0 or a NaN rate is a one-line error)
@@ -540,6 +541,7 @@ def main(argv: list[str] | None = None) -> None:
     # the hub library's retry warnings would spread one error over many stderr lines; a user
     # who wants them sets HF_HUB_VERBOSITY (read when huggingface_hub is imported)
     os.environ.setdefault("HF_HUB_VERBOSITY", "error")
+    share_cores()  # OpenMP pools that sleep, not spin, on a shared computer (ravenmem.threads)
     for stream in (sys.stdout, sys.stderr):  # text from argv may hold lone surrogates
         reconfigure = getattr(stream, "reconfigure", None)
         if reconfigure is not None:

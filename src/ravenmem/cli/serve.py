@@ -57,7 +57,10 @@ def serve(
     ] = None,
     keyframes: Annotated[
         str | None,
-        typer.Option(help="live-add keyframe rule, as for ingest, e.g. 'fps=2,min_translation=0.1'"),
+        typer.Option(
+            help="live-add keyframe rules, as for ingest: the default rules when left out, 'all' "
+            "(every frame), or e.g. 'fps=2,min_translation=0.1'"
+        ),
     ] = None,
     method: MethodOpt = None,
     model: ModelOpt = None,
@@ -125,12 +128,12 @@ def serve(
     """Serve a memory: HTTP API (/docs), a page for people (/), MCP (/mcp), live adds, a robot."""
     from ravenmem.agent.presets import parse_top_k
     from ravenmem.ingest.depth import parse_intrinsics
-    from ravenmem.ingest.keyframes import parse_keyframes
+    from ravenmem.ingest.keyframes import KeyframeConfig
     from ravenmem.server.run import serve as run_serve
     from ravenmem.server.service import ServiceConfig
 
     cfg = ServiceConfig(
-        keyframes=parse_keyframes(keyframes),
+        keyframes=KeyframeConfig.from_spec(keyframes),
         method=method,
         vlm=_vlm(config, base_url, model, tool_mode),  # type: ignore[arg-type]
         preset=preset,

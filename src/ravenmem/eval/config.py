@@ -25,7 +25,7 @@ from typing import Any
 
 from ..agent.presets import PRESETS, RENAMED, parse_top_k
 from ..errors import InputError
-from ..ingest.keyframes import KeyframeConfig, parse_keyframes
+from ..ingest.keyframes import KeyframeConfig
 
 TIME_MODES = ("forward", "centred", "nearest")
 SCORING = ("paper", "release")
@@ -483,11 +483,6 @@ def thresholds_from(values: Mapping[str, Any], base: Thresholds) -> Thresholds:
 
 
 def eval_keyframes(spec: str | None) -> KeyframeConfig:
-    """A --keyframes spec where every rule not named is off: eval's default is every frame,
-    independent of the defaults ingest gives its own rules."""
-    given = parse_keyframes(spec)
-    off: dict[str, Any] = {f.name: None for f in fields(KeyframeConfig)} | {"stride": 1}
-    named = {part.partition("=")[0].strip() for part in (spec or "").split(",") if "=" in part}
-    if spec is None or spec.strip().lower() in ("", "all", "none"):
-        named = set()
-    return KeyframeConfig(**(off | {k: getattr(given, k) for k in named}))
+    """A --keyframes spec as every front end reads it (`KeyframeConfig.from_spec`), except that
+    eval's own default is every frame (`all`): the benchmarks' layouts are scored per frame."""
+    return KeyframeConfig.from_spec(spec if spec is not None and spec.strip() else "all")

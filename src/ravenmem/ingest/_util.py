@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import inspect
 import math
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from ..errors import InputError
+from ..types import Intrinsics
+from .depth import parse_intrinsics
 from .poses import PoseTrack, load_pose_track
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff", ".ppm", ".pgm")
@@ -83,10 +83,37 @@ def read_rgb(path: Path) -> np.ndarray | str:
         return SKIP_BAD_IMAGE
 
 
-def build(cls: Any, fmt: str, spec: str, kwargs: dict[str, Any]) -> Any:
-    """Construct a source from registry kwargs, naming unknown options instead of a TypeError."""
-    params = [n for n in inspect.signature(cls).parameters if n != "path"]
-    unknown = sorted(set(kwargs) - set(params))
-    if unknown:
-        raise InputError(f"{fmt} source has no option {', '.join(unknown)}; options: {', '.join(params)}")
-    return cls(spec, **kwargs)
+def check_gap(source: str, name: str, v: float | None) -> float | None:
+    """A time gap option: None (no limit) or finite seconds >= 0."""
+    if v is None:
+        return None
+    _number(source, name, v)
+    if v < 0:
+        raise InputError(f"{source}: {name} must be >= 0 seconds, got {v!r}")
+    return float(v)
+
+
+def check_positive(source: str, name: str, v: float | None) -> float | None:
+    """A rate or scale option: None (not given) or a finite number > 0."""
+    if v is None:
+        return None
+    _number(source, name, v)
+    if v <= 0:
+        raise InputError(f"{source}: {name} must be > 0, got {v!r}")
+    return float(v)
+
+
+def _number(source: str, name: str, v: object) -> None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise InputError(f"{source}: {name} must be a finite number, got {v!r}")
+
+
+def check_flag(source: str, name: str, v: object) -> bool:
+    if not isinstance(v, bool):
+        raise InputError(f"{source}: {name} must be true or false, got {v!r}")
+    return v
+
+
+def check_intrinsics(v: Intrinsics | str | None) -> Intrinsics | None:
+    """Camera intrinsics: given, a preset name or 'fx,fy,cx,cy' (parsed), or None."""
+    return parse_intrinsics(v) if isinstance(v, str) else v

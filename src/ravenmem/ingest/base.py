@@ -5,6 +5,12 @@ It counts what it had to drop (unreadable frames, frames outside the pose track)
 `stats` so that `ravenmem ingest` and `info` can report them instead of guessing, and puts
 what the user must hear about (a video that ended early) in `stats.warnings`.
 
+Each built-in source takes a typed config (`TumConfig`, `FolderConfig`, `VideoConfig`,
+`RosbagConfig`, all a `SourceConfig`), checked when it is built: a wrong value is a one-line
+error before any file is read, and an option the source does not have is named with the ones
+it has. The registry's `name:spec` string (`tum:PATH`) is the config's path; keyword
+options (from Python, the CLI's flags) are its other fields.
+
 Two optional members, which every built-in source has: `identity()`, the recording's identity
 independent of its path (see `ingest.identity`; ingest uses it to skip frames already stored),
 and `frame_count`, the number of frames the recording says it holds (None when it cannot tell
@@ -14,11 +20,15 @@ cheaply), for the progress bar's total and ETA.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
+from ..errors import InputError
 from ..registry import Registry
 from ..types import Frame
+
+C = TypeVar("C", bound="SourceConfig")
 
 
 @dataclass
@@ -33,6 +43,32 @@ class SourceStats:
 
     def skip(self, reason: str, n: int = 1) -> None:
         self.skipped[reason] = self.skipped.get(reason, 0) + n
+
+
+@dataclass
+class SourceConfig:
+    """What every source's config has: the recording's `path` (see the module docstring).
+    Subclasses add their options as fields and check them in `__post_init__`."""
+
+    path: Path
+
+    kind: ClassVar[str] = "source"
+
+    @classmethod
+    def of(cls: type[C], path: str | Path | SourceConfig, **options: Any) -> C:
+        """The config for `path` (or a config, with `options` changed) and keyword options; an
+        option this source does not have is a one-line error that lists the ones it has."""
+        names = [f.name for f in fields(cls) if f.name != "path"]
+        unknown = sorted(set(options) - set(names))
+        if unknown:
+            raise InputError(
+                f"{cls.kind} source has no option {', '.join(unknown)}; options: {', '.join(names)}"
+            )
+        if isinstance(path, cls):
+            return replace(path, **options) if options else path
+        if isinstance(path, SourceConfig):
+            raise InputError(f"a {path.kind} config cannot open a {cls.kind} source")
+        return cls(Path(path).expanduser(), **options)
 
 
 @runtime_checkable

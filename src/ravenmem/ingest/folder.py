@@ -29,14 +29,24 @@ import bisect
 import contextlib
 import re
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from ..errors import InputError
 from ..types import Frame, Intrinsics, Pose
-from ._util import IMAGE_EXTS, build, existing, parse_start_time, read_rgb
-from .base import SOURCES, SourceStats
-from .depth import parse_intrinsics, read_depth_file
+from ._util import (
+    IMAGE_EXTS,
+    check_flag,
+    check_gap,
+    check_intrinsics,
+    check_positive,
+    existing,
+    parse_start_time,
+    read_rgb,
+)
+from .base import SOURCES, SourceConfig, SourceStats
+from .depth import read_depth_file
 from .identity import file_head, make_identity
 from .poses import PoseTable, PoseTrack, check_match_mode, read_pose_table
 
@@ -63,36 +73,59 @@ def time_from_name(name: str) -> float | None:
     return v
 
 
-class FolderSource:
-    """Images in a folder (not recursive), posed from a pose file."""
+@dataclass
+class FolderConfig(SourceConfig):
+    """A folder of images (`folder:PATH`), posed from a pose file. poses: the file (default:
+    one found beside the images); fps / start_time: frame times when the names carry none;
+    pose_match `interpolate` or `nearest` (within max_gap s, 0.05 when not given); sort_poses:
+    sort a pose file written out of order; depth: a folder of matching depth images
+    (depth_scale units per metre for 16-bit ones, paired within depth_max_gap s by name or
+    time); intrinsics: the depth camera's; camera_frame: the poses are of a `body` (x forward,
+    z up) or of the camera's `optical` frame."""
 
-    def __init__(
-        self,
-        path: str | Path,
-        poses: str | Path | None = None,
-        fps: float | None = None,
-        start_time: float | str = 0.0,
-        pose_match: str = "interpolate",
-        max_gap: float | None = None,
-        sort_poses: bool = False,
-        depth: str | Path | None = None,
-        depth_scale: float = 1000.0,
-        depth_max_gap: float = 0.02,
-        intrinsics: Intrinsics | str | None = None,
-        camera_frame: str = "body",
-    ) -> None:
-        self.root = existing(path, "image folder", want_dir=True)
+    poses: str | Path | None = None
+    fps: float | None = None
+    start_time: float | str = 0.0
+    pose_match: str = "interpolate"
+    max_gap: float | None = None
+    sort_poses: bool = False
+    depth: str | Path | None = None
+    depth_scale: float = 1000.0
+    depth_max_gap: float = 0.02
+    intrinsics: Intrinsics | str | None = None
+    camera_frame: str = "body"
+
+    kind: ClassVar[str] = "folder"
+
+    def __post_init__(self) -> None:
+        self.fps = check_positive("folder", "fps", self.fps)
+        check_match_mode(self.pose_match)
+        self.max_gap = check_gap("folder", "max_gap", self.max_gap)
+        if self.max_gap is None and self.pose_match == "nearest":
+            self.max_gap = 0.05
+        check_flag("folder", "sort_poses", self.sort_poses)
+        self.depth_scale = check_positive("folder", "depth_scale", self.depth_scale) or 0.0
+        self.depth_max_gap = check_gap("folder", "depth_max_gap", self.depth_max_gap) or 0.0
+        if self.camera_frame not in ("body", "optical"):
+            raise InputError(f"folder: camera_frame must be 'body' or 'optical', got {self.camera_frame!r}")
+        self.intrinsics = check_intrinsics(self.intrinsics)
+
+
+class FolderSource:
+    """Images in a folder (not recursive), posed from a pose file (options: `FolderConfig`)."""
+
+    def __init__(self, path: str | Path | FolderConfig, **options: Any) -> None:
+        cfg = self.config = FolderConfig.of(path, **options)
+        self.root = existing(cfg.path, "image folder", want_dir=True)
         self.name = f"folder:{self.root.name}"
         self.stats = SourceStats()
-        if fps is not None and not fps > 0:
-            raise InputError(f"folder: fps must be > 0, got {fps}")
-        self.pose_match = check_match_mode(pose_match)
-        self.max_gap = max_gap if max_gap is not None or self.pose_match != "nearest" else 0.05
-        table = read_pose_table(self._pose_file(poses))
+        self.pose_match = check_match_mode(cfg.pose_match)
+        self.max_gap = cfg.max_gap
+        table = read_pose_table(self._pose_file(cfg.poses))
         names = [p.name for p in self.root.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS]
         if not names:
             raise InputError(f"{self.root}: no images ({', '.join(IMAGE_EXTS)})")
-        start = parse_start_time(start_time)
+        start = parse_start_time(cfg.start_time)
         self.rows: dict[str, int] | None = None
         self.table: PoseTable | None = None
         self.track: PoseTrack | None = None
@@ -104,18 +137,12 @@ class FolderSource:
                     raise InputError(f"{table.path} line {table.lines[i]}, column 'file': {f!r} listed twice")
                 self.rows[f] = i
         else:
-            self.track = PoseTrack.from_table(table, sort=sort_poses)
-        self.items = self._timed(names, fps, start)
-        if not depth_scale > 0:
-            raise InputError(f"folder: depth_scale must be > 0, got {depth_scale}")
-        if camera_frame not in ("body", "optical"):
-            raise InputError(f"folder: camera_frame must be 'body' or 'optical', got {camera_frame!r}")
-        self.depth_scale = float(depth_scale)
-        self.camera_extrinsic = camera_frame
-        self.intrinsics: Intrinsics | None = (
-            parse_intrinsics(intrinsics) if isinstance(intrinsics, str) else intrinsics
-        )
-        self.depth_files = self._match_depth(depth, depth_max_gap) if depth is not None else {}
+            self.track = PoseTrack.from_table(table, sort=cfg.sort_poses)
+        self.items = self._timed(names, cfg.fps, start)
+        self.depth_scale = cfg.depth_scale
+        self.camera_extrinsic = cfg.camera_frame
+        self.intrinsics: Intrinsics | None = cfg.intrinsics  # type: ignore[assignment]
+        self.depth_files = self._match_depth(cfg.depth, cfg.depth_max_gap) if cfg.depth is not None else {}
 
     def _match_depth(self, folder: str | Path, max_gap: float) -> dict[str, Path]:
         """Colour image name -> its depth image: same stem, else nearest time in the names."""
@@ -231,5 +258,5 @@ class FolderSource:
 
 
 @SOURCES.register("folder")
-def _folder(spec: str, **kwargs: Any) -> FolderSource:
-    return build(FolderSource, "folder", spec, kwargs)
+def _folder(spec: str | FolderConfig, **kwargs: Any) -> FolderSource:
+    return FolderSource(FolderConfig.of(spec, **kwargs))

@@ -8,8 +8,9 @@ to the last keyframe, unless that keyframe is older than `novelty_window` second
 parked in front of a wall stores one memory per window, not 1000. Each stage counts what it
 dropped and why.
 
-`KeyframeConfig()` is the default rule set (measured on TUM fr1_rpy: docs/ingest.md, Keyframes);
-`KeyframeConfig.only()` keeps every frame.
+`KeyframeConfig()` is the default rule set (measured on TUM fr1_rpy: docs/ingest.md, Keyframes),
+and what every front end uses when given no keyframe option; `KeyframeConfig.only()` keeps every
+frame; `KeyframeConfig.from_spec(spec)` reads a `--keyframes` spec.
 """
 
 from __future__ import annotations
@@ -40,6 +41,18 @@ DEFAULT_NOVELTY_WINDOW = 30.0  # s
 NUMERIC_KEYS = ("fps", "min_translation", "min_rotation", "max_interval", "max_similarity", "novelty_window")
 
 
+_NUM = r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)"
+_UNITS: dict[str, dict[str, float]] = {
+    "stride": {"": 1.0},
+    "fps": {"": 1.0, "hz": 1.0},
+    "min_translation": {"": 1.0, "m": 1.0, "cm": 0.01, "mm": 0.001},
+    "min_rotation": {"": 1.0, "rad": 1.0, "deg": math.pi / 180.0},
+    "max_interval": {"": 1.0, "s": 1.0, "ms": 0.001, "min": 60.0},
+    "max_similarity": {"": 1.0},
+    "novelty_window": {"": 1.0, "s": 1.0, "ms": 0.001, "min": 60.0},
+}
+
+
 @dataclass
 class KeyframeConfig:
     """Selection rules; None disables a rule. `KeyframeConfig()` is the default rule set,
@@ -68,6 +81,51 @@ class KeyframeConfig:
         all`), `only(stride=5)` every 5th. (`KeyframeConfig(stride=5)` is the defaults plus a stride.)"""
         off: dict[str, float | int | None] = dict.fromkeys(NUMERIC_KEYS)
         return cls(**(off | rules))  # type: ignore[arg-type]
+
+    @classmethod
+    def from_spec(cls, spec: str | None) -> KeyframeConfig:
+        """The rules a `--keyframes` spec names: `default`, `all`, or rules such as
+        `fps=2,min_rotation=10deg`.
+
+        No spec (None or empty) and `default` are the default rules, `KeyframeConfig()`, for
+        every front end alike (ingest, serve, the ROS 2 node, the Python API); `all` keeps every
+        frame; `default,key=value,...` changes some of the default rules; rules named without
+        `default` are the only ones used. Units: fps `hz`; translation `m`/`cm`/`mm` (default
+        m); rotation `deg`/`rad` (default rad); max_interval and novelty_window `s`/`ms`/`min`
+        (default s).
+        """
+        if spec is None or spec.strip().lower() in ("", "default"):
+            return cls()
+        if spec.strip().lower() in ("all", "none"):
+            return cls.only()
+        known = [f.name for f in fields(cls)]
+        parts = [p.strip() for p in spec.split(",") if p.strip()]
+        base = cls.only()
+        if parts and parts[0].lower() == "default":
+            base, parts = cls(), parts[1:]
+        values: dict[str, float | int] = {}
+        for part in parts:
+            key, eq, raw = (s.strip() for s in part.partition("="))
+            if not eq:
+                raise InputError(
+                    f"keyframes: {part!r} is not key=value (keys: {', '.join(known)}; or 'default', 'all')"
+                )
+            if key not in known:
+                raise InputError(f"keyframes: unknown key {key!r}; choose from {', '.join(known)}")
+            if key in values:
+                raise InputError(f"keyframes: {key} is given twice")
+            m = re.fullmatch(_NUM + r"\s*([a-zA-Z]*)", raw)
+            unit = m.group(2).lower() if m else ""
+            if m is None or unit not in _UNITS[key]:
+                units = "/".join(u for u in _UNITS[key] if u) or "no unit"
+                raise InputError(f"keyframes: {key}={raw!r} is not a number (units: {units})")
+            if key == "stride":
+                if not re.fullmatch(r"\+?\d+", m.group(1)):
+                    raise InputError(f"keyframes: stride={raw!r} must be a whole number")
+                values[key] = int(m.group(1))
+            else:
+                values[key] = float(m.group(1)) * _UNITS[key][unit]
+        return replace(base, **values)  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         if isinstance(self.stride, bool) or not isinstance(self.stride, int) or self.stride < 1:
@@ -237,58 +295,6 @@ class NoveltyFilter:
         self._last, self._last_t = v, t
         self.stats.kept += 1
         return True
-
-
-_NUM = r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)"
-_UNITS: dict[str, dict[str, float]] = {
-    "stride": {"": 1.0},
-    "fps": {"": 1.0, "hz": 1.0},
-    "min_translation": {"": 1.0, "m": 1.0, "cm": 0.01, "mm": 0.001},
-    "min_rotation": {"": 1.0, "rad": 1.0, "deg": math.pi / 180.0},
-    "max_interval": {"": 1.0, "s": 1.0, "ms": 0.001, "min": 60.0},
-    "max_similarity": {"": 1.0},
-    "novelty_window": {"": 1.0, "s": 1.0, "ms": 0.001, "min": 60.0},
-}
-
-
-def parse_keyframes(spec: str | None) -> KeyframeConfig:
-    """Parse a keyframe spec: `default`, `all`, or rules such as `fps=2,min_rotation=10deg`.
-
-    Empty/None/`all` keeps every frame. `default` is `KeyframeConfig()`; `default,key=value,...`
-    changes some of its rules. Without `default`, only the rules named are used. Units: fps `hz`;
-    translation `m`/`cm`/`mm` (default m); rotation `deg`/`rad` (default rad); max_interval and
-    novelty_window `s`/`ms`/`min` (default s).
-    """
-    if spec is None or spec.strip().lower() in ("", "all", "none"):
-        return KeyframeConfig.only()
-    known = [f.name for f in fields(KeyframeConfig)]
-    parts = [p.strip() for p in spec.split(",") if p.strip()]
-    base = KeyframeConfig.only()
-    if parts and parts[0].lower() == "default":
-        base, parts = KeyframeConfig(), parts[1:]
-    values: dict[str, float | int] = {}
-    for part in parts:
-        key, eq, raw = (s.strip() for s in part.partition("="))
-        if not eq:
-            raise InputError(
-                f"keyframes: {part!r} is not key=value (keys: {', '.join(known)}; or 'default', 'all')"
-            )
-        if key not in known:
-            raise InputError(f"keyframes: unknown key {key!r}; choose from {', '.join(known)}")
-        if key in values:
-            raise InputError(f"keyframes: {key} is given twice")
-        m = re.fullmatch(_NUM + r"\s*([a-zA-Z]*)", raw)
-        unit = m.group(2).lower() if m else ""
-        if m is None or unit not in _UNITS[key]:
-            units = "/".join(u for u in _UNITS[key] if u) or "no unit"
-            raise InputError(f"keyframes: {key}={raw!r} is not a number (units: {units})")
-        if key == "stride":
-            if not re.fullmatch(r"\+?\d+", m.group(1)):
-                raise InputError(f"keyframes: stride={raw!r} must be a whole number")
-            values[key] = int(m.group(1))
-        else:
-            values[key] = float(m.group(1)) * _UNITS[key][unit]
-    return replace(base, **values)  # type: ignore[arg-type]
 
 
 def describe(cfg: KeyframeConfig) -> str:

@@ -8,7 +8,9 @@ Re-running an ingest resumes it: a frame the memory already holds from the same 
 counted as `already in memory`. Every frame still goes through the keyframe rules in order, and
 the novelty rule is replayed on the stored embeddings of the skipped frames before the next new
 frame, so a run killed at any point and started again keeps the frames one run would have kept.
-Frames that carry depth also feed an optional `mapper` (every one, not only keyframes).
+Frames that carry depth also feed an optional `mapper` (every one, not only keyframes). Each
+frame goes through the admission stage that live adds use too (`ingest.admit`); on a memory with
+OCR the keyframes' text is read in a thread while the next frames are embedded.
 """
 
 from __future__ import annotations
@@ -26,9 +28,10 @@ from tqdm import tqdm
 
 from ..errors import InputError
 from ..types import Frame, MemoryRecord
+from .admit import SKIP_NO_POSE, SKIP_TIME, Admission, Replay
 from .base import FrameSink, FrameSource
 from .identity import source_identity
-from .keyframes import DROP_SIMILAR, KeyframeConfig, Keyframer
+from .keyframes import KeyframeConfig
 
 if TYPE_CHECKING:
     from ..memory import Memory
@@ -118,22 +121,14 @@ class StoredFrames:
         return self._legacy.get((int(f.index), float(f.t))) if self._legacy else None
 
 
-def _posed(frames: Iterator[Frame], report: IngestReport, bar: Any, source: object) -> Iterator[Frame]:
-    """Drop frames with no pose or a timestamp that goes back in time (counted, never guessed);
-    move the progress bar by the frames the source has seen (it skips some itself)."""
-    last_t = -float("inf")
+def _counted(frames: Iterator[Frame], report: IngestReport, bar: Any, source: object) -> Iterator[Frame]:
+    """Count the frames the source yields and move the progress bar by the frames it has seen
+    (it skips some itself)."""
     for f in frames:
         report.frames_decoded += 1
         st = getattr(source, "stats", None)
         seen = int(st.frames_seen) if st is not None else report.frames_decoded
         bar.update(max(seen - bar.n, 0))
-        if f.pose is None:
-            report.skipped["no pose"] = report.skipped.get("no pose", 0) + 1
-            continue
-        if not np.isfinite(f.t) or f.t < last_t:
-            report.skipped["non-monotonic timestamp"] = report.skipped.get("non-monotonic timestamp", 0) + 1
-            continue
-        last_t = f.t
         yield f
 
 
@@ -145,20 +140,24 @@ def ingest(
     progress: bool | None = None,
     wait: bool | float = False,
     mapper: FrameSink | None = None,
+    text: str = "later",
 ) -> IngestReport:
     """Run a source into a memory; returns counts (also appended to the memory's manifest).
 
     Takes the memory's writer lock first (`wait` as in `Memory.acquire_writer`: another
     writer makes this fail at once, or wait). Frames already stored are skipped (see above).
+    On a memory with OCR, `text="later"` (the default) reads the keyframes' text in a thread
+    while the next frames are decoded and embedded (`Memory.add_frames`); the run returns once
+    all of it is stored. `text="now"` reads it before each batch is stored.
     """
-    cfg = keyframes or KeyframeConfig()
+    cfg = keyframes if keyframes is not None else KeyframeConfig()
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise InputError(f"batch_size must be a whole number >= 1, got {batch_size!r}")
     mem.acquire_writer(wait)
     identity = source_identity(source)
     report = IngestReport(source=getattr(source, "name", str(source)), source_id=identity)
     stored = StoredFrames(mem.store, identity)
-    kf = Keyframer(cfg)
+    stage = Admission(mem, cfg, mapper, text=text)
     show = sys.stderr.isatty() if progress is None else progress
     total = getattr(source, "frame_count", None)
     bar = tqdm(desc="ingest", unit="frame", total=total, disable=not show, file=sys.stderr)
@@ -172,39 +171,32 @@ def ingest(
         nonlocal n_new
         if not n_new:
             return
-        frames = [x for x in items if isinstance(x, Frame)]
-        emb = mem.embedder.embed_images([f.image for f in frames])
         replay = [*backlog, *(x for x in items if isinstance(x, int))]
         old = {r.id: _emb(r) for r in mem.store.get(replay, with_embeddings=True)} if replay else {}
-        for i in backlog:
-            kf.post(old[i])
-        keep, j = [], 0
+        batch: list[tuple[str, Frame | Replay]] = [("", Replay(old[i])) for i in backlog]
+        batch += [("", x if isinstance(x, Frame) else Replay(old[x])) for x in items]
         for x in items:
-            if isinstance(x, int):
-                kf.post(old[x])
-                continue
-            if kf.post(emb[j]) is None:
-                keep.append(j)
-            j += 1
-        if len(keep) < len(frames):
-            report.skipped[DROP_SIMILAR] = report.skipped.get(DROP_SIMILAR, 0) + len(frames) - len(keep)
-        if keep:
-            for i in keep:
-                frames[i].source = identity
-            ids = mem.add_frames([frames[i] for i in keep], embeddings=emb[keep])
-            report.first_id = ids[0] if report.first_id is None else report.first_id
-            report.last_id = ids[-1]
-            report.kept += len(ids)
+            if isinstance(x, Frame):
+                x.source = identity
+        for outcome in stage.admit(batch):
+            if isinstance(outcome, str):
+                report.skipped[outcome] = report.skipped.get(outcome, 0) + 1
+            elif outcome is not None:
+                report.first_id = outcome if report.first_id is None else report.first_id
+                report.last_id = outcome
+                report.kept += 1
         bar.set_postfix(kept=report.kept)
         items.clear()
         backlog.clear()
         n_new = 0
 
     try:
-        for f in _posed(iter(source), report, bar, source):
-            if mapper is not None and f.depth is not None:
-                mapper.add(f)  # the map takes every depth frame, keyframe or not, stored or not
-            if kf.pre(f) is not None:
+        for f in _counted(iter(source), report, bar, source):
+            reason = stage.screen(f)
+            if reason in (SKIP_NO_POSE, SKIP_TIME):
+                report.skipped[reason] = report.skipped.get(reason, 0) + 1
+                continue
+            if reason is not None:
                 prefiltered += 1
                 continue
             done = stored.find(f)
@@ -221,6 +213,7 @@ def ingest(
             if n_new >= batch_size or len(items) >= 8 * batch_size:
                 flush()
         flush()
+        mem.wait_text()  # the text read meanwhile is stored before the run counts as done
     finally:
         if mapper is not None:
             mapper.close()

@@ -13,7 +13,7 @@ from typing import Any
 from ..errors import InputError
 from . import video
 from ._util import IMAGE_EXTS
-from .base import SOURCES, FrameSource
+from .base import SOURCES, FrameSource, SourceConfig
 
 BAG_EXTS = (".bag", ".mcap", ".db3")
 
@@ -49,8 +49,14 @@ def detect_format(path: str | Path) -> tuple[str, Path]:
     raise InputError(f"{p}: unknown file type {suffix or '(none)'!r}; expected one of {known} or a folder")
 
 
-def open_source(path: str | Path, format: str | None = None, **kwargs: Any) -> FrameSource:
-    """Open a recording as a FrameSource; `format` (video/tum/folder/rosbag) skips detection."""
+def open_source(path: str | Path | SourceConfig, format: str | None = None, **kwargs: Any) -> FrameSource:
+    """Open a recording as a FrameSource; `format` (video/tum/folder/rosbag) skips detection.
+    `kwargs` are the source's options (its config's fields, e.g. `TumConfig`), checked before
+    any file is read; a source's config may be given instead of the path."""
+    if isinstance(path, SourceConfig):
+        if format is not None and format != path.kind:
+            raise InputError(f"a {path.kind} config cannot open a {format} source")
+        return SOURCES.get(path.kind)(path, **kwargs)
     if format is None:
         format, p = detect_format(path)
     else:

@@ -17,17 +17,18 @@ intrinsics come from `intrinsics=` (a preset name or fx,fy,cx,cy) or from the fo
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ..errors import InputError
 from ..fsio import read_text
 from ..types import Frame, Intrinsics, check_time
-from ._util import build, existing, pose_track_arg, read_rgb
-from .base import SOURCES, SourceStats
-from .depth import parse_intrinsics, preset_from_name, read_depth_file
+from ._util import check_flag, check_gap, check_intrinsics, existing, pose_track_arg, read_rgb
+from .base import SOURCES, SourceConfig, SourceStats
+from .depth import preset_from_name, read_depth_file
 from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
 
@@ -58,21 +59,40 @@ def read_depth(path: Path) -> np.ndarray | None:
     return read_depth_file(path, DEPTH_SCALE)
 
 
-class TumSource:
-    """Frames of a TUM RGB-D sequence folder, posed from its ground truth."""
+@dataclass
+class TumConfig(SourceConfig):
+    """A TUM RGB-D folder (`tum:PATH`). groundtruth (or `poses`, the name the other sources
+    use): the pose track instead of the folder's groundtruth.txt; pose_match `nearest` within
+    max_gap s (the benchmark's rule) or `interpolate`; depth: read depth.txt's images (paired
+    within depth_max_gap s); intrinsics: a preset or fx,fy,cx,cy (default: from the folder's
+    name)."""
 
-    def __init__(
-        self,
-        path: str | Path,
-        groundtruth: str | Path | PoseTrack | None = None,
-        pose_match: str = "nearest",
-        max_gap: float | None = 0.02,
-        depth: bool = True,
-        depth_max_gap: float = 0.02,
-        poses: str | Path | PoseTrack | None = None,
-        intrinsics: Intrinsics | str | None = None,
-    ) -> None:
-        self.root = existing(path, "TUM folder", want_dir=True)
+    groundtruth: str | Path | PoseTrack | None = None
+    pose_match: str = "nearest"
+    max_gap: float | None = 0.02
+    depth: bool = True
+    depth_max_gap: float = 0.02
+    poses: str | Path | PoseTrack | None = None
+    intrinsics: Intrinsics | str | None = None
+
+    kind: ClassVar[str] = "tum"
+
+    def __post_init__(self) -> None:
+        check_match_mode(self.pose_match)
+        self.max_gap = check_gap("tum", "max_gap", self.max_gap)
+        if self.pose_match == "nearest" and self.max_gap is None:
+            raise InputError("tum: nearest pose matching needs max_gap (seconds)")
+        check_flag("tum", "depth", self.depth)
+        self.depth_max_gap = check_gap("tum", "depth_max_gap", self.depth_max_gap) or 0.0
+        self.intrinsics = check_intrinsics(self.intrinsics)
+
+
+class TumSource:
+    """Frames of a TUM RGB-D sequence folder, posed from its ground truth (options: `TumConfig`)."""
+
+    def __init__(self, path: str | Path | TumConfig, **options: Any) -> None:
+        cfg = self.config = TumConfig.of(path, **options)
+        self.root = existing(cfg.path, "TUM folder", want_dir=True)
         self.name = f"tum:{self.root.name}"
         self.stats = SourceStats()
         rgb = self.root / "rgb.txt"
@@ -81,24 +101,19 @@ class TumSource:
         self.entries = read_index(rgb)
         if not self.entries:
             raise InputError(f"{rgb}: lists no frames")
-        if groundtruth is None:
-            groundtruth = poses  # the name every other source uses for its pose track
+        groundtruth = cfg.groundtruth if cfg.groundtruth is not None else cfg.poses
         gt = groundtruth if groundtruth is not None else self.root / "groundtruth.txt"
         if groundtruth is None and not (self.root / "groundtruth.txt").is_file():
             raise InputError(f"{self.root}: no groundtruth.txt (pass groundtruth=FILE with poses)")
         self.track = pose_track_arg(gt, sort=True)
-        self.pose_match = check_match_mode(pose_match)
-        if self.pose_match == "nearest" and max_gap is None:
-            raise InputError("tum: nearest pose matching needs max_gap (seconds)")
-        self.max_gap = max_gap
+        self.pose_match = check_match_mode(cfg.pose_match)
+        self.max_gap = cfg.max_gap
         self.depth_entries: list[tuple[float, str]] = []
-        if depth and (self.root / "depth.txt").is_file():
+        if cfg.depth and (self.root / "depth.txt").is_file():
             self.depth_entries = read_index(self.root / "depth.txt")
-        self.depth_max_gap = depth_max_gap
+        self.depth_max_gap = cfg.depth_max_gap
         self.camera_extrinsic = "optical"
-        self.intrinsics: Intrinsics | None = (
-            parse_intrinsics(intrinsics) if isinstance(intrinsics, str) else intrinsics
-        ) or preset_from_name(self.root.name)
+        self.intrinsics: Intrinsics | None = cfg.intrinsics or preset_from_name(self.root.name)  # type: ignore[assignment]
 
     @property
     def frame_count(self) -> int:
@@ -151,5 +166,5 @@ class TumSource:
 
 
 @SOURCES.register("tum")
-def _tum(spec: str, **kwargs: Any) -> TumSource:
-    return build(TumSource, "tum", spec, kwargs)
+def _tum(spec: str | TumConfig, **kwargs: Any) -> TumSource:
+    return TumSource(TumConfig.of(spec, **kwargs))

@@ -12,16 +12,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import av
 
 from ..errors import InputError
 from ..types import Frame
-from ._util import build, existing, parse_start_time, pose_track_arg
-from .base import SOURCES, SourceStats
+from ._util import check_flag, check_gap, check_positive, existing, parse_start_time, pose_track_arg
+from .base import SOURCES, SourceConfig, SourceStats
 from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
 
@@ -44,36 +45,53 @@ def _open(path: Path) -> Any:
     return container
 
 
-class VideoSource:
-    """Frames of a video file with poses interpolated from a pose track on the same clock."""
+@dataclass
+class VideoConfig(SourceConfig):
+    """A video file (`video:PATH`) and its pose track on the same clock. start_time: seconds,
+    ISO 8601 or `creation_time` (see the module docstring); pose_match `interpolate` or
+    `nearest` (within max_gap s, 0.05 when not given); fps: decode at most this many frames per
+    second; allow_no_pose: frames without a pose (they are then dropped by ingest);
+    sort_poses: sort a pose file written out of order."""
 
-    def __init__(
-        self,
-        path: str | Path,
-        poses: str | Path | PoseTrack | None = None,
-        start_time: float | str = 0.0,
-        pose_match: str = "interpolate",
-        max_gap: float | None = None,
-        fps: float | None = None,
-        allow_no_pose: bool = False,
-        sort_poses: bool = False,
-    ) -> None:
-        self.path = existing(path, "video file", want_dir=False)
+    poses: str | Path | PoseTrack | None = None
+    start_time: float | str = 0.0
+    pose_match: str = "interpolate"
+    max_gap: float | None = None
+    fps: float | None = None
+    allow_no_pose: bool = False
+    sort_poses: bool = False
+
+    kind: ClassVar[str] = "video"
+
+    def __post_init__(self) -> None:
+        check_match_mode(self.pose_match)
+        self.max_gap = check_gap("video", "max_gap", self.max_gap)
+        if self.pose_match == "nearest" and self.max_gap is None:
+            self.max_gap = 0.05
+        self.fps = check_positive("video", "fps", self.fps)
+        check_flag("video", "allow_no_pose", self.allow_no_pose)
+        check_flag("video", "sort_poses", self.sort_poses)
+
+
+class VideoSource:
+    """Frames of a video file with poses interpolated from a pose track on the same clock
+    (options: `VideoConfig`)."""
+
+    def __init__(self, path: str | Path | VideoConfig, **options: Any) -> None:
+        cfg = self.config = VideoConfig.of(path, **options)
+        self.path = existing(cfg.path, "video file", want_dir=False)
         self.name = f"video:{self.path.name}"
         self.stats = SourceStats()
-        self.pose_match = check_match_mode(pose_match)
-        self.max_gap = max_gap
-        if self.pose_match == "nearest" and max_gap is None:
-            self.max_gap = 0.05
-        if fps is not None and not fps > 0:
-            raise InputError(f"video: fps must be > 0, got {fps}")
-        self.fps = fps
-        if poses is None and not allow_no_pose:
+        self.pose_match = check_match_mode(cfg.pose_match)
+        self.max_gap = cfg.max_gap
+        self.fps = cfg.fps
+        poses, start_time = cfg.poses, cfg.start_time
+        if poses is None and not cfg.allow_no_pose:
             raise InputError(
                 f"{self.path}: a video needs a pose track (poses=FILE, CSV or TUM); "
                 "frames without a pose cannot be placed in the map"
             )
-        self.track = None if poses is None else pose_track_arg(poses, sort=sort_poses)
+        self.track = None if poses is None else pose_track_arg(poses, sort=cfg.sort_poses)
         container = _open(self.path)
         try:
             self.frame_count = _expected_frames(container)
@@ -202,5 +220,5 @@ def _expected_frames(container: Any) -> int | None:
 
 
 @SOURCES.register("video")
-def _video(spec: str, **kwargs: Any) -> VideoSource:
-    return build(VideoSource, "video", spec, kwargs)
+def _video(spec: str | VideoConfig, **kwargs: Any) -> VideoSource:
+    return VideoSource(VideoConfig.of(spec, **kwargs))

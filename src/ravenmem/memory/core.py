@@ -14,7 +14,6 @@ import math
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -25,11 +24,13 @@ from ..store.base import Store, open_store
 from ..store.presence import check_present
 from ..timeparse import TimeContext, parse_time
 from ..types import Filter, Hit, MemoryRecord, Region, check_id
+from . import text
 from .folder import MANIFEST, Created, has_thumbs, is_memory
 from .groups import Group, GroupView, annotate
 from .lock import WriterLock
 from .manifest import Manifest, check_trusted, confine, store_kind
 from .protocol import Near, TimeLike
+from .text import LateText, Reader
 from .writer import Writer
 
 log = logging.getLogger(__name__)
@@ -57,9 +58,10 @@ class Core:
         self._span: tuple[float, float] | None = None
         self._closed = False
         self._groups = GroupView(path)  # consolidated memories: count and span (memory.lifelong)
-        self._writer = Writer(path, self._lock, self._changed, lock)
+        self._writer = Writer(path, self._lock, self._changed, lock, reader=ocr_reader)
         self._created = created  # what `create` made in this process (`undo_create_on_error`)
-        self._ocr: Any = None  # the OCR reader, loaded at the first frame that needs it
+        self._ocr: Reader | None = None  # reads text before the write, made at the first frame
+        self._late: LateText | None = None  # reads text after the write (`add_frames(text="later")`)
 
     # ---------------------------------------------------------------- parts
     @property
@@ -284,6 +286,16 @@ class Core:
         except InputError as e:
             log.warning("memory %s: %s", rec.id, e)
             return None
+
+
+def ocr_reader(threads: int | None = -1) -> Reader:
+    """A new OCR reader as a memory reads frames with (its models load at the first picture);
+    `threads` for onnxruntime (-1: `text.TEXT_THREADS`, for text read after the write; None:
+    onnxruntime decides)."""
+    from ..embed.ocr import OcrReader
+
+    n = text.TEXT_THREADS if threads == -1 else threads
+    return OcrReader(threads=n).read
 
 
 def check_embedder(emb: Embedder, manifest: Manifest, path: Path) -> None:

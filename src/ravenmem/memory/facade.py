@@ -26,9 +26,11 @@ import numpy as np
 from ..errors import InputError
 from ..fsio import reports_full_disk
 from ..imageio import write_jpeg
+from ..store.base import TextStore
 from ..types import Frame, MemoryRecord, Pose
 from .anchor import Anchoring
 from .changes import Changes
+from .core import ocr_reader
 from .folder import thumb_name
 from .info import Info
 from .lifelong.consolidate import Consolidation
@@ -36,6 +38,7 @@ from .lifelong.forget import Forgetting
 from .protocol import MemoryLike
 from .query import Query
 from .search import Search
+from .text import LateText
 
 __all__ = ["Memory"]
 
@@ -59,18 +62,27 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
         return self.add_frames([Frame(image=image, t=t, pose=pose, source=source, index=frame_index)])[0]
 
     @reports_full_disk
-    def add_frames(self, frames: Sequence[Frame], embeddings: np.ndarray | None = None) -> list[int]:
+    def add_frames(
+        self, frames: Sequence[Frame], embeddings: np.ndarray | None = None, text: str = "now"
+    ) -> list[int]:
         """Embed, OCR, thumbnail and store frames; durable when this returns.
 
         `embeddings` may be passed when the caller already computed them (the ingest pipeline
         does, for novelty filtering), so that frames are never embedded twice. The first write
-        takes the writer lock (`acquire_writer`) without waiting.
+        takes the writer lock (`acquire_writer`) without waiting. `text="later"` (on a memory
+        with OCR whose store can change text, `TextStore`) stores the frames before their text
+        is read, which a background thread then does (`ravenmem.memory.text`: searchable by
+        picture now, by their words when the text lands; `wait_text` waits for it; journalled,
+        so a crash loses neither).
         """
+        if text not in ("now", "later"):
+            raise InputError(f"text must be 'now' or 'later', got {text!r}")
         if not frames:
             return []
         for f in frames:
             f.check()  # the ranges of ravenmem.types, before anything is written
         writer = self.writer()
+        later = text == "later" and self.ocr_enabled and isinstance(self.store, TextStore)
         if embeddings is None:
             embeddings = self.embedder.embed_images([f.image for f in frames])
         embeddings = np.asarray(embeddings, dtype=np.float32)
@@ -78,8 +90,10 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
             raise InputError(
                 f"embeddings have shape {embeddings.shape}, expected ({len(frames)}, {self.dim})"
             )
-        texts = [self._read_text(f.image) for f in frames] if self.ocr_enabled else [""] * len(frames)
+        read_now = self.ocr_enabled and not later
+        texts = [self._read_text(f.image) for f in frames] if read_now else [""] * len(frames)
         paths = [self._thumb_name(f) for f in frames]
+        pending = writer.text_journal(frames) if later else None
         # thumbnails go to disk before their records commit; the journal lets the next writer
         # delete them if this process dies in between (ravenmem.memory.recovery)
         journal = None
@@ -107,10 +121,30 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
         except BaseException:
             if journal is not None:  # delete what the store did not take (it may have: check)
                 writer.settle(self.store, journal)
+            if pending is not None:
+                writer.text_failed(self.store, pending)
             raise
         if journal is not None:
             writer.end(journal)
+        if pending is not None:
+            self._late_text().submit(pending, ids, [f.image for f in frames])
         return ids
+
+    def wait_text(self, timeout: float | None = None) -> bool:
+        """Wait until the text of every frame added with `text="later"` is stored (True), or
+        `timeout` seconds passed (False)."""
+        return self._late is None or self._late.wait(timeout)
+
+    def _late_text(self) -> LateText:
+        with self._lock:
+            if self._late is None:
+                store = self.store
+                assert isinstance(store, TextStore)
+                self._late = LateText(
+                    ocr_reader,
+                    lambda journal, ids, texts: self.writer().text_read(store, journal, ids, texts),
+                )
+            return self._late
 
     @reports_full_disk
     def import_embeddings(
@@ -141,10 +175,8 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
 
     def _read_text(self, image: np.ndarray) -> str:
         if self._ocr is None:
-            from ..embed.ocr import OcrReader
-
-            self._ocr = OcrReader()
-        return str(self._ocr.read(image))
+            self._ocr = ocr_reader(threads=None)
+        return str(self._ocr(image))
 
     def _thumb_name(self, f: Frame) -> str | None:
         """The thumbnail's path relative to the folder (None when thumbnails are off)."""
@@ -178,6 +210,8 @@ class Memory(Search, Changes, Forgetting, Consolidation, Info, Anchoring, Memory
     def close(self) -> None:
         try:
             if not self._closed:
+                if self._late is not None:  # the text read after the write is stored first
+                    self._late.close()
                 self._closed = True
                 self._groups.close()
                 self.store.close()

@@ -10,7 +10,9 @@ here, so the folder's layout can be read, and changed, in one file:
 | `memory.json` | the manifest: embedder, store, thumbnail and OCR settings, ingest history | `memory.manifest` |
 | `writer.lock` | the one writer's lock (pid, command, since) | `memory.lock` |
 | `pending-thumbs-<id>.json` | a thumbnail journal while a batch commits | `memory.recovery` |
+| `pending-text-<id>.npz` | pictures whose text is read after they are stored | `memory.text` |
 | `pending-thumbs-<id>.json.aside` | a journal recovery could not act on, kept for a person | `memory.recovery` |
+| `pending-text-<id>.npz.aside` | a text journal recovery could not act on, kept for a person | `memory.text` |
 | `thumbs/<ms>_<hex>.jpg` | thumbnails | `Memory.add_frames` |
 | `lifelong.sqlite` | consolidated groups (count, span) | `memory.groups` |
 | `map.npz`, `map.json` | the occupancy grid and its settings | `nav.grid` |
@@ -51,12 +53,19 @@ ANCHOR_JOURNAL = f"{ANCHOR}/pending.json"
 
 JOURNAL_PREFIX = "pending-thumbs-"
 JOURNAL_NAME = re.compile(r"pending-thumbs-[0-9a-f]{12}\.json")
+TEXT_JOURNAL_PREFIX = "pending-text-"
+TEXT_JOURNAL_NAME = re.compile(r"pending-text-[0-9a-f]{12}\.npz")
 THUMB_NAME = re.compile(r"-?\d+_[0-9a-f]{8}\.jpg")
 
 
 def journal_name(token: str) -> str:
     """A thumbnail journal's file name (`token`: 12 hex digits)."""
     return f"{JOURNAL_PREFIX}{token}.json"
+
+
+def text_journal_name(token: str) -> str:
+    """A text journal's file name (`token`: 12 hex digits)."""
+    return f"{TEXT_JOURNAL_PREFIX}{token}.npz"
 
 
 def aside_name(journal: str) -> str:

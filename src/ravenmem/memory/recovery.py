@@ -25,16 +25,40 @@ import numpy as np
 
 from ..fsio import atomic_write_json, move, read_text, remove_stale_temp_files
 from ..store.base import Store
-from .folder import JOURNAL_NAME, JOURNAL_PREFIX, MANIFEST, THUMBS, aside_name, journal_name, thumb_file
+from .folder import (
+    JOURNAL_NAME,
+    JOURNAL_PREFIX,
+    MANIFEST,
+    TEXT_JOURNAL_PREFIX,
+    THUMBS,
+    aside_name,
+    journal_name,
+    thumb_file,
+)
 
 log = logging.getLogger(__name__)
 
-_WRITER_ONLY = (f"{MANIFEST}.", JOURNAL_PREFIX)  # files only the lock holder writes
+_WRITER_ONLY = (f"{MANIFEST}.", JOURNAL_PREFIX, TEXT_JOURNAL_PREFIX)  # files only the lock holder writes
 
 MAX_JOURNAL = 256 << 20  # bytes: a forget of a million memories lists ~80 MB
 
 # (thumbnail path relative to the memory folder, source, frame index, time)
 Entry = tuple[str, str, int, float]
+
+
+def stored_ids(store: Store, entries: Sequence[tuple[str, int, float]]) -> dict[tuple[str, int, float], int]:
+    """The ids of the memories the store holds for (source, frame index, time) entries: how a
+    journal written before its batch committed finds what the batch stored."""
+    out: dict[tuple[str, int, float], int] = {}
+    for source in {e[0] for e in entries}:
+        sf = store.source_frames(source)
+        want = {(i, t) for s, i, t in entries if s == source}
+        near = np.flatnonzero(np.isin(sf.frame_index, [i for i, _ in want]))
+        for k in near:
+            key = (int(sf.frame_index[k]), float(sf.t[k]))
+            if key in want:
+                out[(source, *key)] = int(sf.ids[k])
+    return out
 
 
 def begin(folder: Path, entries: Sequence[Entry]) -> Path:
@@ -61,17 +85,14 @@ def settle(folder: Path, store: Store, journal: Path) -> int:
         raw = json.loads(read_text(journal, limit=MAX_JOURNAL, what="thumbnail journal"))["thumbs"]
         entries = [(str(n), str(s), int(i), float(t)) for n, s, i, t in raw]
     except Exception as e:  # anything at all: the memory must open
-        return _aside(journal, f"unreadable ({e})")
+        return set_aside(journal, f"unreadable ({e})")
     failed: list[str] = []
     referenced: set[str] = set()
     for source in {e[1] for e in entries}:
         try:
-            sf = store.source_frames(source)
-            want = {(i, t) for _, s, i, t in entries if s == source}
-            near = np.flatnonzero(np.isin(sf.frame_index, [i for i, _ in want]))
-            hit = [int(k) for k in near if (int(sf.frame_index[k]), float(sf.t[k])) in want]
-            if hit:
-                referenced.update(r.image_path or "" for r in store.get(np.asarray(sf.ids)[hit].tolist()))
+            found = stored_ids(store, [(s, i, t) for _, s, i, t in entries if s == source])
+            if found:
+                referenced.update(r.image_path or "" for r in store.get(sorted(found.values())))
         except Exception as e:  # the store cannot say: keep this source's thumbnails
             failed.append(f"source {source[:80]!r}: {e}")
             referenced.update(n for n, s, _, _ in entries if s == source)
@@ -87,20 +108,20 @@ def settle(folder: Path, store: Store, journal: Path) -> int:
         except OSError as e:  # e.g. a name too long for the file system (ENAMETOOLONG)
             failed.append(f"thumbnail {name[:80]!r}: {e.strerror or e}")
     if failed:
-        _aside(journal, "; ".join(failed[:3]))
+        set_aside(journal, "; ".join(failed[:3]))
     else:
         end(journal)
     return removed
 
 
-def _aside(journal: Path, why: str) -> int:
+def set_aside(journal: Path, why: str, what: str = "thumbnail journal") -> int:
     """Log a journal recovery cannot act on and move it out of recovery's way; 0 removed."""
     target = journal.with_name(aside_name(journal.name))
     try:
         move(journal, target)
-        log.warning("%s: thumbnail journal set aside as %s: %s", journal, target.name, why)
+        log.warning("%s: %s set aside as %s: %s", journal, what, target.name, why)
     except OSError as e:
-        log.warning("%s: thumbnail journal left as is (%s; cannot move it: %s)", journal, why, e)
+        log.warning("%s: %s left as is (%s; cannot move it: %s)", journal, what, why, e)
     return 0
 
 

@@ -29,8 +29,9 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from rosbags.highlevel import AnyReader
@@ -38,9 +39,9 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
-from ..ingest._util import build, existing
-from ..ingest.base import SOURCES, SourceStats
-from ..ingest.depth import camera_info_intrinsics, decode_depth_message, parse_intrinsics
+from ..ingest._util import check_gap, check_intrinsics, existing
+from ..ingest.base import SOURCES, SourceConfig, SourceStats
+from ..ingest.depth import camera_info_intrinsics, decode_depth_message
 from ..ingest.identity import file_head, make_identity
 from ..ingest.poses import PoseTrack, check_match_mode
 from ..types import Frame, Intrinsics
@@ -74,31 +75,53 @@ def _pick(kind: str, available: dict[str, str], wanted: str | None, option: str)
     return next(iter(available))
 
 
-class RosbagSource:
-    """Frames from one image topic of a bag, posed from one pose topic or the TF tree."""
+@dataclass
+class RosbagConfig(SourceConfig):
+    """A ROS bag (`rosbag:PATH`; see the module docstring). image_topic / pose_topic: which
+    topics (default: the only one of its kind; /tf when there is no pose topic); tf_parent /
+    tf_child: the TF frames posed; time_source `header` or `receive`; pose_match `interpolate` or
+    `nearest` (within max_gap s, 0.05 when not given); depth_topic, camera_info_topic,
+    depth_max_gap (s) and intrinsics: depth for the map."""
 
-    def __init__(
-        self,
-        path: str | Path,
-        image_topic: str | None = None,
-        pose_topic: str | None = None,
-        tf_parent: str | None = None,
-        tf_child: str = "base_link",
-        time_source: str = "header",
-        pose_match: str = "interpolate",
-        max_gap: float | None = None,
-        depth_topic: str | None = None,
-        camera_info_topic: str | None = None,
-        depth_max_gap: float = 0.05,
-        intrinsics: Intrinsics | str | None = None,
-    ) -> None:
-        self.path = existing(path, "ROS bag")
+    image_topic: str | None = None
+    pose_topic: str | None = None
+    tf_parent: str | None = None
+    tf_child: str = "base_link"
+    time_source: str = "header"
+    pose_match: str = "interpolate"
+    max_gap: float | None = None
+    depth_topic: str | None = None
+    camera_info_topic: str | None = None
+    depth_max_gap: float = 0.05
+    intrinsics: Intrinsics | str | None = None
+
+    kind: ClassVar[str] = "rosbag"
+
+    def __post_init__(self) -> None:
+        check_time_source(self.time_source, "rosbag")
+        check_match_mode(self.pose_match)
+        self.max_gap = check_gap("rosbag", "max_gap", self.max_gap)
+        if self.pose_match == "nearest" and self.max_gap is None:
+            self.max_gap = 0.05
+        self.depth_max_gap = check_gap("rosbag", "depth_max_gap", self.depth_max_gap) or 0.0
+        self.intrinsics = check_intrinsics(self.intrinsics)
+
+
+class RosbagSource:
+    """Frames from one image topic of a bag, posed from one pose topic or the TF tree
+    (options: `RosbagConfig`)."""
+
+    def __init__(self, path: str | Path | RosbagConfig, **options: Any) -> None:
+        cfg = self.config = RosbagConfig.of(path, **options)
+        self.path = existing(cfg.path, "ROS bag")
         self.name = f"rosbag:{self.path.name}"
         self.stats = SourceStats()
-        self.time_source = check_time_source(time_source, "rosbag")
+        self.time_source = cfg.time_source
         self.frame_id = "map"
-        self.pose_match = check_match_mode(pose_match)
-        self.max_gap = max_gap if max_gap is not None or self.pose_match != "nearest" else 0.05
+        self.pose_match = check_match_mode(cfg.pose_match)
+        self.max_gap = cfg.max_gap
+        image_topic, pose_topic, depth_topic = cfg.image_topic, cfg.pose_topic, cfg.depth_topic
+        tf_parent, tf_child, camera_info_topic = cfg.tf_parent, cfg.tf_child, cfg.camera_info_topic
         with self._reader() as reader:
             topics = {c.topic: c.msgtype for c in reader.connections}
             images = {t: m for t, m in topics.items() if m in IMAGE_TYPES}
@@ -117,10 +140,8 @@ class RosbagSource:
             else:
                 self.pose_topic = _pick("pose", poses | {t: TF for t in tf_topics}, pose_topic, "pose_topic")
                 self.track = self._pose_track(reader, self.pose_topic)
-            self.depth_max_gap = float(depth_max_gap)
-            self.intrinsics: Intrinsics | None = (
-                parse_intrinsics(intrinsics) if isinstance(intrinsics, str) else intrinsics
-            )
+            self.depth_max_gap = cfg.depth_max_gap
+            self.intrinsics: Intrinsics | None = cfg.intrinsics  # type: ignore[assignment]
             self.camera_extrinsic: np.ndarray | str = "body"
             if self.depth_topic is not None:
                 self._camera(reader, topics, camera_info_topic, tf_topics, tf_child)
@@ -342,5 +363,5 @@ class RosbagSource:
 
 
 @SOURCES.register("rosbag")
-def _rosbag(spec: str, **kwargs: Any) -> RosbagSource:
-    return build(RosbagSource, "rosbag", spec, kwargs)
+def _rosbag(spec: str | RosbagConfig, **kwargs: Any) -> RosbagSource:
+    return RosbagSource(RosbagConfig.of(spec, **kwargs))

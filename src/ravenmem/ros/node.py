@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import MissingDependencyError, RavenmemError
+from ..threads import share_cores
 from . import msgs
 from .link import LinkConfig, RosLink, goal_bytes, goal_of, writer_sink
 from .services import ServiceBackend, ask_reply, search_reply
@@ -151,14 +152,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--link", required=True, help="image=TOPIC,pose=TOPIC[,key=value...] as for serve --zenoh"
     )
-    ap.add_argument("--keyframes", default=None, help="keyframe rule, e.g. fps=1,min_translation=0.2")
+    ap.add_argument(
+        "--keyframes", default=None, help="keyframe rules as for ingest (default: the default rules; 'all')"
+    )
     ap.add_argument("--map-id", default=None, help="the map the poses are in (see ravenmem align)")
     args = ap.parse_args(argv)
+    share_cores()  # before torch or FAISS loads (ravenmem.threads)
     cfg = LinkConfig.from_spec(args.link)
     rclpy, _, _ = _ros()
     import ravenmem
 
-    from ..ingest.keyframes import parse_keyframes
+    from ..ingest.keyframes import KeyframeConfig
     from ..memory.folder import is_memory
     from ..server.service import Service, ServiceConfig
 
@@ -166,7 +170,7 @@ def main(argv: list[str] | None = None) -> None:
     mem = ravenmem.open(path) if is_memory(path) else ravenmem.create(path)
     if args.map_id:
         mem.claim_map(args.map_id, what="--map-id")
-    service = Service(mem, ServiceConfig(keyframes=parse_keyframes(args.keyframes))).start()
+    service = Service(mem, ServiceConfig(keyframes=KeyframeConfig.from_spec(args.keyframes))).start()
     rclpy.init()
     node = LinkNode(cfg, service)
     service.attach(node)

@@ -219,7 +219,8 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         if depth is not None:
             raw = await depth.read()
             metres = await run_in_threadpool(decode_depth, raw, cfg.max_pixels, depth_scale, "depth")
-        fut = service.writer.submit(rgb, pose, when, source, metres)
+        # off the event loop: the cheap admission steps (and the map, for depth) run in submit
+        fut = await run_in_threadpool(service.writer.submit, rgb, pose, when, source, metres)
         try:
             res = await no_space(asyncio.wait_for(asyncio.wrap_future(fut), cfg.timeout_s))
         except asyncio.TimeoutError:

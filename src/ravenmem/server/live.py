@@ -1,14 +1,21 @@
 """Live adds: the one writer of a served memory.
 
 A robot streams frames (RGB + pose + time) into a running memory. Every frame goes through the
-same online keyframe rule as a recorded ingest (`ingest.keyframes.Keyframer`, one per source so
-two cameras do not thin each other out), then the embedder, then `Memory.add_frames`. One thread
-does all of it, in arrival order, so the keyframe state and the store see one writer; searches
-run meanwhile on other threads.
+same admission stage as a recorded ingest (`ingest.admit.Admission`: time check, map, keyframe
+prefilter, embedder, novelty rule, `Memory.add_frames`; keyframe state per source, so two
+cameras do not thin each other out). What this adds is the queue. `submit` runs the cheap steps
+(time check, map, prefilter) in the caller's thread, in arrival order, so a frame they skip is
+answered at once instead of waiting behind the embedding of the frames before it; the frames
+that pass are queued, and one thread embeds them (those that arrive together in one batch),
+applies the novelty rule and stores them, in the same order, so the keyframe state and the store
+see one writer; searches run meanwhile on other threads.
 
-An add is answered only after `add_frames` returned, i.e. after the store made it durable: an
-acknowledged memory survives a crash of the service. Every front end that adds frames (the HTTP
-route, the Zenoh link) calls `LiveWriter.add` (blocking) or `LiveWriter.submit` (a future):
+A kept frame is answered only after `add_frames` returned, i.e. after the store made it durable:
+an acknowledged memory survives a crash of the service. On a memory with OCR its text is read
+after that answer (`add_frames(text="later")`, `ravenmem.memory.text`): searchable by picture at
+once, by its words when the text lands, and journalled, so a crash loses neither. Every front
+end that adds frames (the HTTP route, the Zenoh link) calls `LiveWriter.add` (blocking) or
+`LiveWriter.submit` (a future):
 
     writer = LiveWriter(mem, KeyframeConfig(fps=2))
     writer.start()
@@ -36,14 +43,13 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, RavenmemError
-from ..ingest.keyframes import KeyframeConfig, Keyframer
+from ..ingest.admit import Admission
+from ..ingest.keyframes import KeyframeConfig
 from ..memory import Memory
+from ..threads import WRITER_NICE, lower_priority
 from ..types import Frame, MemoryRecord, Pose
 
 log = logging.getLogger(__name__)
-
-SKIP_TIME = "non-monotonic timestamp"  # the ingest pipeline's name for the same rule
-MAX_SOURCES = 64  # keyframe state is kept per source name; a bound keeps a client from growing it
 
 
 class BusyError(InputError):
@@ -91,13 +97,25 @@ class _Job:
     future: Future[AddResult]
 
 
-class _Source:
-    """Keyframe state of one camera: the keyframer and the last timestamp seen."""
+class _LoggedMap:
+    """The map builder as live adds use it: a frame the map cannot take is logged, and the
+    frame still goes on to the memory."""
 
-    def __init__(self, cfg: KeyframeConfig) -> None:
-        self.keyframer = Keyframer(cfg)
-        self.last_t = -math.inf
-        self.frames = 0
+    def __init__(self, mapper: Any) -> None:
+        self.mapper = mapper
+
+    def add(self, frame: Frame) -> bool:
+        try:
+            return bool(self.mapper.add(frame))
+        except Exception:
+            log.exception("mapping a live frame failed")
+            return False
+
+    def close(self) -> None:
+        try:
+            self.mapper.close()
+        except Exception:  # the memory itself is stored; a map that failed to save is logged
+            log.exception("saving the live map failed")
 
 
 class LiveWriter:
@@ -121,15 +139,18 @@ class LiveWriter:
     ) -> None:
         self.mem = mem
         self.mapper = mapper
-        self.cfg = keyframes or KeyframeConfig()
+        self.cfg = keyframes if keyframes is not None else KeyframeConfig()
+        self.stage = Admission(
+            mem, self.cfg, _LoggedMap(mapper) if mapper is not None else None, number=True, text="later"
+        )
         self.on_result = on_result
         self.batch = max(1, batch)
         self.stats = LiveStats()
         self._queue: queue.Queue[_Job | None] = queue.Queue(maxsize=max(1, max_pending))
-        self._sources: dict[str, _Source] = {}
         self._thread: threading.Thread | None = None
         self._closed = False
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # submit's: the keyframe state and the queue, in arrival order
+        self._stats_lock = threading.Lock()
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> LiveWriter:
@@ -149,11 +170,8 @@ class LiveWriter:
         if thread is not None:
             self._queue.put(None)
             thread.join(timeout)
-        if self.mapper is not None:
-            try:
-                self.mapper.close()
-            except Exception:  # the memory itself is stored; a map that failed to save is logged
-                log.exception("saving the live map failed")
+        if self.stage.mapper is not None:
+            self.stage.mapper.close()
 
     # ---------------------------------------------------------------- adding
     def submit(
@@ -178,10 +196,17 @@ class LiveWriter:
                 raise InputError("the memory is closing: no more frames are taken")
             if self._thread is None:
                 raise InputError("the writer is not started")
-            try:
+            if self._queue.full():  # only submit puts (under this lock): a frame screened is queued
+                raise BusyError(f"{self._queue.maxsize} frames are waiting to be stored: slow down")
+            # the cheap steps here, in arrival order: a frame they skip is answered at once,
+            # without waiting behind the embedding of the frames queued before it
+            reason = self.stage.screen(frame, frame.source)
+            self.stats.seen += 1
+            if reason is None:
                 self._queue.put_nowait(_Job(frame, fut))
-            except queue.Full:
-                raise BusyError(f"{self._queue.maxsize} frames are waiting to be stored: slow down") from None
+                return fut
+            self._count(reason)
+        self._answer(fut, AddResult(t=frame.t, source=frame.source, skipped=reason), None)
         return fut
 
     def add(
@@ -198,6 +223,7 @@ class LiveWriter:
 
     # ---------------------------------------------------------------- the writer thread
     def _run(self) -> None:
+        lower_priority(WRITER_NICE)  # searches first (`ravenmem.threads`)
         stop = False
         while not stop:
             job = self._queue.get()
@@ -226,67 +252,27 @@ class LiveWriter:
                     j.future.set_exception(e)
 
     def _store(self, jobs: list[_Job]) -> None:
-        candidates: list[tuple[_Job, _Source]] = []
-        for j in jobs:
-            self.stats.seen += 1
-            try:
-                src = self._source(j.frame.source)
-            except InputError as e:
-                j.future.set_exception(e)
-                continue
-            j.frame.index, src.frames = src.frames, src.frames + 1
-            if self.mapper is not None and j.frame.depth is not None:
-                self._map(j.frame)
-            reason = SKIP_TIME if j.frame.t < src.last_t else src.keyframer.pre(j.frame)
-            if reason is None:
-                src.last_t = j.frame.t
-                candidates.append((j, src))
+        outcomes = self.stage.admit([(j.frame.source, j.frame) for j in jobs])
+        ids = [o for o in outcomes if isinstance(o, int)]
+        records = {r.id: r for r in self.mem.get(ids)} if ids else {}
+        for j, o in zip(jobs, outcomes):
+            if isinstance(o, int):
+                self._count(None)
+                self._answer(j.future, AddResult(t=j.frame.t, source=j.frame.source, id=o), records[o])
             else:
-                self._skip(j, reason)
-        if not candidates:
-            return
-        emb = self.mem.embedder.embed_images([j.frame.image for j, _ in candidates])
-        kept: list[int] = []
-        for i, (j, src) in enumerate(candidates):
-            reason = src.keyframer.post(emb[i])
-            if reason is None:
-                kept.append(i)
+                self._count(str(o))
+                self._answer(j.future, AddResult(t=j.frame.t, source=j.frame.source, skipped=str(o)), None)
+
+    def _count(self, skipped: str | None) -> None:
+        with self._stats_lock:
+            if skipped is None:
+                self.stats.kept += 1
             else:
-                self._skip(j, reason)
-        if not kept:
-            return
-        frames = [candidates[i][0].frame for i in kept]
-        ids = self.mem.add_frames(frames, embeddings=emb[kept])
-        records = self.mem.get(ids)
-        self.stats.kept += len(ids)
-        for i, mid, rec in zip(kept, ids, records):
-            j = candidates[i][0]
-            res = AddResult(t=j.frame.t, source=j.frame.source, id=mid)
-            j.future.set_result(res)
-            self._notify(res, rec)
+                self.stats.skipped[skipped] = self.stats.skipped.get(skipped, 0) + 1
 
-    def _map(self, frame: Frame) -> None:
-        """Every depth frame into the map, keyframe or not; a mapping failure is logged, the
-        frame still goes on to the memory."""
-        try:
-            self.mapper.add(frame)  # type: ignore[union-attr]
-        except Exception:
-            log.exception("mapping a live frame failed")
-        frame.depth = None  # not kept past the map
-
-    def _source(self, name: str) -> _Source:
-        src = self._sources.get(name)
-        if src is None:
-            if len(self._sources) >= MAX_SOURCES:
-                raise InputError(f"more than {MAX_SOURCES} live sources; reuse a source name")
-            src = self._sources[name] = _Source(self.cfg)
-        return src
-
-    def _skip(self, j: _Job, reason: str) -> None:
-        self.stats.skipped[reason] = self.stats.skipped.get(reason, 0) + 1
-        res = AddResult(t=j.frame.t, source=j.frame.source, skipped=reason)
-        j.future.set_result(res)
-        self._notify(res, None)
+    def _answer(self, fut: Future[AddResult], res: AddResult, rec: MemoryRecord | None) -> None:
+        self._notify(res, rec)  # before the answer: the events keep the order the answers have
+        fut.set_result(res)
 
     def _notify(self, res: AddResult, rec: MemoryRecord | None) -> None:
         if self.on_result is None:

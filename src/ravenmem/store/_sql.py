@@ -192,6 +192,32 @@ def delete(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
     return np.array(sorted(gone), np.int64)
 
 
+def set_ocr_text(conn: sqlite3.Connection, ids: Sequence[int], texts: Sequence[str]) -> int:
+    """Replace the OCR text of the memories among `ids` in one transaction, the FTS index
+    with it; returns how many exist."""
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        n = 0
+        for i, text in zip(ids, texts, strict=True):
+            row = conn.execute("SELECT ocr_text FROM memories WHERE id = ?", (int(i),)).fetchone()
+            if row is None:
+                continue
+            if row[0]:  # a contentless FTS5 table forgets a row when given the text it indexed
+                conn.execute(
+                    "INSERT INTO ocr (ocr, rowid, folded) VALUES ('delete', ?, ?)",
+                    (int(i), norm_text(row[0])),
+                )
+            conn.execute("UPDATE memories SET ocr_text = ? WHERE id = ?", (text, int(i)))
+            if text:
+                conn.execute("INSERT INTO ocr (rowid, folded) VALUES (?, ?)", (int(i), norm_text(text)))
+            n += 1
+        conn.execute("COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+    return n
+
+
 def deletions(conn: sqlite3.Connection) -> tuple[int, int]:
     """(entries in the deletion log, highest id ever deleted)."""
     n, top = conn.execute("SELECT COALESCE(MAX(seq), 0), COALESCE(MAX(id), 0) FROM deleted").fetchone()

@@ -124,6 +124,18 @@ class Store(Protocol):
     def close(self) -> None: ...
 
 
+@runtime_checkable
+class TextStore(Protocol):
+    """A store that can change the OCR text of stored memories (the embedded store can; a
+    Milvus collection cannot without re-inserting rows). A memory on such a store may read a
+    frame's text after storing it (`ravenmem.memory.text`); on any other it reads it first."""
+
+    def set_ocr_text(self, ids: Sequence[int], texts: Sequence[str]) -> int:
+        """Replace the OCR text of memories `ids` in one durable transaction (the text search
+        sees it at once); returns how many of them are stored (unknown ids are ignored)."""
+        ...
+
+
 STORES: Registry[Store] = Registry(
     "store", "ravenmem.stores", {"local": "ravenmem.store.local", "milvus": "ravenmem.store.milvus"}
 )

@@ -415,6 +415,14 @@ class LocalStore:
                     "the memories are stored: call rebuild_index()"
                 )
 
+    def set_ocr_text(self, ids: Sequence[int], texts: Sequence[str]) -> int:
+        """Replace the OCR text of stored memories (`TextStore`)."""
+        if len(ids) != len(texts):
+            raise InputError(f"{len(ids)} ids but {len(texts)} texts")
+        with self._lock:
+            self._check_open()
+            return _sql.set_ocr_text(self._conn, ids, texts)
+
     def delete(self, ids: Iterable[int]) -> int:
         """Forget memories: their rows, vectors and OCR entries go in one SQLite transaction
         (a crash leaves all of them or none), then the index and columns drop them. Unknown

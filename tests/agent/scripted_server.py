@@ -13,10 +13,14 @@ to vLLM / Ollama / OpenAI, and every request body is recorded for assertions.
 
 Script items (plain dicts, consumed one per request; helpers below build them):
 - {"content": str}                       assistant text (e.g. a JSON answer)
-- {"tool_calls": [{"name": str, "arguments": dict | str}, ...]}
+- {"tool_calls": [{"name": str, "arguments": dict | str, "id": str, "as_object": bool}, ...]}
+                                         (`id` "" as Gemini sends; `as_object` sends the arguments
+                                         as a JSON object, not the string the API specifies)
 - {"refusal": str}                       content null, message.refusal set
 - {"status": int, "error": str, "headers": {...}}   an HTTP error (429, 500, 503, 400, ...)
-- {"raw": str}                           a 200 response whose body is this text (broken JSON)
+- {"raw": str, "content_type": str}      a 200 response whose body is this text (broken JSON, HTML)
+- {"message": dict | None}               the choice's message exactly as given (shapes of other servers)
+- {"choices": list}                      the completion's choices exactly as given
 - "delay": seconds (any item)            sleep before responding (provokes client timeouts)
 - "drip": seconds (any item)             send the response (status line, headers, body) one byte
                                          at a time, this long apart: a server that is never
@@ -25,7 +29,8 @@ Script items (plain dicts, consumed one per request; helpers below build them):
 - a callable(body: dict) -> item         decided per request (e.g. answer with what was shown)
 When the script runs out, `default` is used (an item or callable); without one, HTTP 500.
 `reject_tools=True` answers 400 to any request that carries `tools` without consuming the script
-(an endpoint without function calling).
+(an endpoint without function calling); `reject_images=STATUS` answers that status to any
+request with an image part (a text-only model: vLLM and OpenAI say 400, llama.cpp's server 500).
 """
 
 from __future__ import annotations
@@ -76,11 +81,16 @@ class ScriptedModel:
     """The server; a context manager (or call start()/stop())."""
 
     def __init__(
-        self, script: list[Item] | None = None, default: Item | None = None, reject_tools: bool = False
+        self,
+        script: list[Item] | None = None,
+        default: Item | None = None,
+        reject_tools: bool = False,
+        reject_images: int | None = None,
     ) -> None:
         self.script: list[Item] = list(script or [])
         self.default = default
         self.reject_tools = reject_tools
+        self.reject_images = reject_images
         self.requests: list[dict[str, Any]] = []
         self.headers: list[dict[str, str]] = []  # request headers, names lower-cased
         self.responses: list[dict[str, Any]] = []
@@ -126,9 +136,10 @@ class ScriptedModel:
 
             def _send(self, status: int, payload: Any, headers: dict[str, str] | None = None) -> None:
                 data = payload.encode() if isinstance(payload, str) else json.dumps(payload).encode()
+                headers = dict(headers or {})
                 try:
                     self.send_response(status)
-                    self.send_header("content-type", "application/json")
+                    self.send_header("content-type", headers.pop("content-type", "application/json"))
                     self.send_header("content-length", str(len(data)))
                     for k, v in (headers or {}).items():
                         self.send_header(k, v)
@@ -210,8 +221,16 @@ class ScriptedModel:
             self.requests.append(body)
             self.headers.append(headers)
             n = len(self.requests)
-            if self.reject_tools and body.get("tools"):
-                item: Any = error(400, "this model does not support tools")
+            parts = [
+                p
+                for m in body.get("messages", [])
+                if isinstance(m.get("content"), list)
+                for p in m["content"]
+            ]
+            if self.reject_images and any(p.get("type") == "image_url" for p in parts):
+                item: Any = error(self.reject_images, "this model does not take images")
+            elif self.reject_tools and body.get("tools"):
+                item = error(400, "this model does not support tools")
             elif self.script:
                 item = self.script.pop(0)
             elif self.default is not None:
@@ -230,18 +249,22 @@ class ScriptedModel:
             return int(item["status"]), payload, dict(item.get("headers", {})), delay, drip
         if "raw" in item:
             self.responses.append({"raw": item["raw"]})
-            return 200, str(item["raw"]), {}, delay, drip
+            kind = {"content-type": item["content_type"]} if "content_type" in item else {}
+            return 200, str(item["raw"]), kind, delay, drip
         message: dict[str, Any] = {"role": "assistant", "content": item.get("content")}
         finish = item.get("finish_reason", "stop")
+        for key in ("reasoning_content", "reasoning"):
+            if key in item:
+                message[key] = item[key]
         if item.get("tool_calls"):
             message["tool_calls"] = [
                 {
-                    "id": f"call_{n}_{j}",
+                    "id": c.get("id", f"call_{n}_{j}"),
                     "type": "function",
                     "function": {
                         "name": c["name"],
                         "arguments": c["arguments"]
-                        if isinstance(c["arguments"], str)
+                        if isinstance(c["arguments"], str) or c.get("as_object")
                         else json.dumps(c["arguments"]),
                     },
                 }
@@ -251,14 +274,17 @@ class ScriptedModel:
         if "refusal" in item:
             message["refusal"] = item["refusal"]
             message["content"] = None
+        if "message" in item:
+            message = item["message"]
         prompt_tokens = len(json.dumps(body.get("messages", []))) // 4
         completion_tokens = max(1, len(json.dumps(message)) // 4)
+        choices = item.get("choices", [{"index": 0, "message": message, "finish_reason": finish}])
         payload = {
             "id": f"chatcmpl-scripted-{n}",
             "object": "chat.completion",
             "created": int(time.time()),
             "model": body.get("model", "scripted"),
-            "choices": [{"index": 0, "message": message, "finish_reason": finish}],
+            "choices": choices,
             "usage": item.get(
                 "usage",
                 {

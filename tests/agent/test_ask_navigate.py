@@ -111,8 +111,9 @@ def test_navigate_needs_a_map_and_says_so_before_asking_the_model(cli, mem_path,
     [
         (("--from", "1,2"), "--from and --robot-radius apply with --navigate only"),
         (("--navigate", "--from", "1"), "--from: expected 'x,y'"),
-        (("--navigate", "--from", "nan,1"), "--from: not finite"),
-        (("--navigate", "--robot-radius", "-1"), "--robot-radius: expected a finite radius"),
+        (("--navigate", "--from", "nan,1"), "--from: x,y: nan is not a finite number"),
+        (("--navigate", "--robot-radius", "-1"), "--robot-radius: expected metres from 0 to 10"),
+        (("--max-position-offset", "-1"), "--max-position-offset: expected metres from 0 to"),
     ],
 )
 def test_bad_navigate_flags_are_one_line_errors(cli, mem_path, args, message):

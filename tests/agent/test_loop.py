@@ -247,7 +247,32 @@ def test_the_model_chooses_position_and_heading(mem, server):
     assert any("no position given" in n for n in ans.notes)
 
 
-def test_a_far_model_position_is_kept_with_a_warning(mem, server):
+def test_the_answers_yaw_is_radians_whatever_the_model_wrote(mem, server):
+    """Answer.yaw is radians in the map frame: `yaw_deg` is converted, `yaw`/`heading` are
+    radians, and degrees copied into `yaw` (the listings show `yaw=90deg`) are re-asked with
+    the reason, never read as radians (90 rad would face 117 deg) nor guessed."""
+    ids = ids_by_index(mem)
+    server.push(
+        tool("search_text", query="red"),
+        answer(question_type="position", evidence=[ids[8]], position=[8.5, 3.2, 0.4], yaw=90),
+        answer(question_type="position", evidence=[ids[8]], position=[8.5, 3.2, 0.4], yaw_deg=90),
+    )
+    ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
+    assert "yaw 90 is more than a full turn in radians; give degrees as yaw_deg" in server.texts(2)
+    assert ans.yaw == pytest.approx(math.pi / 2) and ans.yaw_source == "model"
+    server.push(
+        tool("search_text", query="red"),
+        answer(question_type="position", evidence=[ids[8]], position=[8.5, 3.2, 0.4], heading=-1.5),
+    )
+    ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
+    assert ans.yaw == pytest.approx(-1.5) and ans.model_dump()["yaw"] == pytest.approx(-1.5)
+    # no heading from the model: the evidence camera's, radians as stored (memory 8: yaw 0.8 rad)
+    server.push(tool("search_text", query="red"), answer(question_type="position", evidence=[ids[8]]))
+    ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
+    assert ans.yaw == pytest.approx(0.8) and ans.yaw_source == "evidence"
+
+
+def test_a_far_model_position_is_kept_but_marked_unsupported_with_the_distance(mem, server):
     ids = ids_by_index(mem)
     server.push(
         tool("search_text", query="red"),
@@ -255,11 +280,19 @@ def test_a_far_model_position_is_kept_with_a_warning(mem, server):
     )
     ans = Agent(mem, vlm=config_for(server)).ask("Where is the red ball?")
     assert ans.position_source == "model" and ans.position == [50.0, -40.0, 0.0]
-    warning = next(n for n in ans.notes if n.startswith("warning:"))
-    assert f"(m{ids[8]})" in warning and "more than 3 m; kept as given" in warning
+    assert ans.unsupported and ans.support_distance == pytest.approx(60.1, abs=0.05)
+    warning = next(n for n in ans.notes if n.startswith("unsupported:"))
+    assert f"(m{ids[8]})" in warning and "more than 3 m" in warning
     assert "is 60.1 m from the nearest memory shown" in warning  # |(50, -40, 0) - (8, 3, 0.5)|
     assert any("9999" in n for n in ans.notes) and [e.id for e in ans.evidence] == [ids[8]]
     assert ans.yaw_source == "evidence" and ans.yaw == pytest.approx(0.8)
+    near = Agent(mem, vlm=config_for(server), max_position_offset=100.0)
+    server.push(
+        tool("search_text", query="red"),
+        answer(question_type="position", evidence=[ids[8]], position=[50.0, -40.0, 0.0]),
+    )
+    ans = near.ask("Where is the red ball?")  # the threshold is a setting
+    assert not ans.unsupported and ans.support_distance == pytest.approx(60.1, abs=0.05)
 
 
 def test_where_answer_without_any_retrieval_is_reasked(mem, server):

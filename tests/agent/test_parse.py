@@ -108,7 +108,9 @@ def test_build_answer_rules(mem):
 def test_extract_json_is_bounded_in_time(text):
     t0 = time.perf_counter()
     assert extract_json(text) is None
-    assert time.perf_counter() - t0 < 1.0
+    # linear work is milliseconds; the quadratic kind this guards against takes minutes, so a
+    # loose bound holds on a loaded machine and still fails it
+    assert time.perf_counter() - t0 < 10.0
 
 
 def test_extract_json_bounds_size_and_still_finds_late_objects():
@@ -122,5 +124,8 @@ def test_extract_json_bounds_size_and_still_finds_late_objects():
 
 def test_model_answer_heading_spellings():
     assert ModelAnswer.model_validate({"yaw_deg": 45}).yaw_deg == 45.0
-    assert ModelAnswer.model_validate({"heading": -30}).yaw_deg == -30.0
+    assert ModelAnswer.model_validate({"heading_deg": -30}).yaw_deg == -30.0
+    # yaw and heading are radians, as the schema and ROS have them; strings are numbers too
+    assert ModelAnswer.model_validate({"heading": -0.5}).yaw == -0.5
+    assert ModelAnswer.model_validate({"yaw": "3.14"}).yaw == 3.14
     assert ModelAnswer.model_validate({}).yaw_deg is None

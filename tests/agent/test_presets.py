@@ -116,3 +116,36 @@ def test_preset_names_and_top_k_parsing(mem):
     for bad in ("time=lots", "=3", "five", ","):
         with pytest.raises(InputError, match="--top-k"):
             parse_top_k(bad)
+
+
+def test_a_presets_retrieval_returns_the_raw_top_k(tmp_path, server):
+    """The paper's top-k is exactly k: with a preset (diverse=False) the text and image tools
+    return the k best matches, near-duplicates included; without one they keep one view per
+    moment and place; a call that says `diverse` itself wins."""
+    import ravenmem
+    from ravenmem.types import Frame, Pose
+    from tests.agent.conftest import T0
+    from tests.conftest import ColorEmbedder, solid
+
+    # six views of red within 1.5 s at one place (near-duplicates), then green far away
+    frames = [Frame(image=solid("red"), t=T0 + 0.3 * i, pose=Pose(0.0, 0.0, 0.5, 0.0)) for i in range(6)]
+    frames.append(Frame(image=solid("green"), t=T0 + 60, pose=Pose(5.0, 0.0, 0.5, 0.0)))
+    mem = ravenmem.create(tmp_path / "dup.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=32)
+    try:
+        mem.add_frames(frames)
+
+        def hits(**opts) -> list[int]:
+            server.push(
+                tool("search_text", query="red"),
+                tool("search_text", query="red", diverse=True),
+                answer(question_type="text", answer="red"),
+            )
+            create_method("raven", mem, vlm=config_for(server), top_k=5, **opts).ask("What was red?")
+            return listed(server.requests[-1])
+
+        assert hits(preset="navqa") == [5, 2]  # the raw top-5; the second call said diverse=true
+        assert hits()[0] == 2  # one red view and green: near-duplicates dropped
+        assert hits(preset="navqa", diverse=True)[0] == 2  # an explicit option beats the preset
+        assert hits(diverse=False)[0] == 5
+    finally:
+        mem.close()

@@ -21,6 +21,37 @@ from ..fsio import MAX_CONFIG, read_text
 
 ToolMode = Literal["auto", "native", "json"]
 TOOL_MODES = ("auto", "native", "json")
+ResponseFormat = Literal["none", "json_object", "json_schema", "json_object_schema"]
+RESPONSE_FORMATS = ("none", "json_object", "json_schema", "json_object_schema")
+
+# What each server documents, as settings (explicit settings win; nothing is guessed from a URL):
+# - openai, vllm: `response_format` {"type": "json_schema"} (vLLM enforces it by guided decoding);
+# - ollama: /v1 takes `response_format` json_schema (Ollama >= 0.5) but ignores `tool_choice`, so
+#   after the tool budget no tools are offered at all instead of trusting "none";
+# - llama.cpp (llama-cpp-python's server and llama-server): "auto" tool choice gives prose with
+#   most GGUF chat templates, a tool_choice naming a function gives a grammar-constrained call,
+#   and `response_format` {"type": "json_object", "schema": ...} is enforced by a grammar: the
+#   JSON-in-prompt protocol with every step constrained to a tool call or the answer, the first
+#   step to a search_text call (a 135M model otherwise answers before it has looked); its server
+#   refuses OpenAI's {"type": "json_schema"} form (a validation error, as HTTP 500), and a text
+#   model's chat template refuses image parts with HTTP 500;
+# - gemini (its OpenAI-compatible URL): `seed` is refused ("Unknown name seed"), tool call ids
+#   come back empty (the client numbers them), and `response_format` cannot be combined with
+#   tools (it is only sent on requests without tools, for every provider).
+PROVIDERS: dict[str, dict[str, Any]] = {
+    "openai": {"response_format": "json_schema"},
+    "vllm": {"response_format": "json_schema"},
+    "ollama": {"response_format": "json_schema", "tool_choice": False},
+    "llama.cpp": {"tool_mode": "json", "response_format": "json_object_schema", "first_tool": "search_text"},
+    "gemini": {"response_format": "json_schema", "send_seed": False},
+}
+DEFAULTS: dict[str, Any] = {
+    "tool_mode": "auto",
+    "response_format": "none",
+    "send_seed": True,
+    "tool_choice": True,
+    "first_tool": None,
+}
 
 ENV_KEYS = {
     "base_url": "RAVENMEM_VLM_BASE_URL",
@@ -30,6 +61,10 @@ ENV_KEYS = {
     "max_retries": "RAVENMEM_VLM_MAX_RETRIES",
     "tool_mode": "RAVENMEM_VLM_TOOL_MODE",
     "question_timeout": "RAVENMEM_VLM_QUESTION_TIMEOUT",
+    "max_tokens": "RAVENMEM_VLM_MAX_TOKENS",
+    "provider": "RAVENMEM_VLM_PROVIDER",
+    "vision": "RAVENMEM_VLM_VISION",
+    "response_format": "RAVENMEM_VLM_RESPONSE_FORMAT",
 }
 
 
@@ -45,7 +80,17 @@ class VLMConfig:
     server's Retry-After when it is shorter than the cap, and never run past the deadline.
     `tool_mode` picks native function calling, a JSON-in-prompt protocol, or `auto` (native,
     switching to JSON when the endpoint rejects the `tools` field). `temperature` and `seed`
-    are sent with every request (`seed` only when set; not every server honours it).
+    are sent with every request (`seed` only when set and `send_seed`; not every server honours it).
+
+    `provider` (openai | vllm | ollama | llama.cpp | gemini) fills in the settings below that are
+    left unset with what that server documents (`PROVIDERS`); explicit settings win.
+    `vision`: True sends pictures, False describes every memory as text (time, pose, score, OCR
+    text, labels), None sends pictures and falls back to text, once, when the server refuses
+    them. `response_format` constrains the replies of requests that offer no tools: "json_schema"
+    (OpenAI's form), "json_object_schema" (llama.cpp's `{"type": "json_object", "schema": ...}`),
+    "json_object" (any JSON) or "none". `tool_choice` False: the server ignores `tool_choice`
+    (Ollama), so no tools are offered once the budget is spent. `first_tool` names a tool the
+    model must call first (sent as a tool_choice naming it; llama.cpp constrains its arguments).
     """
 
     base_url: str | None = None
@@ -56,13 +101,35 @@ class VLMConfig:
     max_retries: int = 3
     backoff: float = 1.0
     backoff_max: float = 20.0
-    tool_mode: ToolMode = "auto"
+    tool_mode: ToolMode | None = None
     temperature: float = 0.0
     seed: int | None = None
     max_tokens: int = 1024
     image_detail: str | None = None  # OpenAI's "low" | "high" | "auto"; None = not sent
+    provider: str | None = None
+    vision: bool | None = None
+    response_format: ResponseFormat | None = None
+    send_seed: bool | None = None
+    tool_choice: bool | None = None
+    first_tool: str | None = None
 
     def __post_init__(self) -> None:
+        if self.provider is not None and self.provider not in PROVIDERS:
+            raise InputError(f"vlm provider must be one of {', '.join(PROVIDERS)}, got {self.provider!r}")
+        profile = PROVIDERS.get(self.provider or "", {})
+        for key, default in DEFAULTS.items():
+            if getattr(self, key) is None:
+                setattr(self, key, profile.get(key, default))
+        if self.response_format not in RESPONSE_FORMATS:
+            raise InputError(
+                f"vlm response_format must be one of {', '.join(RESPONSE_FORMATS)}, got {self.response_format!r}"
+            )
+        if self.first_tool in ("", "none"):  # "none" undoes a provider's first tool
+            self.first_tool = None
+        if self.first_tool is not None:
+            from ..tools import get_tool
+
+            self.first_tool = get_tool(self.first_tool).name  # an unknown tool is a one-line error
         if self.tool_mode not in TOOL_MODES:
             raise InputError(f"vlm tool_mode must be one of {', '.join(TOOL_MODES)}, got {self.tool_mode!r}")
         for name in ("timeout", "question_timeout"):
@@ -159,6 +226,8 @@ def _coerce(values: Mapping[str, Any], where: str) -> dict[str, Any]:
         try:
             if val is None:
                 out[key] = None
+            elif kind.startswith("bool"):
+                out[key] = _bool(val)
             elif kind.startswith("float"):
                 out[key] = float(val)
             elif kind.startswith("int"):
@@ -168,3 +237,16 @@ def _coerce(values: Mapping[str, Any], where: str) -> dict[str, Any]:
         except (TypeError, ValueError) as e:
             raise InputError(f"{where}: {key} = {val!r} is not a valid {kind}") from e
     return out
+
+
+def _bool(val: Any) -> bool | None:
+    if isinstance(val, bool):
+        return val
+    word = str(val).strip().lower()
+    if word in ("auto", ""):
+        return None
+    if word in ("1", "true", "yes", "on"):
+        return True
+    if word in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(word)

@@ -5,10 +5,17 @@
     CALL_MODEL / CHECK_ANSWER / RUN_TOOLS --unusable--> REASK --> CALL_MODEL | FAILED
 
 Budgets bound every path: at most `max_tool_calls` tool runs (after that the model is told to
-answer and tools are offered with tool_choice "none"), at most `max_reasks` corrective
+answer and tools are offered with tool_choice "none", or not at all where the server ignores
+tool_choice or the answer is constrained by a schema), at most `max_reasks` corrective
 re-asks, a hard cap on model turns, and a wall-clock limit per question (the VLM config's
 `question_timeout`). Whatever happens, `ask` returns an `Answer`; transport failures and
 time-outs become an explicit failure answer (`failed=True`, `error`).
+
+Every tool call, native or written in the text (`agent.replies`), is run or rejected with a
+named reason (unknown tool, arguments that are not an object, a failed check), recorded in
+the trace. With `response_format` set, requests without tools constrain the reply: the answer
+schema, or in the JSON protocol one step (a tool call or the answer). A text-only model
+(`vision=False`, or a server that refused pictures once) gets every memory as text.
 """
 
 from __future__ import annotations
@@ -28,13 +35,15 @@ from ..errors import InputError
 from ..fsio import atomic_write
 from ..imageio import read_image
 from ..memory.protocol import MemoryLike
-from .client import NO_MODEL, ChatReply, ToolsRejectedError, VLMClient, VLMError
+from .client import NO_MODEL, ChatReply, ImagesRejectedError, ToolsRejectedError, VLMClient, VLMError
 from .config import VLMConfig
 from .images import data_url, jpeg_of_array
+from .labels import FrameLabels
 from .parse import MAX_REPLY_CHARS, ModelAnswer, build_answer, evidence_of, extract_json
 from .presets import Preset, get_preset, merge_top_k
-from .prompts import budget_spent, reask, system_prompt
+from .prompts import NO_PICTURES, budget_spent, reask, system_prompt
 from .questions import classify_question
+from .replies import answer_schema, response_format, step_schema, strip_thinking, text_tool_calls
 from .schema import Answer, Cost
 from .tool_calls import (
     DEFAULT_K,
@@ -81,9 +90,12 @@ class _Run:
     candidate: Any = None
     reason: str = ""
     reask_text: str = ""
+    force_answer: bool = False  # the last reply was prose: ask for the answer object alone, constrained
+    force_tool: bool = False  # the last answer rested on no memory: the next step must be a tool call
     answer: Answer | None = None
     error: str | None = None
     notes: list[str] = field(default_factory=list)
+    call_log: list[dict[str, Any]] = field(default_factory=list)  # every tool call: ran, or why not
 
 
 class Agent:
@@ -118,8 +130,11 @@ class Agent:
         temperature: float | None = None,
         seed: int | None = None,
         preset: str | Preset | None = None,
+        diverse: bool | None = None,
     ) -> None:
         p = get_preset(preset)
+        if diverse is None and p is not None:
+            diverse = p.diverse  # the paper's top-k: exactly k, near-duplicates included
         if p is not None:
             top_k = merge_top_k(p.top_k, top_k)
         elif top_k is None:
@@ -148,6 +163,7 @@ class Agent:
         self.show_scores = bool(show_scores)
         self.time_mode = check_time_mode(time_mode)
         self.preset = p.name if p else None
+        self.diverse = diverse
         self.trace_path = Path(trace_path) if trace_path else None
         self.last_trace: dict[str, Any] | None = None
         if isinstance(vlm, VLMClient):
@@ -160,6 +176,8 @@ class Agent:
         self.temperature = self.client.config.temperature if temperature is None else float(temperature)
         self.seed = self.client.config.seed if seed is None else int(seed)
         self.mode = "json" if self.client.config.tool_mode == "json" else "native"
+        self.text_only = self.client.config.vision is False  # sticky once a server refused pictures
+        self.tools_accepted = False  # a request with tools got a reply: later 4xx are not about tools
 
     # ------------------------------------------------------------------ public
     def ask(self, question: str, image: np.ndarray | str | Path | None = None) -> Answer:
@@ -178,6 +196,9 @@ class Agent:
             run.error = str(e)
         answer = run.answer if run.answer is not None else self._failure(run)
         answer.notes = run.notes + answer.notes
+        answer.vision = self.attach_images and not self.text_only
+        if self.text_only and self.attach_images:
+            answer.notes.append(NO_PICTURES)
         answer.model = self.client.config.model
         answer.model_host = self.client.config.host
         answer.embedder = self._embedder_name() if run.runner.embedded else None
@@ -192,6 +213,7 @@ class Agent:
             prompt_tokens=run.prompt_tokens,
             completion_tokens=run.completion_tokens,
             tool_calls=run.tool_calls,
+            tool_calls_rejected=sum(1 for c in run.call_log if not c["ok"]),
             wall_s=round(time.perf_counter() - t_start, 4),
         )
         self._trace(run, answer, self.client.events[first_event:])
@@ -207,6 +229,9 @@ class Agent:
             image_max_side=self.image_max_side,
             show_scores=self.show_scores,
             time_mode=self.time_mode,
+            diverse=self.diverse,
+            attach_images=not self.text_only,
+            labels=FrameLabels(self.memory) if self.text_only else None,
         )
 
     def _extra_opening(self, run: _Run) -> list[dict[str, Any]]:
@@ -221,19 +246,28 @@ class Agent:
     # ------------------------------------------------------------------ the machine
     def _open(self, run: _Run) -> None:
         tools_on = self.max_tool_calls > 0
-        listing = run.runner.prompt_listing() if tools_on and run.mode == "json" else None
-        attached = run.image is not None and self.attach_images
+        constrained = (self.client.config.response_format or "none") != "none"
+        listing = (
+            run.runner.prompt_listing(schemas=not constrained) if tools_on and run.mode == "json" else None
+        )
+        sees = self.attach_images and not self.text_only
+        attached = run.image is not None and sees
         sys_text = system_prompt(
             self.memory.count(),
             self.memory.time_span(),
             listing,
             self.max_tool_calls,
-            images=self.attach_images,
+            images=sees,
             scores=self.show_scores,
-            query_image=attached and "search_image" in run.runner.names,
+            query_image=run.image is not None and "search_image" in run.runner.names,
             latest=run.runner.latest,
+            captions=run.runner.captions is not None,
         )
         parts: list[dict[str, Any]] = [{"type": "text", "text": f"Question: {run.question}"}]
+        if run.image is not None and self.attach_images and not sees:
+            parts.append(
+                {"type": "text", "text": "The user attached an image (you cannot see it; search_image can)."}
+            )
         if attached and run.image is not None:
             jpeg = jpeg_of_array(run.image, self.image_max_side)
             parts.append({"type": "text", "text": "The user attached this image to the question:"})
@@ -272,49 +306,108 @@ class Agent:
                 return
         run.error = "the agent loop hit its step limit"
 
+    def _request(self, run: _Run) -> dict[str, Any]:
+        """Tools, tool_choice and response_format of this turn (see the module docstring).
+
+        The model must call a tool (and, with `first_tool`, that tool) on the first turn when
+        the config names one, and after an answer that rested on no memory: natively by a
+        tool_choice naming the tool, in the JSON protocol by a step schema without the answer."""
+        cfg = self.client.config
+        budget_left = run.tool_calls < self.max_tool_calls and self.max_tool_calls > 0
+        out: dict[str, Any] = {"tools": None, "tool_choice": None, "response_format": None}
+        constrain = cfg.response_format or "none"
+        if run.force_answer and constrain != "none":
+            out["response_format"] = response_format(constrain, answer_schema(), "memory_answer")
+            return out
+        specs = run.runner.specs() if budget_left else []
+        first = cfg.first_tool if run.tool_calls == 0 and cfg.first_tool in run.runner.names else None
+        must_search = budget_left and (first is not None or run.force_tool)
+        if run.mode == "native" and self.max_tool_calls > 0:
+            if budget_left:
+                out["tools"] = specs
+                out["tool_choice"] = {"type": "function", "function": {"name": first}} if first else "auto"
+            elif constrain == "none" and cfg.tool_choice:
+                out["tools"], out["tool_choice"] = run.runner.specs(), "none"
+        if out["tools"] is None:
+            if run.mode == "json" and budget_left:
+                named = [sp for sp in specs if sp["function"]["name"] == first] if first else specs
+                schema = step_schema(named, answer=not must_search, required_only=first is not None)
+                name = "memory_step"
+            else:
+                schema, name = answer_schema(), "memory_answer"
+            out["response_format"] = response_format(constrain, schema, name)
+        return out
+
     def _call(self, run: _Run) -> ChatReply:
-        tools = run.runner.specs() if self.max_tool_calls > 0 and run.mode == "native" else None
-        choice = "auto" if run.tool_calls < self.max_tool_calls else "none"
         opts: dict[str, Any] = {"temperature": self.temperature, "seed": self.seed, "deadline": run.deadline}
         try:
-            reply = self.client.chat(run.messages, tools=tools, tool_choice=choice, **opts)
+            try:
+                request = self._request(run)
+                reply = self.client.chat(run.messages, **request, **opts)
+            except ImagesRejectedError as e:
+                self._to_text(run, str(e))
+                request = self._request(run)
+                reply = self.client.chat(run.messages, **request, **opts)
+            self.tools_accepted = self.tools_accepted or bool(request["tools"])
         except ToolsRejectedError as e:
+            if self.tools_accepted:  # this endpoint took tools before: the refusal is of something else
+                raise VLMError(str(e).replace("rejected the tools field", "refused the request")) from e
             if self.client.config.tool_mode != "auto":
                 raise VLMError(f"{e}; set tool_mode to 'json' (--tool-mode json) for this endpoint") from e
             self.mode = run.mode = "json"  # sticky for later questions too
             run.notes.append("endpoint rejected tools: switched to the JSON-in-prompt protocol")
             run.wm, run.tool_calls = WorkingMemory(), 0
             self._open(run)
-            reply = self.client.chat(run.messages, **opts)
+            reply = self.client.chat(run.messages, **self._request(run), **opts)
         run.turns += 1
+        run.force_answer = run.force_tool = False
         run.prompt_tokens += reply.prompt_tokens
         run.completion_tokens += reply.completion_tokens
         return reply
 
+    def _to_text(self, run: _Run, why: str) -> None:
+        """The server refused pictures: from now on this agent describes memories as text, and
+        each picture already in this conversation becomes the labels of what it shows."""
+        self.text_only = True
+        run.runner.attach_images = False
+        run.runner.labels = labels = FrameLabels(self.memory)
+        run.notes.append(f"the server refused pictures ({why}): memories are described as text from now on")
+        words = labels([s.record for s in run.wm.items.values()]) if run.wm.items else {}
+        for msg in run.messages:
+            parts = msg.get("content")
+            if isinstance(parts, list) and any(p.get("type") == "image_url" for p in parts):
+                msg["content"] = _pictures_as_text(parts, words)
+
     def _classify(self, run: _Run, reply: ChatReply) -> Step:
         if reply.tool_calls:
-            run.calls = [(c.id, c.name, c.arguments) for c in reply.tool_calls]
+            run.calls = [
+                (c.id or f"call_{run.turns}_{i}", c.name, c.arguments) for i, c in enumerate(reply.tool_calls)
+            ]
             run.messages.append(
                 {
                     "role": "assistant",
-                    "content": reply.content,
+                    "content": reply.content or "",  # not null: chat templates concatenate it
                     "tool_calls": [
                         {
-                            "id": c.id,
+                            "id": cid,
                             "type": "function",
-                            "function": {"name": c.name, "arguments": c.arguments},
+                            "function": {"name": name, "arguments": args},
                         }
-                        for c in reply.tool_calls
+                        for cid, name, args in run.calls
                     ],
                 }
             )
             return Step.RUN_TOOLS
-        content = (reply.content or "").strip()
+        content = strip_thinking(reply.content)
         if len(content) > MAX_REPLY_CHARS:
             run.messages.append({"role": "assistant", "content": content[:2000] + " [... cut]"})
             run.reason = f"the reply was {len(content)} characters long; the JSON answer must be short"
             return Step.REASK
         run.messages.append({"role": "assistant", "content": content or (reply.refusal or "")})
+        calls = text_tool_calls(content)
+        if calls:
+            run.calls = [(f"text_call_{run.turns}_{i}", name, args) for i, (name, args) in enumerate(calls)]
+            return Step.RUN_TOOLS
         obj = extract_json(content)
         if obj is None:
             if reply.refusal or reply.finish_reason == "content_filter":
@@ -325,19 +418,25 @@ class Agent:
                 run.reason = "no JSON object found in the reply" + (
                     f" ({content[:80]!r})" if content else " (empty)"
                 )
+                run.force_answer = True  # with constraints on, the re-ask gets the answer schema
             return Step.REASK
-        calls = _json_tool_calls(obj)
-        if calls:
-            run.calls = [(f"json_call_{run.turns}_{i}", name, args) for i, (name, args) in enumerate(calls)]
-            return Step.RUN_TOOLS
         run.candidate = obj
         return Step.CHECK_ANSWER
 
     def _run_tools(self, run: _Run) -> Step:
         native = run.messages[-1].get("tool_calls") is not None
         if run.tool_calls >= self.max_tool_calls:
-            if native:
-                for cid, _, _ in run.calls:
+            for cid, name, args in run.calls:
+                shown = args if isinstance(args, str) else json.dumps(args, default=str)
+                run.call_log.append(
+                    {
+                        "name": name,
+                        "arguments": shown[:300],
+                        "ok": False,
+                        "reason": "the tool budget is spent",
+                    }
+                )
+                if native:
                     run.messages.append(
                         {"role": "tool", "tool_call_id": cid, "content": "not run: tool budget spent"}
                     )
@@ -351,8 +450,14 @@ class Agent:
                 run.tool_calls += 1
                 images += out.images
                 text = out.text
+                reason = None if out.ok else text.removeprefix("error: ")
             else:
                 text = f"{name}: not run, the tool budget ({self.max_tool_calls} calls) is spent"
+                reason = "the tool budget is spent"
+            shown_args = args if isinstance(args, str) else json.dumps(args, default=str)
+            run.call_log.append(
+                {"name": name, "arguments": shown_args[:300], "ok": reason is None, "reason": reason}
+            )
             texts.append(text)
             if native:
                 run.messages.append({"role": "tool", "tool_call_id": cid, "content": text})
@@ -389,6 +494,7 @@ class Agent:
             run.reason = "a 'where' answer must rest on memories, and none were retrieved"
             if self.max_tool_calls > run.tool_calls:
                 run.reason += ": search the memory with the tools first"
+                run.force_tool = True
             return Step.REASK
         run.answer = build_answer(ma, run.question, run.wm, self.memory, self.name, self.max_position_offset)
         attach_changes(run.answer, run.wm)
@@ -421,6 +527,7 @@ class Agent:
             "time_mode": self.time_mode,
             "turns": run.turns,
             "reasks": run.reasks,
+            "tool_calls": run.call_log,
             "events": events,
             "answer": answer.model_dump(),
         }
@@ -436,18 +543,21 @@ class Agent:
         atomic_write(path, json.dumps(trace, indent=2, default=str))
 
 
-def _json_tool_calls(obj: Any) -> list[tuple[str, Any]]:
-    """Tool requests written as JSON text: {"tool": ..., "arguments": ...}, a list of them, or {"tool_calls": [...]}."""
-    if isinstance(obj, dict) and isinstance(obj.get("tool_calls"), list):
-        obj = obj["tool_calls"]
-    items: list[Any] = obj if isinstance(obj, list) else [obj]
-    out = []
-    for it in items:
-        if not isinstance(it, dict):
-            return []
-        fn: dict[str, Any] = it["function"] if isinstance(it.get("function"), dict) else it
-        name = fn.get("tool") or fn.get("name")
-        if not isinstance(name, str) or not ({"arguments", "args", "tool"} & fn.keys()):
-            return []
-        out.append((name, fn.get("arguments", fn.get("args", {}))))
+def _pictures_as_text(parts: list[dict[str, Any]], words: dict[int, list[str]]) -> list[dict[str, Any]]:
+    """Content parts with each picture replaced by the labels of the memory it shows (named by
+    the `[m12] at ...` text part before it), or a line saying it is not shown."""
+    out: list[dict[str, Any]] = []
+    for part in parts:
+        if part.get("type") != "image_url":
+            out.append(part)
+            continue
+        prev = out[-1].get("text", "") if out else ""
+        found = re.match(r"\[m(\d+)\]", prev)
+        labels = words.get(int(found.group(1))) if found else None
+        text = (
+            f"picture shows (labels): {', '.join(labels)}"
+            if labels
+            else "(picture not shown: text-only model)"
+        )
+        out.append({"type": "text", "text": text})
     return out

@@ -1,103 +1,109 @@
-"""Methods by name, for the CLI, the service and the evaluation: `create_method("raven", mem)`.
+"""Methods by name, for the CLI, the service and the evaluation, built from one `MethodOptions`.
 
-Every factory takes the memory plus keyword options and ignores options meant for others
-(so the evaluator can pass one options dict to every method). VLM-backed methods (`raven`,
-`vlm-only`, `caption`) take `vlm` (a `VLMConfig`, a `VLMClient` or None for the
-environment/config file) and fail with a one-line `InputError` when no model is configured.
-`preset` fills in the options it sets (budget, k per tool, temperature, seed) that are not
-given explicitly: explicit options win.
+Each factory takes the memory and the typed options (`ravenmem.agent.ask.MethodOptions`, the
+preset already filled in) and reads the fields it uses; a field left None keeps the method's
+own default. VLM-backed methods (`raven`, `vlm-only`, `caption`) take `options.vlm` (a
+`VLMConfig`, a `VLMClient`, or None for the environment and config file) and fail with a
+one-line `InputError` when no model is configured. A plugin registered under
+`ravenmem.methods` is called the same way: `factory(spec, memory=..., options=...)`.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import InputError
 from ..memory.protocol import MemoryLike
+from .ask import create_method
 from .base import METHODS, Method, needs_vlm, vlm_method
 from .client import NO_MODEL
 from .config import VLMConfig
-from .presets import Preset, apply_preset
 from .tool_calls import per_tool_k
 
-AGENT_OPTS = (
-    "vlm",
-    "top_k",
-    "max_tool_calls",
-    "trace_path",
-    "max_reasks",
-    "max_position_offset",
-    "image_max_side",
-    "show_scores",
-    "time_mode",
-    "temperature",
-    "seed",
-    "preset",
-)
+if TYPE_CHECKING:
+    from .ask import MethodOptions
+
+__all__ = ["create_method", "require_model"]
 
 
-def _pick(opts: dict[str, Any], names: tuple[str, ...], per_tool: bool = False) -> dict[str, Any]:
-    """The options a method takes. Only the VLM agents have one k per tool: the others get the
-    text tool's k when a {tool: k} mapping is given."""
-    out = {k: v for k, v in opts.items() if k in names and v is not None}
-    if not per_tool and isinstance(out.get("top_k"), dict):
-        out["top_k"] = per_tool_k(out["top_k"])["search_text"]
-    return out
+def _given(**values: Any) -> dict[str, Any]:
+    """The keyword arguments that were set: None leaves the constructor's default."""
+    return {k: v for k, v in values.items() if v is not None}
+
+
+def _agent_args(o: MethodOptions) -> dict[str, Any]:
+    """What every VLM agent takes from the options."""
+    return _given(
+        vlm=o.vlm,
+        top_k=o.top_k,
+        trace_path=o.trace_path,
+        max_reasks=o.max_reasks,
+        max_position_offset=o.max_position_offset,
+        image_max_side=o.image_max_side,
+        show_scores=o.show_scores,
+        time_mode=o.time_mode,
+        temperature=o.temperature,
+        seed=o.seed,
+        preset=o.preset,
+        diverse=o.diverse,
+    )
+
+
+def _text_k(top_k: int | dict[str, int] | None) -> int | None:
+    """Methods with one k take the text tool's k of a {tool: k} mapping."""
+    return per_tool_k(top_k)["search_text"] if isinstance(top_k, dict) else top_k
 
 
 @METHODS.register("raven")
 @vlm_method
-def _raven(spec: str, memory: MemoryLike, **opts: Any) -> Method:
+def _raven(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .loop import Agent
 
-    return Agent(memory, **_pick(opts, AGENT_OPTS, per_tool=True))
+    return Agent(memory, max_tool_calls=options.max_tool_calls, **_agent_args(options))
 
 
 @METHODS.register("offline")
-def _offline(spec: str, memory: MemoryLike, **opts: Any) -> Method:
+def _offline(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .offline import OfflineReasoner
 
-    return OfflineReasoner(memory, **_pick(opts, ("top_k", "config")))
+    return OfflineReasoner(memory, **_given(top_k=_text_k(options.top_k), config=options.offline_config))
 
 
 @METHODS.register("embedder-only")
-def _embedder_only(spec: str, memory: MemoryLike, **opts: Any) -> Method:
+def _embedder_only(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .baselines import EmbedderOnly
 
     return EmbedderOnly(memory)
 
 
 @METHODS.register("random")
-def _random(spec: str, memory: MemoryLike, **opts: Any) -> Method:
+def _random(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .baselines import RandomBaseline
 
-    return RandomBaseline(memory, **_pick(opts, ("seed",)))
+    return RandomBaseline(memory, **_given(seed=options.seed))
 
 
 @METHODS.register("vlm-only")
 @vlm_method
-def _vlm_only(spec: str, memory: MemoryLike, **opts: Any) -> Method:
+def _vlm_only(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .baselines import VLMOnly
 
-    names = ("frames",) + tuple(o for o in AGENT_OPTS if o != "max_tool_calls")
-    return VLMOnly(memory, **_pick(opts, names, per_tool=True))
+    return VLMOnly(memory, **_given(frames=options.frames), **_agent_args(options))
 
 
 @METHODS.register("caption")
 @vlm_method
-def _caption(spec: str, memory: MemoryLike, **opts: Any) -> Method:
+def _caption(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .captions import CaptionAgent
 
-    names = AGENT_OPTS + ("encoder", "captioner", "auto_caption", "segment_frames", "segment_s")
-    return CaptionAgent(memory, **_pick(opts, names, per_tool=True))
-
-
-def create_method(name: str, memory: MemoryLike, preset: str | Preset | None = None, **opts: Any) -> Method:
-    """A method by name: raven | offline | embedder-only | vlm-only | caption | random.
-
-    `preset` (raven-qa | navqa | findingdory) supplies the options it sets that `opts` leaves
-    out or passes as None; see `ravenmem.agent.presets`."""
-    return METHODS.create(name, memory=memory, **apply_preset(preset, opts))
+    extra = _given(
+        encoder=options.encoder,
+        captioner=options.captioner,
+        auto_caption=options.auto_caption,
+        segment_frames=options.segment_frames,
+        segment_s=options.segment_s,
+    )
+    return CaptionAgent(memory, max_tool_calls=options.max_tool_calls, **extra, **_agent_args(options))
 
 
 def require_model(name: str, vlm: VLMConfig) -> None:

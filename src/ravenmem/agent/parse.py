@@ -26,6 +26,9 @@ from .tool_calls import Shown, WorkingMemory
 
 MAX_REPLY_CHARS = 200_000  # a JSON answer is a few hundred characters; a longer reply is malformed
 MAX_DECODE_ATTEMPTS = 32
+MAX_COORD = 1e6  # metres: a map coordinate beyond this is not a place (1e308 would overflow distances)
+MAX_DURATION = 1e9  # seconds (~32 years)
+TIME_MARGIN = 366 * 86400.0  # a time further than this outside the recording is not one of its times
 _FENCE = re.compile(r"```(?:json|JSON)?\s*(.*?)```", re.DOTALL)
 _TYPE_SYNONYMS = {
     "location": "position",
@@ -91,7 +94,13 @@ Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
 class ModelAnswer(BaseModel):
-    """The answer object the models are asked for; lenient about spelling, strict about types."""
+    """The answer object the models are asked for; lenient about spelling, strict about types.
+
+    Numbers may be written as strings (`"3.14"`, `"[1.71,-4.13,0.47]"`, as in the RAVEN paper's
+    own examples); `yaw` and `heading` are radians (the schema's unit, and ROS's), `yaw_deg` and
+    `heading_deg` degrees; `binary` is read as `yes`; a null field is a field not given. Values
+    that are not numbers a place or a time can have (NaN, 1e308) make the answer invalid, so the
+    model is asked again."""
 
     model_config = ConfigDict(extra="ignore")
 
@@ -102,14 +111,51 @@ class ModelAnswer(BaseModel):
         validation_alias=AliasChoices("evidence", "evidence_ids", "memory_ids", "memories"),
     )
     position: list[Finite] | None = None
-    yaw_deg: Finite | None = Field(
-        None, validation_alias=AliasChoices("yaw_deg", "yaw", "heading_deg", "heading")
-    )
+    yaw_deg: Finite | None = Field(None, validation_alias=AliasChoices("yaw_deg", "heading_deg"))
+    yaw: Finite | None = Field(None, validation_alias=AliasChoices("yaw", "heading", "yaw_rad"))
     time: float | str | None = None
     duration_s: Finite | None = Field(None, validation_alias=AliasChoices("duration_s", "duration"))
-    yes: bool | None = None
+    yes: bool | None = Field(None, validation_alias=AliasChoices("yes", "binary"))
     found: bool = True
     reasoning: str = ""
+
+    @field_validator("answer", "reasoning", mode="before")
+    @classmethod
+    def _text(cls, v: Any) -> Any:
+        if v is None:
+            return ""
+        return v if isinstance(v, str) else json.dumps(v)
+
+    @field_validator("found", mode="before")
+    @classmethod
+    def _found(cls, v: Any) -> Any:
+        return True if v is None else v
+
+    @field_validator("yaw_deg", "yaw", mode="after")
+    @classmethod
+    def _angle(cls, v: float | None) -> float | None:
+        if v is not None and abs(v) > MAX_COORD:
+            raise ValueError(f"a heading of {v:g} is not an angle")
+        return v
+
+    @field_validator("yaw", mode="after")
+    @classmethod
+    def _radians(cls, v: float | None) -> float | None:
+        # The listings show headings as `yaw=90deg`, so a model may copy degrees into `yaw`:
+        # read as radians, 90 would silently face 117 deg. More than a full turn is not a
+        # radian heading; the model is asked again (never guessed to be degrees).
+        if v is not None and abs(v) > 2 * math.pi + 1e-6:
+            raise ValueError(f"yaw {v:g} is more than a full turn in radians; give degrees as yaw_deg")
+        return v
+
+    @field_validator("time", mode="before")
+    @classmethod
+    def _when(cls, v: Any) -> Any:
+        if isinstance(v, bool) or (v is not None and not isinstance(v, (str, int, float))):
+            raise ValueError("time must be a number or a string")
+        if isinstance(v, (int, float)) and not math.isfinite(v):
+            raise ValueError("time must be finite")
+        return v
 
     @field_validator("question_type", mode="before")
     @classmethod
@@ -141,10 +187,25 @@ class ModelAnswer(BaseModel):
     @field_validator("position", mode="before")
     @classmethod
     def _pos(cls, v: Any) -> Any:
+        if isinstance(v, str):  # "[1.71,-4.13,0.47]" or "1.71, -4.13, 0.47"
+            text = v.strip()
+            if text.lower() in ("", "null", "none"):
+                return None
+            try:
+                v = json.loads(text if text.startswith("[") else f"[{text}]")
+            except ValueError:
+                raise ValueError("position must be [x, y, z] in metres, or null") from None
         if isinstance(v, dict):
             v = [v.get("x"), v.get("y"), v.get("z", 0.0)]
         if v is not None and (not isinstance(v, list) or len(v) not in (2, 3) or any(c is None for c in v)):
             raise ValueError("position must be [x, y, z] in metres, or null")
+        return v
+
+    @field_validator("position", mode="after")
+    @classmethod
+    def _on_map(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and any(abs(c) > MAX_COORD for c in v):
+            raise ValueError(f"position {v} is not on a map (coordinates beyond {MAX_COORD:g} m)")
         return v
 
     @field_validator("yes", "found", mode="before")
@@ -161,9 +222,20 @@ class ModelAnswer(BaseModel):
     def _dur(cls, v: Any) -> Any:
         if isinstance(v, str):
             try:
+                return float(v)
+            except ValueError:
+                pass
+            try:
                 return parse_duration(v)
             except RavenmemError as e:
                 raise ValueError(str(e)) from e
+        return v
+
+    @field_validator("duration_s", mode="after")
+    @classmethod
+    def _span(cls, v: float | None) -> float | None:
+        if v is not None and not 0 <= v <= MAX_DURATION:
+            raise ValueError(f"a duration of {v:g} s is not a span of this recording")
         return v
 
 
@@ -198,7 +270,7 @@ def build_answer(
     best = shown[0].record if shown and ma.found else None
     if ma.found:
         _place(ans, ma, best, wm, max_offset, notes)
-    elif ma.position is not None or ma.yaw_deg is not None:
+    elif ma.position is not None or ma.yaw_deg is not None or ma.yaw is not None:
         notes.append("the model's position/heading ignored: its answer says the thing was not found")
     ans.time = _time(ma.time, mem, notes)
     if ans.time is None and best is not None:
@@ -225,8 +297,10 @@ def _place(
 ) -> None:
     """Position and heading: the model's when given, else the evidence camera's, with notes.
 
-    A model position far from every memory shown is kept (the model may place a thing it saw
-    down a corridor) but flagged with a warning that names the distance."""
+    A model position farther than `max_offset` from every memory shown is kept (the model may
+    place a thing it saw down a corridor) but marked `unsupported` with the distance: nothing
+    drives there unless the user allows it (docs/agent.md, "Answers that refuse to invent a
+    place"). A position with no memory shown at all is unsupported too."""
     if ma.position is not None:
         pos = [float(c) for c in ma.position]
         if len(pos) == 2:
@@ -238,18 +312,24 @@ def _place(
         if wm.items:
             near = min(wm.items.values(), key=lambda s: _dist(pos, s))
             d = _dist(pos, near)
+            ans.support_distance = round(d, 3)
             if d > max_offset:
+                ans.unsupported = True
                 notes.append(
-                    f"warning: the model's position {_fmt(pos)} is {d:.1f} m from the nearest memory "
-                    f"shown (m{near.record.id}), more than {max_offset:g} m; kept as given"
+                    f"unsupported: the model's position {_fmt(pos)} is {d:.1f} m from the nearest memory "
+                    f"shown (m{near.record.id}), more than {max_offset:g} m"
                 )
         else:
-            notes.append("warning: the model gave a position but was shown no memory to rest it on")
+            ans.unsupported = True
+            notes.append("unsupported: the model gave a position but was shown no memory to rest it on")
     elif best is not None:
         p = best.pose
         ans.position, ans.position_source = [p.x, p.y, p.z], "evidence"
+        ans.support_distance = 0.0
         notes.append(f"no position given: used the camera position of evidence memory m{best.id}")
-    if ma.yaw_deg is not None:
+    if ma.yaw is not None:  # radians, as the schema and ROS have it
+        ans.yaw, ans.yaw_source = math.remainder(ma.yaw, 2 * math.pi), "model"
+    elif ma.yaw_deg is not None:
         ans.yaw, ans.yaw_source = math.radians((ma.yaw_deg + 180.0) % 360.0 - 180.0), "model"
     elif best is not None and ans.position is not None:
         ans.yaw, ans.yaw_source = best.pose.yaw, "evidence"
@@ -272,7 +352,12 @@ def _time(value: float | str | None, mem: MemoryLike, notes: list[str]) -> float
     if value is None or (isinstance(value, str) and not value.strip()):
         return None
     try:
-        return float(mem.parse_time(value))
-    except (RavenmemError, ValueError, TypeError) as e:
-        notes.append(f"could not read the model's time {value!r} ({e})")
+        t = float(mem.parse_time(value))
+    except (RavenmemError, ValueError, TypeError, OverflowError) as e:
+        notes.append(f"could not read the model's time {str(value)[:60]!r} ({e})")
         return None
+    t0, t1 = mem.time_span()
+    if not t0 - TIME_MARGIN <= t <= t1 + TIME_MARGIN:
+        notes.append(f"the model's time {str(value)[:60]!r} is not a time of this recording")
+        return None
+    return t

@@ -33,6 +33,11 @@ when it was last seen and that the place was looked at again without it (found: 
 questions about the past ("where was it at the start?", "at 10:00?"), use before/after (with
 latest=true and before=T for "where was it at T?"), not the newest sighting."""
 
+NO_PICTURES = (
+    "the model saw no pictures: each memory was described as text (time, pose, score, the text "
+    "seen in it and labels of what its picture shows)"
+)
+
 JSON_TOOL_PROTOCOL = """You cannot call functions directly. To use a tool, reply with ONLY:
 {"tool": "<tool name>", "arguments": {...}}
 and wait for the results. Tools:
@@ -48,11 +53,15 @@ def system_prompt(
     scores: bool = True,
     query_image: bool = False,
     latest: bool = False,
+    captions: bool = True,
 ) -> str:
     """The system message; `tools_listing` is set in the JSON-in-prompt protocol only;
-    `latest`: the text/image tools offer the latest mode (a world that changes)."""
+    `latest`: the text/image tools offer the latest mode (a world that changes); without
+    `images`, memories are shown as their `captions` or else as labels of their pictures."""
     t0, t1 = span
     seen = "camera images" if images else "text captions of camera images"
+    if not images and not captions:
+        seen = "camera images described in words (labels of what each picture shows)"
     lines = [
         "You are the memory of a mobile robot. You answer questions about what the robot saw, "
         "where (map coordinates in metres, yaw in degrees) and when (UTC).",

@@ -46,6 +46,9 @@ class Cost(BaseModel):
     prompt_tokens: int = 0
     completion_tokens: int = 0
     tool_calls: int = 0
+    tool_calls_rejected: int = Field(
+        default=0, description="tool calls not run, each with a named reason in the trace"
+    )
     wall_s: float = 0.0
 
 
@@ -101,6 +104,19 @@ class Answer(BaseModel):
     found: bool = True
     failed: bool = False
     error: str | None = None
+    unsupported: bool = Field(
+        default=False,
+        description="the position is farther than the support threshold from every memory the "
+        "model was shown: an invented place, which nothing drives to unless the user allows it",
+    )
+    support_distance: float | None = Field(
+        default=None, description="metres from the position to the nearest memory the model was shown"
+    )
+    vision: bool | None = Field(
+        default=None,
+        description="whether the model was shown pictures (False: a text-only model, memories "
+        "described as text); None for methods without a model",
+    )
     evidence: list[Evidence] = Field(default_factory=list)
     reasoning: str = ""
     notes: list[str] = Field(

@@ -135,8 +135,11 @@ class ToolRunner:
 
     `tools` limits the tools offered (all four by default); `text_search` replaces the
     memory's text search (the caption baseline searches captions); `captions` adds a caption
-    line to each memory; `attach_images=False` sends text only; `show_scores=False` hides
-    similarity scores and distances; `time_mode` picks the time tool's window.
+    line to each memory; `attach_images=False` sends text only; `labels` (records -> {id:
+    words}) adds what each picture shows, for a model that cannot see (`agent.labels`);
+    `show_scores=False` hides similarity scores and distances; `time_mode` picks the time
+    tool's window; `diverse` (None: the tools' default) is the text and image tools'
+    `diverse` where the model's call leaves it out, so a preset's "exactly k" holds.
     """
 
     def __init__(
@@ -151,8 +154,12 @@ class ToolRunner:
         show_scores: bool = True,
         time_mode: str = "forward",
         tools: Sequence[str] | None = None,
+        labels: Callable[[Sequence[MemoryRecord]], dict[int, list[str]]] | None = None,
+        diverse: bool | None = None,
     ) -> None:
+        self.diverse = diverse
         self.ks = per_tool_k(top_k)
+        self.labels = labels
         self.mem = mem
         self.query_image = query_image
         self.text_search = text_search
@@ -184,17 +191,29 @@ class ToolRunner:
             out.append({"type": "function", "function": fn})
         return out
 
-    def prompt_listing(self) -> str:
-        """The tools described in words, for endpoints without function calling."""
+    def prompt_listing(self, schemas: bool = True) -> str:
+        """The tools described in words, for endpoints without function calling. Without
+        `schemas` (the server enforces them by constrained decoding) each tool is named with
+        its arguments only, `search_text(query, after?, ...)`: a third of the prompt of a small
+        local model, whose prompt processing dominates its time."""
         lines = []
         for spec in self.specs():
             fn = spec["function"]
-            params = json.dumps(fn["parameters"])
-            lines.append(f"- {fn['name']}: {fn['description']} Arguments (JSON schema): {params}")
+            if schemas:
+                params = json.dumps(fn["parameters"])
+                lines.append(f"- {fn['name']}: {fn['description']} Arguments (JSON schema): {params}")
+            else:
+                req = fn["parameters"].get("required", [])
+                args = req + [f"{a}?" for a in fn["parameters"].get("properties", {}) if a not in req]
+                lines.append(f"- {fn['name']}({', '.join(args)}): {fn['description']}")
         return "\n".join(lines)
 
     def run(self, name: str, arguments: str | Mapping[str, Any], wm: WorkingMemory) -> ToolOutput:
         """Execute one call; a bad call returns an error text the model can correct, never raises."""
+        if not name:
+            return ToolOutput(
+                f"error: a tool call without a tool name ({str(arguments)[:80]!r})", [], [], False
+            )
         if name not in self.names:
             return ToolOutput(
                 f"error: unknown tool {name!r}; available: {', '.join(self.names)}", [], [], False
@@ -204,6 +223,8 @@ class ToolRunner:
             raw = json.loads(arguments) if isinstance(arguments, str) else arguments
             if not isinstance(raw, Mapping):
                 raise InputError("arguments must be a JSON object")
+            if self.diverse is not None and "diverse" in tool.args.model_fields and "diverse" not in raw:
+                raw = {**raw, "diverse": self.diverse}
             args = tool.validate(raw)
             hits = tool.run(
                 self.mem,
@@ -231,6 +252,7 @@ class ToolRunner:
             note = changes[0].get("status_note")
             lines.append(f"status now: {status}" + (f" ({note})" if note else ""))
         images: list[SentImage] = []
+        words = self.labels([h.memory for h in hits if h.memory.id not in wm]) if self.labels else {}
         for h, change in zip(hits, changes, strict=True):
             rec = h.memory
             cap = self.captions(rec.id) if self.captions else None
@@ -240,6 +262,8 @@ class ToolRunner:
                 line += f"; stands for {h.count} memories seen from {fmt_time(h.span[0])} to {fmt_time(h.span[1])}"
             if cap:
                 line += f"; caption: {json.dumps(cap)}"
+            if words.get(rec.id):
+                line += f"; picture shows (labels): {', '.join(words[rec.id])}"
             if change:
                 wm.changes.setdefault(rec.id, {**change, "query": query})
                 if change.get("role") == "sighting":

@@ -19,6 +19,7 @@ from .options import (
     CONFIG,
     COUNT,
     IMAGE_SIDE,
+    OFFSET,
     OUTPUT,
     PICTURE,
     POINT,
@@ -53,6 +54,10 @@ SegmentOpt = Annotated[
     typer.Option(
         "--segment-frames", help="caption: keyframes per caption (default: the keyframes of each 3 s)"
     ),
+]
+ProviderOpt = Annotated[
+    str | None,
+    typer.Option(help="openai | vllm | ollama | llama.cpp | gemini: that server's documented settings"),
 ]
 ImageSideOpt = Annotated[
     int | None,
@@ -142,13 +147,42 @@ def ask(
         ROBOT_RADIUS,
         typer.Option(help="with --navigate: robot radius in metres (default: the map's)"),
     ] = None,
+    allow_unsupported: Annotated[
+        bool,
+        typer.Option(
+            "--allow-unsupported",
+            help="use (and with --navigate, drive to) a position farther than --max-position-offset "
+            "from every memory the model was shown",
+        ),
+    ] = False,
+    max_position_offset: Annotated[
+        float | None,
+        OFFSET,
+        typer.Option(
+            help="metres from every memory shown beyond which a model's position is unsupported (default 3)"
+        ),
+    ] = None,
+    provider: ProviderOpt = None,
+    vision: Annotated[
+        bool | None,
+        typer.Option(
+            "--vision/--no-vision",
+            help="the model sees pictures / gets memories as text (default: pictures, text if refused)",
+        ),
+    ] = None,
+    response_format: Annotated[
+        str | None,
+        typer.Option(help="none | json_object | json_schema | json_object_schema: constrain the answer"),
+    ] = None,
+    first_tool: Annotated[
+        str | None, typer.Option(help="a tool the model must call first (tool_choice naming it)")
+    ] = None,
 ) -> None:
     """Answer a question from a memory: position, time, yes/no, duration or text, with evidence.
-    With --navigate, exit 0 means a path to the answer was planned (1: answered, no path)."""
+    Exit 1 when the question failed or its position is unsupported (see --allow-unsupported);
+    with --navigate, exit 0 means a path to the answer was planned (1: answered, no path)."""
     import ravenmem
-    from ravenmem.agent import VLMConfig, create_method, get_preset, parse_top_k
-    from ravenmem.agent.base import needs_vlm
-    from ravenmem.agent.methods import require_model
+    from ravenmem.agent import AskRequest, MethodOptions, QuestionFailed, VLMConfig, ask, parse_top_k
     from ravenmem.errors import InputError
     from ravenmem.imageio import read_image
     from ravenmem.server.client import ServerClient, resolve_server
@@ -156,24 +190,51 @@ def ask(
     if offline and method not in (None, "offline"):
         raise InputError(f"--offline and --method {method} contradict each other")
     name = "offline" if offline else (method or "raven")
-    get_preset(preset)  # an unknown preset is an error before anything is opened
     if (from_ is not None or robot_radius is not None) and not navigate:
         raise InputError("--from and --robot-radius apply with --navigate only")
     url = resolve_server(server, memory)
     if url and navigate:
         raise InputError("--navigate plans on a local memory's map: give --memory, not --server")
-    grid, start = _navigation_inputs(memory, from_, robot_radius) if navigate else (None, None)
+    vlm_flags: dict[str, Any] = dict(
+        base_url=base_url,
+        model=model,
+        api_key=api_key,
+        tool_mode=tool_mode,
+        timeout=timeout,
+        question_timeout=question_timeout,
+        max_retries=max_retries,
+        provider=provider,
+        vision=vision,
+        response_format=response_format,
+        first_tool=first_tool,
+    )
     if url:  # a running service answers, with its own VLM settings
-        local_only = [base_url, model, api_key, tool_mode, timeout, question_timeout, max_retries, config]
-        local_only += [trace, temperature, seed, time_mode, frames, segment_frames, image_max_side]
+        local_only = [*vlm_flags.values(), config, trace, temperature, seed, time_mode, frames]
+        local_only += [segment_frames, image_max_side, max_position_offset]
         if any(v is not None for v in local_only) or hide_scores:
             raise InputError(
                 "with --server the service's own VLM settings are used: give only --method/--offline, "
-                "--preset, --top-k and --max-tool-calls"
+                "--preset, --top-k, --max-tool-calls and --allow-unsupported"
             )
+        MethodOptions.of(name, preset=preset).check()  # an unknown method or preset: one line, no request
         with ServerClient(url) as remote:
             method_asked = None if method is None and not offline else name
-            data = remote.ask(question, method_asked, parse_top_k(top_k), max_tool_calls, image, preset)
+            try:
+                data = remote.ask(
+                    question,
+                    method_asked,
+                    parse_top_k(top_k),
+                    max_tool_calls,
+                    image,
+                    preset,
+                    allow_unsupported,
+                )
+            except QuestionFailed as e:
+                if e.answer is None:
+                    raise
+                data, refusal = e.answer, str(e)
+            else:
+                refusal = ""
             if sheet is not None:
                 from ravenmem.viz.sheet import answer_title, remote_sheet
 
@@ -181,40 +242,42 @@ def ask(
                 data["sheet"] = str(sheet)
         for ev in data["evidence"]:
             ev["image_file"] = ev.get("image")
-        _output(data, json_out)
+        _output(data, json_out, refusal or None, 1 if refusal else 0)
         return
     vlm = None
-    if needs_vlm(name):
-        vlm = VLMConfig.resolve(
-            config_path=config,
-            base_url=base_url,
-            model=model,
-            api_key=api_key,
-            tool_mode=tool_mode,
-            timeout=timeout,
-            question_timeout=question_timeout,
-            max_retries=max_retries,
-        )
-        require_model(name, vlm)
+    if MethodOptions.of(name).needs_vlm:  # a VLM method reads the VLM settings (a model-free one never does)
+        vlm = VLMConfig.resolve(config_path=config, **vlm_flags)
+    opts = MethodOptions.of(
+        name,
+        vlm=vlm,
+        preset=preset,
+        top_k=parse_top_k(top_k),
+        max_tool_calls=max_tool_calls,
+        trace_path=trace,
+        frames=frames,
+        temperature=temperature,
+        seed=seed,
+        show_scores=False if hide_scores else None,
+        time_mode=time_mode,
+        segment_frames=segment_frames,
+        image_max_side=image_max_side,
+        max_position_offset=max_position_offset,
+    ).check()
+    grid, start = _navigation_inputs(memory, from_, robot_radius) if navigate else (None, None)
     img = read_image(image) if image is not None else None
-    opts = {
-        "vlm": vlm,
-        "top_k": parse_top_k(top_k),
-        "max_tool_calls": max_tool_calls,
-        "trace_path": trace,
-        "frames": frames,
-        "temperature": temperature,
-        "seed": seed,
-        "show_scores": False if hide_scores else None,
-        "time_mode": time_mode,
-        "segment_frames": segment_frames,
-        "image_max_side": image_max_side,
-    }
     assert memory is not None  # resolve_server asked for one of the two
     with ravenmem.open(memory) as mem:
-        m = create_method(name, mem, preset=preset, **opts)
-        ans = m.ask(question, image=img)
-        ans.frame_id, ans.map_id = mem.frame_id, mem.map_id  # where its position is
+        plan = None
+        if grid is not None:
+            from ravenmem.nav.goals import goal_for
+
+            def plan(ans: Any, allow: bool) -> Any:
+                return goal_for(
+                    ans, mem, start, robot_radius=robot_radius, grid=grid, allow_unsupported=allow
+                )
+
+        result = ask(mem, AskRequest(question, opts, img, plan, allow_unsupported))
+        ans = result.answer
         if sheet is not None:
             from ravenmem.viz.sheet import answer_sheet
 
@@ -225,13 +288,11 @@ def ask(
         for ev in data["evidence"]:
             f = files.get(ev["id"])
             ev["image_file"] = str(f) if f else None
-        if grid is not None:
-            from ravenmem.nav.goals import goal_for
-
-            data["navigation"] = goal_for(ans, mem, start, robot_radius=robot_radius, grid=grid).as_dict()
+        if result.navigation is not None:
+            data["navigation"] = result.navigation
     if sheet is not None:
         data["sheet"] = str(sheet)
-    _output(data, json_out)
+    _output(data, json_out, result.refusal, result.exit_code)
 
 
 def _navigation_inputs(
@@ -251,9 +312,13 @@ def _navigation_inputs(
     return grid, start
 
 
-def _output(data: dict[str, Any], json_out: bool) -> None:
+def _output(data: dict[str, Any], json_out: bool, refusal: str | None, code: int) -> None:
+    """The answer (card or JSON) on stdout; a refused result ends with its one line (the question
+    failed: ..., unsupported answer: ...) on stderr, and exit 1."""
     nav = data.get("navigation")
     if json_out:
+        if refusal:
+            data["refusal"] = refusal
         sys.stdout.write(json.dumps(data, indent=2) + "\n")
     else:
         _render(data)
@@ -261,8 +326,10 @@ def _output(data: dict[str, Any], json_out: bool) -> None:
             out_console().print(f"contact sheet: {esc(str(data['sheet']))}", highlight=False)
         if nav is not None:
             _render_navigation(nav)
-    if data["failed"] or (nav is not None and not nav["ok"]):
-        raise typer.Exit(1)
+    if refusal:
+        sys.stderr.write(" ".join(refusal.split()) + "\n")
+    if code:
+        raise typer.Exit(code)
 
 
 def _render_navigation(nav: dict[str, Any]) -> None:
@@ -287,6 +354,8 @@ def _render_navigation(nav: dict[str, Any]) -> None:
 def _render(a: dict[str, Any]) -> None:
     con = out_console()
     status = "[red]FAILED[/]" if a["failed"] else ("found" if a["found"] else "[yellow]not found[/]")
+    if a.get("unsupported"):
+        status += "  [red]UNSUPPORTED[/]"
     con.print(f"[bold]type:[/] {esc(a['question_type'])}   [bold]method:[/] {esc(a['method'])}   {status}")
     ran = [f"model {a['model']} at {a['model_host']}" if a.get("model") else ""]
     ran += [
@@ -300,6 +369,8 @@ def _render(a: dict[str, Any]) -> None:
         x, y, z = a["position"]
         yaw = f"{math.degrees(a['yaw']):.0f} deg" if a.get("yaw") is not None else "-"
         src = f"position from {a['position_source']}, yaw from {a['yaw_source']}"
+        if a.get("support_distance") is not None:
+            src += f", {a['support_distance']:.1f} m from the nearest memory shown"
         con.print(f"[bold]x y z yaw:[/] {x:.2f} {y:.2f} {z:.2f} {yaw}   ({esc(src)})")
     if a.get("time") is not None:
         con.print(f"[bold]time seen:[/] {fmt_time(a['time'])}")

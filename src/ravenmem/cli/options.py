@@ -189,6 +189,7 @@ SYNTHETIC = Kind("a whole number from 100 to 10,000,000", (Field(ge=100, le=10_0
 DISTANCE = _num(f"metres > 0, at most {4 * MAX_COORD:g}", gt=0, le=4 * MAX_COORD)
 SPAN = Kind(f"metres > 0 (inf: no limit), at most {4 * MAX_COORD:g} when finite", (Field(gt=0),))
 ROBOT_RADIUS = _num("metres from 0 to 10", ge=0, le=10)
+OFFSET = _num(f"metres from 0 to {4 * MAX_COORD:g}", ge=0, le=4 * MAX_COORD)  # a distance that may be 0
 CELL_SIZE = _num("metres from 0.001 to 10", ge=0.001, le=10)
 ANGLE = _num("degrees from 0 to 360", ge=0, le=360)
 DEPTH_SCALE = _num("units per metre > 0, at most 1e6", gt=0, le=1e6)
@@ -229,7 +230,10 @@ def _flag(name: str, meta: list[Any]) -> str:
     """`--max-upload-mb` for max_upload_mb (or the first long name typer was given); an
     argument's name in capitals."""
     for m in meta:
-        decls = getattr(m, "param_decls", None) or ()
+        decls = list(getattr(m, "param_decls", None) or ())
+        default = getattr(m, "default", None)
+        if isinstance(default, str) and default.startswith("--"):  # typer.Option("--from") in Annotated
+            decls.insert(0, default)
         if type(m).__name__ == "ArgumentInfo":
             return name.upper()
         long = [d for d in decls if isinstance(d, str) and d.startswith("--")]

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from ..agent.ask import AskRequest, ask
 from ..agent.schema import Answer
 from ..errors import InputError
 from ..fsio import atomic_open, atomic_write, atomic_write_json
@@ -450,7 +451,7 @@ class Runner:
                 client = getattr(m, "client", None)
                 if isinstance(client, RecordingClient):
                     client.context = row_key(ep, q, method, seed)
-                ans = m.ask(text, image=image)
+                ans = ask(mem, AskRequest(text, image=image), method=m).answer
             if not isinstance(ans, Answer):
                 raise TypeError(f"method {method} returned {type(ans).__name__}, not an Answer")
         except Exception as e:  # noqa: BLE001 - one failing question must not end the run; it is recorded

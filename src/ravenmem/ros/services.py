@@ -270,13 +270,12 @@ class ServiceBackend:
         return self.service.mem.frame_id
 
     def ask(self, question: str, image: np.ndarray | None, navigate: bool) -> dict[str, Any]:
-        ans = self.service.ask(question, image=image)
-        data = self.service.answer_json(ans, lambda rec: None)
-        if navigate:
-            data["navigation"] = nav = self.service.plan(ans, self.start()).as_dict()
-            if self.drive is not None and nav["ok"]:  # the answer reports how the drive went
-                data["drive"] = self.drive(nav["pose_stamped"])
-        self.service.publish_answer(data)
+        result = self.service.ask(question, image=image, navigate=navigate, start=self.start())
+        data = self.service.result_json(result, lambda rec: None)
+        nav = result.navigation
+        if nav is not None and nav["ok"] and self.drive is not None:  # how the drive went
+            data["drive"] = self.drive(nav["pose_stamped"])
+        self.service.publish_answer(data, drive=result.refusal is None)
         return data
 
     def search(

@@ -23,6 +23,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException
 from starlette.routing import Route
 
+from ..agent.ask import AskResult
 from ..errors import InputError, NotFoundError
 from ..fsio import disk_full
 from ..memory.protocol import MAX_K
@@ -62,6 +63,11 @@ class AskBody(BaseModel):
     )
     navigate: bool = Field(
         False, description="also plan a path on the memory's map to the answer (its goal: `navigation`)"
+    )
+    allow_unsupported: bool = Field(
+        False,
+        description="use (and drive to) a position farther than the support threshold from every "
+        "memory the model was shown; without it such an answer is refused with 422",
     )
 
 
@@ -136,29 +142,42 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
     add_search_routes(app, service, blocking, image_url_for, gate)
 
     # ---------------------------------------------------------------- questions
-    @app.post("/ask", tags=["ask"])
-    async def ask(body: AskBody, request: Request) -> dict[str, Any]:
-        """Answer a question as `ravenmem ask --json` does (evidence images as URLs)."""
+    @app.post("/ask", tags=["ask"], response_model=None)
+    async def ask(body: AskBody, request: Request) -> dict[str, Any] | JSONResponse:
+        """Answer a question as `ravenmem ask --json` does (evidence images as URLs). A question
+        that failed gets 502 (504: out of time), an unsupported position 422, each with the
+        one-line reason in `error` and the answer in `answer`."""
         picture = None
         if body.image is not None and body.image_memory_id is not None:
             raise InputError("give image or image_memory_id, not both")
         if body.image is not None:
             picture = await run_in_threadpool(decode_base64_image, body.image, cfg.max_pixels, "image", gate)
 
-        def run() -> dict[str, Any]:
+        def run() -> tuple[AskResult, dict[str, Any]]:
             img = picture
             if body.image_memory_id is not None:
                 img = service.mem.load_image(service.record(body.image_memory_id))
                 if img is None:
                     raise InputError(f"memory {body.image_memory_id} has no stored picture")
-            ans = service.ask(body.question, body.method, body.top_k, body.max_tool_calls, img, body.preset)
-            data = service.answer_json(ans, image_url_for(request))
-            if body.navigate:
-                data["navigation"] = service.plan(ans).as_dict()
-            service.publish_answer(data)
-            return data
+            result = service.ask(
+                body.question,
+                body.method,
+                body.top_k,
+                body.max_tool_calls,
+                img,
+                body.preset,
+                body.navigate,
+                body.allow_unsupported,
+            )
+            data = service.result_json(result, image_url_for(request))
+            service.publish_answer(data, drive=result.refusal is None)
+            return result, data
 
-        return await blocking(run)
+        result, data = await blocking(run)
+        if result.refusal:
+            reason = " ".join(result.refusal.split())
+            return JSONResponse({"error": reason, "answer": data}, status_code=result.status)
+        return data
 
     # ---------------------------------------------------------------- memories
     @app.post("/memories", tags=["memories"], status_code=201)

@@ -71,6 +71,10 @@ class ServerClient:
             body = None
         if r.status_code >= 400:
             msg = body.get("error") if isinstance(body, dict) else None
+            if isinstance(body, dict) and isinstance(body.get("answer"), dict):  # a refused question
+                from ..agent.ask import QuestionFailed
+
+                raise QuestionFailed(str(msg), body["answer"], r.status_code)
             raise InputError(f"service {self.url}: {msg or f'HTTP {r.status_code}'}")
         return body
 
@@ -97,9 +101,13 @@ class ServerClient:
         max_tool_calls: int | None = None,
         image: Path | None = None,
         preset: str | None = None,
+        allow_unsupported: bool = False,
     ) -> dict[str, Any]:
-        """A question, answered as `ravenmem ask --json` prints it (evidence images as URLs)."""
+        """A question, answered as `ravenmem ask --json` prints it (evidence images as URLs); a
+        question the service refused (failed, unsupported) raises `QuestionFailed` with the answer."""
         body: dict[str, Any] = {"question": question}
+        if allow_unsupported:
+            body["allow_unsupported"] = True
         given = (("method", method), ("preset", preset), ("top_k", top_k), ("max_tool_calls", max_tool_calls))
         for key, val in given:
             if val is not None:

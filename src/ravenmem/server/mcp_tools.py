@@ -94,6 +94,11 @@ def ask_schema(service: Service) -> dict[str, Any]:
                 "type": "boolean",
                 "description": "also plan a path on the memory's map to the answer (its goal: `navigation`)",
             },
+            "allow_unsupported": {
+                "type": "boolean",
+                "description": "accept (and send to the robot) a position far from every memory the "
+                "model was shown; without it such an answer is an error",
+            },
         },
         "required": ["question"],
         "additionalProperties": False,
@@ -163,22 +168,26 @@ def _ask(service: Service, args: dict[str, Any], base: str | None) -> types.Call
     question = args.get("question")
     if not isinstance(question, str) or not question.strip() or len(question) > 2000:
         raise RavenmemError("ask: question must be a non-empty string of at most 2000 characters")
-    extra = set(args) - {"question", "method", "preset", "top_k", "max_tool_calls", "navigate"}
+    known = {"question", "method", "preset", "top_k", "max_tool_calls", "navigate", "allow_unsupported"}
+    extra = set(args) - known
     if extra:
         raise RavenmemError(f"ask: unknown argument(s) {', '.join(sorted(extra))}")
-    if not isinstance(args.get("navigate", False), bool):
-        raise RavenmemError("ask: navigate must be true or false")
-    ans = service.ask(
+    for flag in ("navigate", "allow_unsupported"):
+        if not isinstance(args.get(flag, False), bool):
+            raise RavenmemError(f"ask: {flag} must be true or false")
+    result = service.ask(
         question,
         method=args.get("method"),
         top_k=args.get("top_k"),
         max_tool_calls=args.get("max_tool_calls"),
         preset=args.get("preset"),
+        navigate=args.get("navigate", False),
+        allow_unsupported=args.get("allow_unsupported", False),
     )
-    data = service.answer_json(ans, _url(base))
-    if args.get("navigate"):
-        data["navigation"] = service.plan(ans).as_dict()
-    service.publish_answer(data)
+    data = service.result_json(result, _url(base))
+    service.publish_answer(data, drive=result.refusal is None)
+    if result.refusal:
+        return _error(result.refusal)
     recs = service.mem.get([e["id"] for e in data["evidence"]]) if data["evidence"] else []
     return _result(service, data, recs)
 

@@ -21,6 +21,8 @@ import numpy as np
 from PIL import Image
 from pydantic import ValidationError
 
+from ..agent.ask import AskRequest, AskResult, MethodOptions
+from ..agent.ask import ask as agent_ask
 from ..agent.base import METHODS, needs_vlm
 from ..agent.config import VLMConfig
 from ..agent.presets import PRESETS
@@ -314,42 +316,55 @@ class Service:
         max_tool_calls: int | None = None,
         image: np.ndarray | None = None,
         preset: str | None = None,
-    ) -> Answer:
-        """Answer a question as `ravenmem ask` does, with the service's VLM; what the question
-        leaves out comes from the service's defaults, then from the preset or the method."""
-        from ..agent.methods import create_method
-        from ..agent.presets import get_preset
-
-        name = method or self.cfg.default_method
-        METHODS.get(name)
-        get_preset(preset)
-        vlm = None
-        if needs_vlm(name):
-            vlm = self.cfg.vlm
-            if vlm is None or not vlm.configured:
-                raise InputError(
-                    f"method {name} needs a VLM and this service has none (start it with --model and "
-                    "--base-url, or RAVENMEM_VLM_*); ask with method offline"
-                )
-        opts = {
-            "vlm": vlm,
-            "top_k": check_top_k(top_k if top_k is not None else self.cfg.top_k),
-            "max_tool_calls": check_calls(
+        navigate: bool = False,
+        allow_unsupported: bool = False,
+        start: tuple[float, float] | None = None,
+    ) -> AskResult:
+        """Answer a question as `ravenmem ask` does (`agent.ask`), with the service's own VLM;
+        what the question leaves out comes from the service's defaults, then from the preset or
+        the method. `navigate` plans a path on the memory's map to the answer (from `start`,
+        else the robot's latest pose) with `plan`."""
+        opts = MethodOptions.of(
+            method or self.cfg.default_method,
+            vlm=self.cfg.vlm or VLMConfig(),  # the service's model or none: never the environment's
+            preset=preset or self.cfg.preset,
+            top_k=check_top_k(top_k if top_k is not None else self.cfg.top_k),
+            max_tool_calls=check_calls(
                 max_tool_calls if max_tool_calls is not None else self.cfg.max_tool_calls
             ),
-        }
-        m = create_method(name, self.mem, preset=preset or self.cfg.preset, **opts)
-        ans = m.ask(question, image=image)
-        ans.frame_id, ans.map_id = self.mem.frame_id, self.mem.map_id  # where its position is
-        return ans
+        ).check()
+        plan = None
+        if navigate:
+            from ..nav.grid import OccupancyGrid
+
+            grid = OccupancyGrid.load(self.mem.path)  # no map: one line naming how to build one
+
+            def plan(ans: Answer, allow: bool) -> GoalPlan:
+                return self.plan(ans, start, allow_unsupported=allow, grid=grid)
+
+        return agent_ask(self.mem, AskRequest(question, opts, image, plan, allow_unsupported))
+
+    def result_json(self, result: AskResult, image_url: ImageUrl) -> dict[str, Any]:
+        """`answer_json` of the result's answer, with its navigation plan when one was asked for."""
+        data = self.answer_json(result.answer, image_url)
+        if result.navigation is not None:
+            data["navigation"] = result.navigation
+        return data
 
     # ---------------------------------------------------------------- goals
-    def plan(self, ans: Any, start: tuple[float, float] | None = None) -> GoalPlan:
+    def plan(
+        self,
+        ans: Any,
+        start: tuple[float, float] | None = None,
+        allow_unsupported: bool = False,
+        grid: Any = None,
+    ) -> GoalPlan:
         """The goal for an answer on the memory's map, as every front end plans it
-        (`nav.goals.goal_for`: `POST /ask` with navigate, MCP `ask`, the robot links)."""
+        (`nav.goals.goal_for`: `POST /ask` with navigate, MCP `ask`, the robot links); a failed
+        or unsupported answer is refused there unless `allow_unsupported`."""
         from ..nav.goals import goal_for
 
-        return goal_for(ans, self.mem, start)
+        return goal_for(ans, self.mem, start, grid=grid, allow_unsupported=allow_unsupported)
 
     def plan_json(
         self, data: dict[str, Any], start: tuple[float, float] | None = None
@@ -381,8 +396,12 @@ class Service:
             ev["image"] = image_url(rec) if rec is not None else None
         return data
 
-    def publish_answer(self, data: dict[str, Any]) -> None:
+    def publish_answer(self, data: dict[str, Any], drive: bool = True) -> None:
+        """Every answer goes to the event stream; only those that may be used (`drive`: not
+        failed, not an unsupported place unless allowed) go to the robot links."""
         self.bus.publish("answer", {"answer": data})
+        if not drive:
+            return
         for link in self._links:
             try:
                 link.on_answer(data)

@@ -83,11 +83,22 @@ class LocalModel:
         gguf = gguf_path()
         assert gguf is not None, missing()
         return [
-            sys.executable, "-m", "llama_cpp.server",
-            "--model", str(gguf), "--model_alias", MODEL_NAME,
-            "--host", "127.0.0.1", "--port", str(self.port),
-            "--n_ctx", str(self.ctx), "--n_threads", str(self.threads),
-        ]  # fmt: skip
+            sys.executable,
+            "-m",
+            "llama_cpp.server",
+            "--model",
+            str(gguf),
+            "--model_alias",
+            MODEL_NAME,
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--n_ctx",
+            str(self.ctx),
+            "--n_threads",
+            str(self.threads),
+        ]
 
     def start(self) -> LocalModel:
         self.log.parent.mkdir(parents=True, exist_ok=True)

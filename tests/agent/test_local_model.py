@@ -61,11 +61,25 @@ def test_ravenmem_ask_against_the_real_local_model(local_model, cli, mem_path, t
     trace = tmp_path / "trace.json"
     before = len(served_requests(local_model))
     r = cli(
-        "ask", "Where did I leave the magenta box?", "-m", str(mem_path), "--json",
-        "--base-url", local_model.base_url, "--model", MODEL_NAME, "--provider", "llama.cpp",
-        "--max-tool-calls", str(MAX_TOOL_CALLS), "--top-k", "3", "--trace", str(trace),
+        "ask",
+        "Where did I leave the magenta box?",
+        "-m",
+        str(mem_path),
+        "--json",
+        "--base-url",
+        local_model.base_url,
+        "--model",
+        MODEL_NAME,
+        "--provider",
+        "llama.cpp",
+        "--max-tool-calls",
+        str(MAX_TOOL_CALLS),
+        "--top-k",
+        "3",
+        "--trace",
+        str(trace),
         env=SLOW,
-    )  # fmt: skip
+    )
     assert "Traceback" not in r.stderr and "Traceback" not in r.stdout, r.stderr[-3000:]
     data = json.loads(r.stdout)
     t = json.loads(trace.read_text())
@@ -110,20 +124,43 @@ def test_ravenmem_ask_against_the_real_local_model(local_model, cli, mem_path, t
 def test_ravenmem_eval_split_against_the_real_local_model(local_model, cli, mem_path, tmp_path):
     queries = tmp_path / "queries.json"
     questions = [
-        {"id": "box", "question": "Where did I leave the magenta box?", "type": "position",
-         "answer": {"position": [7.0, 3.0, 0.5], "tolerance_m": 1.0}},
+        {
+            "id": "box",
+            "question": "Where did I leave the magenta box?",
+            "type": "position",
+            "answer": {"position": [7.0, 3.0, 0.5], "tolerance_m": 1.0},
+        },
         {"id": "blue", "question": "Did I see a blue box?", "type": "binary", "answer": {"yes": True}},
-    ]  # fmt: skip
+    ]
     queries.write_text(json.dumps({"questions": questions}))
     before = len(served_requests(local_model))
     out = tmp_path / "run"
     r = cli(
-        "eval", "--dataset", f"memory:{mem_path}", "--queries", str(queries), "--embedder", "test-color",
-        "--method", "raven", "--vlm", MODEL_NAME, "--vlm-base-url", local_model.base_url,
-        "--max-tool-calls", str(MAX_TOOL_CALLS), "--top-k", "3", "--workers", "1",
-        "--cache-dir", str(tmp_path / "cache"), "--out", str(out),
+        "eval",
+        "--dataset",
+        f"memory:{mem_path}",
+        "--queries",
+        str(queries),
+        "--embedder",
+        "test-color",
+        "--method",
+        "raven",
+        "--vlm",
+        MODEL_NAME,
+        "--vlm-base-url",
+        local_model.base_url,
+        "--max-tool-calls",
+        str(MAX_TOOL_CALLS),
+        "--top-k",
+        "3",
+        "--workers",
+        "1",
+        "--cache-dir",
+        str(tmp_path / "cache"),
+        "--out",
+        str(out),
         env={**SLOW, "RAVENMEM_VLM_PROVIDER": "llama.cpp", "RAVENMEM_VLM_VISION": "false"},
-    )  # fmt: skip
+    )
     assert r.returncode == 0, (r.stdout[-2000:], r.stderr[-3000:])
     rows = [json.loads(line) for line in (out / "answers.jsonl").read_text().splitlines() if line.strip()]
     assert sorted(row["qid"] for row in rows) == ["blue", "box"]

@@ -250,7 +250,7 @@ def measure(
 
     import ravenmem
 
-    from .embed._onnx import default_threads
+    from .embed.base import default_threads
 
     start = time.perf_counter()
     specs: list[str] = []

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from ravenmem.errors import InputError
-from ravenmem.ingest._util import SKIP_BAD_IMAGE
+from ravenmem.ingest.common import SKIP_BAD_IMAGE
 from ravenmem.ingest.folder import SKIP_NO_ROW, FolderSource, natural_key, time_from_name
 from ravenmem.ingest.poses import SKIP_OUTSIDE
 

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from ravenmem.errors import InputError
-from ravenmem.ingest._util import SKIP_BAD_IMAGE, SKIP_MISSING_IMAGE
+from ravenmem.ingest.common import SKIP_BAD_IMAGE, SKIP_MISSING_IMAGE
 from ravenmem.ingest.poses import SKIP_GAP, SKIP_OUTSIDE
 from ravenmem.ingest.tum import TumSource
 

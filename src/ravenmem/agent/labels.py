@@ -26,7 +26,7 @@ _LOCK = threading.Lock()
 def default_vocabulary() -> list[str]:
     """The offline embedder's label names (the first synonym of each ImageNet class)."""
     try:
-        from ..embed._text import class_names
+        from ..embed.offline import label_names as class_names
     except ImportError:  # an install without the offline embedder's files
         return []
     return list(dict.fromkeys(n.split(",")[0].strip() for n in class_names()))

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,24 +26,12 @@ from numpy.typing import ArrayLike
 
 from ..errors import RavenmemError
 from ..fsio import atomic_open
+from .base import MAX_DEFAULT_THREADS, default_threads
 from .base import cache_dir as user_cache_dir
 
+__all__ = ["MAX_DEFAULT_THREADS", "default_threads"]  # re-exported: the tests read them here
+
 OPSET = 17
-MAX_DEFAULT_THREADS = 4
-
-
-def default_threads() -> int:
-    """The intra-op threads an embedder uses unless told: every core up to 4 (beyond 4 this
-    network gains little), `$RAVENMEM_THREADS` if set."""
-    env = os.environ.get("RAVENMEM_THREADS", "").strip()
-    if env:
-        try:
-            n = int(env)
-        except ValueError:
-            raise RavenmemError(f"RAVENMEM_THREADS={env!r} is not a whole number") from None
-        if n >= 1:
-            return n
-    return max(1, min(MAX_DEFAULT_THREADS, os.cpu_count() or 1))
 
 
 class GraphBuilder:

@@ -15,7 +15,24 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from ..errors import RavenmemError
 from ..registry import Registry
+
+MAX_DEFAULT_THREADS = 4
+
+
+def default_threads() -> int:
+    """The intra-op threads an embedder uses unless told: every core up to 4 (beyond 4 this
+    network gains little), `$RAVENMEM_THREADS` if set."""
+    env = os.environ.get("RAVENMEM_THREADS", "").strip()
+    if env:
+        try:
+            n = int(env)
+        except ValueError:
+            raise RavenmemError(f"RAVENMEM_THREADS={env!r} is not a whole number") from None
+        if n >= 1:
+            return n
+    return max(1, min(MAX_DEFAULT_THREADS, os.cpu_count() or 1))
 
 
 def cache_dir() -> Path:

@@ -114,7 +114,7 @@ def _num(x: float) -> str:
 class RunOptions:
     """How the networks run; nothing here changes the vectors, so none of it is in `name`."""
 
-    threads: int | None = None  # intra-op threads; None: `_onnx.default_threads()` (torch: its default)
+    threads: int | None = None  # intra-op threads; None: `base.default_threads()` (torch: its default)
     runtime: str = "onnx"
 
     def __post_init__(self) -> None:
@@ -381,3 +381,11 @@ def fit_ridge(bank: np.ndarray, weights: np.ndarray, alpha: float = RIDGE_ALPHA)
 def _factory(spec: str, **kwargs: Any) -> OfflineEmbedder:
     cfg, run = parse_spec(spec, **kwargs)
     return OfflineEmbedder(cfg, run)
+
+
+def label_names() -> list[str]:
+    """The offline embedder's label vocabulary (ImageNet's classes, with their synonyms), for
+    front ends that describe a frame in words (text-only models)."""
+    from ._text import class_names
+
+    return list(class_names())

@@ -35,7 +35,8 @@ from typing import Any, ClassVar
 
 from ..errors import InputError
 from ..types import Frame, Intrinsics, Pose
-from ._util import (
+from .base import SOURCES, SourceConfig, SourceStats
+from .common import (
     IMAGE_EXTS,
     check_flag,
     check_gap,
@@ -45,7 +46,6 @@ from ._util import (
     parse_start_time,
     read_rgb,
 )
-from .base import SOURCES, SourceConfig, SourceStats
 from .depth import read_depth_file
 from .identity import file_head, make_identity
 from .poses import PoseTable, PoseTrack, check_match_mode, read_pose_table

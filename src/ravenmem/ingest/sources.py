@@ -12,8 +12,8 @@ from typing import Any
 
 from ..errors import InputError
 from . import video
-from ._util import IMAGE_EXTS
 from .base import SOURCES, FrameSource, SourceConfig
+from .common import IMAGE_EXTS
 
 BAG_EXTS = (".bag", ".mcap", ".db3")
 

@@ -26,8 +26,8 @@ import numpy as np
 from ..errors import InputError
 from ..fsio import read_text
 from ..types import Frame, Intrinsics, check_time
-from ._util import check_flag, check_gap, check_intrinsics, existing, pose_track_arg, read_rgb
 from .base import SOURCES, SourceConfig, SourceStats
+from .common import check_flag, check_gap, check_intrinsics, existing, pose_track_arg, read_rgb
 from .depth import preset_from_name, read_depth_file
 from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode

@@ -21,8 +21,8 @@ import av
 
 from ..errors import InputError
 from ..types import Frame
-from ._util import check_flag, check_gap, check_positive, existing, parse_start_time, pose_track_arg
 from .base import SOURCES, SourceConfig, SourceStats
+from .common import check_flag, check_gap, check_positive, existing, parse_start_time, pose_track_arg
 from .identity import file_head, make_identity
 from .poses import PoseTrack, check_match_mode
 

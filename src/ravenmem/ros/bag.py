@@ -39,8 +39,8 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
-from ..ingest._util import check_gap, check_intrinsics, existing
 from ..ingest.base import SOURCES, SourceConfig, SourceStats
+from ..ingest.common import check_gap, check_intrinsics, existing
 from ..ingest.depth import camera_info_intrinsics, decode_depth_message
 from ..ingest.identity import file_head, make_identity
 from ..ingest.poses import PoseTrack, check_match_mode

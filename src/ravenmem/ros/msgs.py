@@ -23,7 +23,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from ..ingest._util import pil_to_rgb
+from ..ingest.common import pil_to_rgb
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"

@@ -4,10 +4,7 @@ streams into the running service, and the service's answers come back to it as g
 from __future__ import annotations
 
 import math
-import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -22,7 +19,7 @@ from tests.agent.test_ask_navigate import with_map
 from tests.cli.helpers import assert_one_line_error
 from tests.ros import ros_wire as w
 from tests.ros.test_zenoh_loopback import free_port, peer, wait_until
-from tests.server.conftest import REPO, make_memory, serve_subprocess
+from tests.server.conftest import make_memory, serve_refused, serve_subprocess
 
 zenoh: Any = pytest.importorskip("zenoh", reason="the robot extra (eclipse-zenoh) is not installed")
 
@@ -108,24 +105,8 @@ def test_serve_zenoh_bad_options(tmp_path: Path) -> None:
         (["--zenoh-connect", "tcp/127.0.0.1:7447"], "need --zenoh"),
         (["--zenoh", "image=cam,pose=odom", "--zenoh-connect", "udp:nowhere"], "zenoh endpoints"),
     ]
-    env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
     for extra, message in cases:  # the real command, the colour embedder registered (serve_color.py)
-        r = subprocess.run(
-            [
-                sys.executable,
-                str(REPO / "tests" / "server" / "serve_color.py"),
-                "serve",
-                "--memory",
-                str(mem_path),
-                "--port",
-                "0",
-                *extra,
-            ],
-            capture_output=True,
-            text=True,
-            env=env,
-            timeout=120,
-        )
+        r = serve_refused(mem_path, *extra)
         assert message in assert_one_line_error(r), (extra, r.stderr)
     with ravenmem.open(mem_path) as mem:  # nothing was added or broken
         assert mem.count() == len(SCENE)

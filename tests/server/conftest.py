@@ -156,6 +156,20 @@ def serve_subprocess(
     raise AssertionError("the service did not answer /health")
 
 
+def serve_refused(mem_path: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    """`ravenmem serve --port 0` (colour test embedder) run to its end: for a service that must
+    refuse to start (bad options, another writer); its exit code and output."""
+    env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
+    script = REPO / "tests" / "server" / "serve_color.py"
+    return subprocess.run(
+        [sys.executable, str(script), "serve", "--memory", str(mem_path), "--port", "0", *extra],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+
+
 def stop(proc: subprocess.Popen[str]) -> None:
     """Stop a service as Ctrl-C does (SIGINT); killed when it has not exited within 60 s."""
     proc.send_signal(signal.SIGINT)

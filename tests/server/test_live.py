@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import io
-import os
 import signal
-import subprocess
-import sys
 import threading
 import time
 
@@ -21,7 +18,7 @@ from ravenmem.server.live import BusyError, LiveWriter
 from ravenmem.types import Pose
 from tests.agent.conftest import SCENE, T0
 from tests.conftest import ColorEmbedder, solid
-from tests.server.conftest import Served, make_memory, serve_subprocess, stop
+from tests.server.conftest import Served, make_memory, serve_refused, serve_subprocess, stop
 
 COLOURS = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0), (0, 255, 255), (255, 0, 255)]
 
@@ -216,28 +213,12 @@ def test_a_robot_can_start_from_an_empty_memory(tmp_path):
 
 
 def test_the_service_is_the_one_writer_of_its_memory(tmp_path):
-    from tests.server.conftest import REPO
 
     path = tmp_path / "m.mem"
     make_memory(path).close()
     proc, url = serve_subprocess(path)
     try:
-        env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
-        second = subprocess.run(
-            [
-                sys.executable,
-                str(REPO / "tests" / "server" / "serve_color.py"),
-                "serve",
-                "--memory",
-                str(path),
-                "--port",
-                "0",
-            ],
-            capture_output=True,
-            text=True,
-            env=env,
-            timeout=120,
-        )
+        second = serve_refused(path)
         assert second.returncode == 2 and "Traceback" not in second.stderr
         assert f"pid {proc.pid}" in second.stderr and "one writer at a time" in second.stderr
         with pytest.raises(ravenmem.errors.MemoryBusyError):  # nor can this process write to it

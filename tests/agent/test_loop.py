@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import time
 
 import pytest
 
@@ -508,8 +507,7 @@ def test_a_question_has_a_wall_clock_deadline(mem, server):
     """Each reply arrives just inside the per-request limit, but the question as a whole must stop."""
     server.default = {**tool("search_text", query="red"), "delay": 0.6}
     agent = Agent(mem, vlm=config_for(server, timeout=2.0, question_timeout=1.5), max_tool_calls=10)
-    t0 = time.monotonic()
     ans = agent.ask("Where is the red ball?")
-    took = time.monotonic() - t0
-    assert ans.failed and took < 2.6, took
-    assert "out of time" in (ans.error or "") and ans.cost.tool_calls >= 1
+    # 10 replies of 0.6 s would take 6 s: the 1.5 s deadline stops it after a few (counted, not timed)
+    assert ans.failed and 1 <= ans.cost.tool_calls <= 3 and len(server.requests) <= 4, ans.cost
+    assert "out of time" in (ans.error or "")

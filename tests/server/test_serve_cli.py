@@ -58,9 +58,7 @@ def service(desk: Path) -> Iterator[str]:
 
     proc, url = serve_subprocess(desk, colour=False)
     # models are loaded before the port answers: the first request is already warm
-    t = time.perf_counter()
     assert httpx.get(url + "/search/text", params={"q": "a keyboard", "k": 1}, timeout=60).status_code == 200
-    assert time.perf_counter() - t < 5
     yield url
     stop(proc)
 

@@ -5,7 +5,6 @@ memory's writer: the writer finishes a journal a killed writer left (`Core.acqui
 from __future__ import annotations
 
 import json
-import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,13 +13,12 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..fsio import move
 from ..store.base import Store
 from ..types import Pose
-from .folder import ANCHOR_JOURNAL, ANCHOR_POSES, aside_name
+from .folder import ANCHOR_JOURNAL, ANCHOR_POSES
 from .manifest import Manifest
+from .recovery import set_aside
 
-log = logging.getLogger(__name__)
 _CHUNK = 5000  # records read or written per store call
 
 
@@ -102,7 +100,7 @@ def finish(folder: Path, store: Store, manifest: Manifest) -> Manifest | None:
     journal's identity, the journal goes. Returns the new manifest, None when there was none.
 
     A journal that cannot be read (it is written atomically, so only a hand or a damaged disk
-    makes one) cannot wedge the memory: it is logged and set aside (`folder.aside_name`), and the
+    makes one) cannot wedge the memory: it is logged and set aside (`recovery.set_aside`), and the
     poses are put back to what the manifest says (its transform of the originals), undoing any
     part of the re-anchoring that was applied before the writer died."""
     path = folder / ANCHOR_JOURNAL
@@ -116,14 +114,7 @@ def finish(folder: Path, store: Store, manifest: Manifest) -> Manifest | None:
         map_id, frame_id = str(journal["map_id"]), str(journal["frame_id"])
         t = Transform.of(anchor["transform"]) if anchor else Transform()
     except (OSError, ValueError, KeyError, TypeError, InputError) as e:
-        aside = path.with_name(aside_name(path.name))
-        move(path, aside)
-        log.warning(
-            "%s: unreadable re-anchoring journal (%s) set aside as %s; poses kept as the manifest says",
-            path,
-            e,
-            aside.name,
-        )
+        set_aside(path, f"unreadable ({e}); poses kept as the manifest says", "re-anchoring journal")
         anchor, map_id, frame_id = manifest.anchor, manifest.map_id, manifest.frame_id
         t = Transform.of(anchor["transform"]) if anchor else Transform()
     ids, table = load_originals(folder)

@@ -36,6 +36,7 @@ from tests.agent.conftest import scene_frames
 from tests.conftest import ColorEmbedder
 
 REPO = Path(__file__).resolve().parents[2]
+SERVE_COLOR = REPO / "tests" / "server" / "serve_color.py"  # `ravenmem` with the colour embedder registered
 TOKEN = "s3cret-token-for-tests-0123456789"
 
 
@@ -112,28 +113,15 @@ def serve_subprocess(
     """`ravenmem serve --port 0` in a subprocess (with the colour test embedder registered unless
     `colour=False`; `entry`: another script that runs it); returns it and its URL once /health
     answers. Its log goes to a file (a pipe nobody reads could fill up and stop it)."""
-    env = {k: v for k, v in os.environ.items() if k not in ("RAVENMEM_TOKEN", "RAVENMEM_SERVER")}
-    env["PYTHONPATH"] = f"{REPO / 'src'}{os.pathsep}{REPO}"
-    script = entry or REPO / "tests" / "server" / "serve_color.py"
+    script = entry or SERVE_COLOR
     command = [str(script)] if colour or entry else ["-m", "ravenmem.cli.main"]
     log = tempfile.TemporaryFile("w+")  # noqa: SIM115 - lives as long as the process
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            *command,
-            "serve",
-            "--memory",
-            str(mem_path),
-            "--port",
-            "0",
-            "--log-level",
-            "warning",
-            *extra,
-        ],
+        _serve_argv(command, mem_path, "--log-level", "warning", *extra),
         stdout=subprocess.PIPE,
         stderr=log,
         text=True,
-        env=env,
+        env=_serve_env(),
     )
     assert proc.stdout is not None
     line = proc.stdout.readline()
@@ -159,15 +147,24 @@ def serve_subprocess(
 def serve_refused(mem_path: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     """`ravenmem serve --port 0` (colour test embedder) run to its end: for a service that must
     refuse to start (bad options, another writer); its exit code and output."""
-    env = dict(os.environ, PYTHONPATH=f"{REPO / 'src'}{os.pathsep}{REPO}")
-    script = REPO / "tests" / "server" / "serve_color.py"
     return subprocess.run(
-        [sys.executable, str(script), "serve", "--memory", str(mem_path), "--port", "0", *extra],
+        _serve_argv([str(SERVE_COLOR)], mem_path, *extra),
         capture_output=True,
         text=True,
-        env=env,
+        env=_serve_env(),
         timeout=120,
     )
+
+
+def _serve_env() -> dict[str, str]:
+    """This checkout's sources first; no token or server of the developer's shell."""
+    env = {k: v for k, v in os.environ.items() if k not in ("RAVENMEM_TOKEN", "RAVENMEM_SERVER")}
+    env["PYTHONPATH"] = f"{REPO / 'src'}{os.pathsep}{REPO}"
+    return env
+
+
+def _serve_argv(command: list[str], mem_path: Path, *extra: str) -> list[str]:
+    return [sys.executable, *command, "serve", "--memory", str(mem_path), "--port", "0", *extra]
 
 
 def stop(proc: subprocess.Popen[str]) -> None:

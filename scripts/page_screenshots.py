@@ -30,7 +30,7 @@ def serve(path: Path) -> tuple[str, object]:
     import ravenmem
     from ravenmem.server.app import create_app
     from ravenmem.server.run import make_server
-    from ravenmem.server.service import Service, ServiceConfig
+    from ravenmem.runtime.service import Service, ServiceConfig
 
     mem = ravenmem.open(path, writable=True)
     service = Service(mem, ServiceConfig())

@@ -3,7 +3,8 @@
 sim is a low floor (it knows types and registries, nothing of maps), nav sits above memory
 (maps, A*, goals; it knows nothing of simulators or robots), robot sits above both. ros (the
 ROS 2 messages, bags, links, node and services) sits over the memory, the agent, the planner
-and the service it attaches to; nothing below it imports it (the bag source is reached by its
+and the application core it attaches to (`runtime`, never `server`: HTTP is a sibling front
+end); nothing below it imports it (the bag source is reached by its
 registry name). Checked twice: every `import` statement in the source (module level and inside
 functions), and what importing each package really pulls into a fresh interpreter.
 """
@@ -28,7 +29,8 @@ ALLOWED = {
     "sim": _GROUND | {"sim"},
     "nav": _GROUND | {"memory", "tools", "nav"},
     "robot": _DATA | {"sim", "nav", "robot"},
-    "ros": _DATA | {"agent", "nav", "server", "ros"},
+    "runtime": _DATA | {"agent", "nav", "runtime"},
+    "ros": _DATA | {"agent", "nav", "runtime", "ros"},
 }
 # packages below ros: none of them may import it
 BELOW_ROS = (
@@ -41,6 +43,7 @@ BELOW_ROS = (
     "ingest",
     "agent",
     "nav",
+    "runtime",
     "server",
     "sim",
     "robot",

@@ -20,7 +20,7 @@ from ravenmem.ros import msgs
 from ravenmem.ros.link import LinkConfig
 from ravenmem.ros.services import register
 from ravenmem.ros.zenoh import ZenohEndpoints, start_link
-from ravenmem.server.service import Service, ServiceConfig
+from ravenmem.runtime.service import Service, ServiceConfig
 from tests.agent.test_ask_navigate import with_map
 from tests.conftest import ColorEmbedder
 from tests.ros.test_zenoh_loopback import free_port, peer, wait_until

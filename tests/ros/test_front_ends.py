@@ -203,7 +203,7 @@ def test_every_front_end_gives_the_same_goal_in_the_memorys_frame(cli, mem_path:
     # the ROS 2 node's logic (rclpy cannot run here): the same replies and goals
     from ravenmem.ros.link import LinkConfig
     from ravenmem.ros.node import NodeLogic
-    from ravenmem.server.service import Service, ServiceConfig
+    from ravenmem.runtime.service import Service, ServiceConfig
     from tests.conftest import ColorEmbedder
 
     service = Service(

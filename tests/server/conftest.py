@@ -29,9 +29,9 @@ pytest.importorskip("mcp", reason="the service needs the serve extra: pip instal
 import uvicorn  # noqa: E402
 
 import ravenmem
+from ravenmem.runtime.service import Service, ServiceConfig
 from ravenmem.server.app import create_app
 from ravenmem.server.run import make_server
-from ravenmem.server.service import Service, ServiceConfig
 from tests.agent.conftest import scene_frames
 from tests.conftest import ColorEmbedder
 

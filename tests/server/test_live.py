@@ -14,7 +14,7 @@ from PIL import Image
 
 import ravenmem
 from ravenmem.ingest.keyframes import KeyframeConfig
-from ravenmem.server.live import BusyError, LiveWriter
+from ravenmem.runtime.live import BusyError, LiveWriter
 from ravenmem.types import Pose
 from tests.agent.conftest import SCENE, T0
 from tests.conftest import ColorEmbedder, solid

@@ -17,7 +17,7 @@ from PIL import Image, ImageDraw, ImageFont
 import ravenmem
 from ravenmem.ingest.keyframes import KeyframeConfig
 from ravenmem.memory.folder import TEXT_JOURNAL_NAME
-from ravenmem.server.live import LiveWriter
+from ravenmem.runtime.live import LiveWriter
 from ravenmem.types import Frame, Pose
 from tests.conftest import ColorEmbedder, solid
 from tests.server.conftest import REPO, serve_subprocess

@@ -129,8 +129,8 @@ def serve(
     from ravenmem.agent.presets import parse_top_k
     from ravenmem.ingest.depth import parse_intrinsics
     from ravenmem.ingest.keyframes import KeyframeConfig
+    from ravenmem.runtime.service import ServiceConfig
     from ravenmem.server.run import serve as run_serve
-    from ravenmem.server.service import ServiceConfig
 
     cfg = ServiceConfig(
         keyframes=KeyframeConfig.from_spec(keyframes),
@@ -197,7 +197,7 @@ def mcp(
 
     import ravenmem
     from ravenmem.errors import require
-    from ravenmem.server.service import Service, ServiceConfig
+    from ravenmem.runtime.service import Service, ServiceConfig
 
     require("mcp", "serve")
     from ravenmem.agent.presets import parse_top_k

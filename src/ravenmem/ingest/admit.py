@@ -1,7 +1,7 @@
 """One way a frame is admitted into a memory: time check, mapper, prefilter, embed, keyframe
 rule, add.
 
-A recorded ingest (`ingest.pipeline`, which adds resume) and live adds (`server.live`, which
+A recorded ingest (`ingest.pipeline`, which adds resume) and live adds (`runtime.live`, which
 adds a queue) both go through `Admission`, so that a frame a robot streams and the same frame
 in a recording meet the same rules, in the same order, with the same skip reasons:
 

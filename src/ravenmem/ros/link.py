@@ -49,7 +49,7 @@ from . import msgs
 from .tf import TIME_SOURCES, TfTree, check_time_source, norm_frame
 
 if TYPE_CHECKING:
-    from ..server.live import LiveWriter
+    from ..runtime.live import LiveWriter
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,7 @@ from .link import LinkConfig, RosLink, goal_bytes, goal_of, writer_sink
 from .services import ServiceBackend, ask_reply, search_reply
 
 if TYPE_CHECKING:
-    from ..server.service import Service
+    from ..runtime.service import Service
 
 TICK_S = 0.1  # how often waiting images are settled
 
@@ -164,7 +164,7 @@ def main(argv: list[str] | None = None) -> None:
 
     from ..ingest.keyframes import KeyframeConfig
     from ..memory.folder import is_memory
-    from ..server.service import Service, ServiceConfig
+    from ..runtime.service import Service, ServiceConfig
 
     path = Path(args.memory)
     mem = ravenmem.open(path) if is_memory(path) else ravenmem.create(path)

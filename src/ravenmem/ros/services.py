@@ -38,7 +38,7 @@ from ..errors import RavenmemError
 from . import msgs
 
 if TYPE_CHECKING:
-    from ..server.service import Service
+    from ..runtime.service import Service
 
 log = logging.getLogger(__name__)
 
@@ -256,7 +256,7 @@ def rmw_request_attachment(seq: int, gid: bytes) -> bytes:
 
 
 class ServiceBackend:
-    """The services over a running `ravenmem serve` (`server.service.Service`): questions as
+    """The services over a running `ravenmem serve` (`runtime.service.Service`): questions as
     `POST /ask` answers them (the service's method and model), goals from `nav.goals.goal_for`
     (from `start()`, the robot's latest pose, when known), searches through the tools table."""
 

@@ -27,7 +27,7 @@ from .link import SKIP_BUSY, LinkConfig, LinkStats, RosLink, Sink, goal_bytes, g
 from .services import Backend, ServiceBackend, bridge_token, handle, keys, rmw_reply_attachment
 
 if TYPE_CHECKING:
-    from ..server.service import Service
+    from ..runtime.service import Service
     from .action import NavigateClient
 
 log = logging.getLogger(__name__)

@@ -27,13 +27,13 @@ from ..agent.ask import AskResult
 from ..errors import InputError, NotFoundError
 from ..fsio import disk_full
 from ..memory.protocol import MAX_K
+from ..runtime.events import StreamRefused
+from ..runtime.images import decode_base64_image, decode_depth, decode_image
+from ..runtime.service import Service
 from ..types import Frame, MemoryRecord, Pose, check_id, check_time
-from .events import StreamRefused
 from .http_errors import add_error_handlers
-from .images import decode_base64_image, decode_depth, decode_image
 from .search_routes import add_search_routes
 from .security import DOCS_STATIC, Guard
-from .service import Service
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")

@@ -14,8 +14,8 @@ from starlette.exceptions import HTTPException
 
 from ..errors import NotFoundError, RavenmemError
 from ..fsio import DiskFullError, disk_full
-from .images import TooLargeError
-from .live import BusyError
+from ..runtime.images import TooLargeError
+from ..runtime.live import BusyError
 
 log = logging.getLogger(__name__)
 

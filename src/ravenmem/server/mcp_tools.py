@@ -22,10 +22,10 @@ from ..agent.base import METHODS
 from ..agent.presets import PRESETS
 from ..errors import RavenmemError
 from ..memory.protocol import MAX_K, check_k
+from ..runtime.images import decode_base64_image
+from ..runtime.service import MAX_CALLS, Service
 from ..tools import TOOLS, Tool
 from ..types import MemoryRecord
-from .images import decode_base64_image
-from .service import MAX_CALLS, Service
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from ..errors import InputError, require
+from ..runtime.service import Service, ServiceConfig
 from .security import check_bind, is_loopback
-from .service import Service, ServiceConfig
 
 log = logging.getLogger(__name__)
 

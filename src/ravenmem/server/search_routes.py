@@ -16,10 +16,10 @@ from starlette.concurrency import run_in_threadpool
 
 from ..errors import InputError
 from ..memory.protocol import MAX_K
+from ..runtime.images import DecodeGate, decode_image
+from ..runtime.service import Service
 from ..tools import TOOLS, Tool, ToolArgs
 from ..types import MemoryRecord
-from .images import DecodeGate, decode_image
-from .service import Service
 
 SHORT_NAMES = {"q": "query", "t": "time"}  # short query names some clients prefer
 Blocking = Callable[[Callable[[], Any]], Awaitable[Any]]

@@ -13,12 +13,15 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ..agent.config import PROVIDERS, RESPONSE_FORMATS, TOOL_MODES
 from ..timeparse import fmt_time
 from ._console import esc, out_console
 from .options import (
     CONFIG,
     COUNT,
     IMAGE_SIDE,
+    MEMORY_ID,
+    NAME,
     OFFSET,
     OUTPUT,
     PICTURE,
@@ -31,13 +34,14 @@ from .options import (
     TOOL_CALLS,
     TOP_K,
     Force,
+    choice,
 )
 
 MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 BaseUrlOpt = Annotated[
     str | None, typer.Option("--base-url", help="OpenAI-compatible endpoint, e.g. http://localhost:8000/v1")
 ]
-ModelOpt = Annotated[str | None, typer.Option("--model", help="VLM model name")]
+ModelOpt = Annotated[str | None, NAME, typer.Option("--model", help="VLM model name")]
 KeyOpt = Annotated[
     str | None, typer.Option("--api-key", help="API key (default: RAVENMEM_VLM_API_KEY / OPENAI_API_KEY)")
 ]
@@ -57,11 +61,14 @@ SegmentOpt = Annotated[
 ]
 ProviderOpt = Annotated[
     str | None,
+    choice(*PROVIDERS),
     typer.Option(help="openai | vllm | ollama | llama.cpp | gemini: that server's documented settings"),
 ]
 ImageSideOpt = Annotated[
     int | None,
     IMAGE_SIDE,
+    MEMORY_ID,
+    NAME,
     typer.Option("--image-max-side", help="longest side in px of images sent to the model (0 = as stored)"),
 ]
 
@@ -70,6 +77,9 @@ def ask(
     question: Annotated[str, typer.Argument(help="the question, e.g. 'Where did I leave the red backpack?'")],
     memory: Annotated[Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)")] = None,
     image: Annotated[Path | None, typer.Option(help="a query image ('where did I see this?')")] = None,
+    image_memory_id: Annotated[
+        int | None, MEMORY_ID, typer.Option(help="use this memory's picture as the query picture")
+    ] = None,
     offline: Annotated[bool, typer.Option("--offline", help="no VLM: the offline reasoner")] = False,
     method: Annotated[
         str | None,
@@ -82,10 +92,12 @@ def ask(
         ),
     ] = None,
     base_url: BaseUrlOpt = None,
-    model: ModelOpt = None,
+    model_name: ModelOpt = None,
     api_key: KeyOpt = None,
     tool_mode: Annotated[
-        str | None, typer.Option(help="auto | native | json (JSON-in-prompt, no function calling)")
+        str | None,
+        choice(*TOOL_MODES),
+        typer.Option(help="auto | native | json (JSON-in-prompt, no function calling)"),
     ] = None,
     top_k: Annotated[
         str | None,
@@ -105,7 +117,8 @@ def ask(
         bool, typer.Option("--hide-scores", help="do not show similarity scores/distances to the model")
     ] = False,
     time_mode: Annotated[
-        str | None, typer.Option(help="forward | centred: the time tool's window (default forward)")
+        str | None,
+        typer.Option(help="forward | centred | nearest: the time tool's window (default forward)"),
     ] = None,
     frames: Annotated[
         int | None,
@@ -172,6 +185,7 @@ def ask(
     ] = None,
     response_format: Annotated[
         str | None,
+        choice(*RESPONSE_FORMATS),
         typer.Option(help="none | json_object | json_schema | json_object_schema: constrain the answer"),
     ] = None,
     first_tool: Annotated[
@@ -181,23 +195,35 @@ def ask(
     """Answer a question from a memory: position, time, yes/no, duration or text, with evidence.
     Exit 1 when the question failed or its position is unsupported (see --allow-unsupported);
     with --navigate, exit 0 means a path to the answer was planned (1: answered, no path)."""
-    import ravenmem
-    from ravenmem.agent import AskRequest, MethodOptions, QuestionFailed, VLMConfig, ask, parse_top_k
     from ravenmem.errors import InputError
-    from ravenmem.imageio import read_image
-    from ravenmem.server.client import ServerClient, resolve_server
+    from ravenmem.server.client import resolve_server
 
     if offline and method not in (None, "offline"):
         raise InputError(f"--offline and --method {method} contradict each other")
-    name = "offline" if offline else (method or "raven")
     if (from_ is not None or robot_radius is not None) and not navigate:
         raise InputError("--from and --robot-radius apply with --navigate only")
-    url = resolve_server(server, memory)
-    if url and navigate:
-        raise InputError("--navigate plans on a local memory's map: give --memory, not --server")
-    vlm_flags: dict[str, Any] = dict(
+    args = _ask_args(
+        question=question,
+        image_memory_id=image_memory_id,
+        method="offline" if offline else method,
+        preset=preset,
+        top_k=top_k,
+        max_tool_calls=max_tool_calls,
+        temperature=temperature,
+        seed=seed,
+        show_scores=False if hide_scores else None,
+        time_mode=time_mode,
+        frames=frames,
+        image_max_side=image_max_side,
+        max_position_offset=max_position_offset,
+        navigate=navigate,
+        start=from_,
+        robot_radius=robot_radius,
+        allow_unsupported=allow_unsupported,
+    )
+    model: dict[str, Any] = dict(
         base_url=base_url,
-        model=model,
+        model=model_name,
         api_key=api_key,
         tool_mode=tool_mode,
         timeout=timeout,
@@ -208,108 +234,139 @@ def ask(
         response_format=response_format,
         first_tool=first_tool,
     )
-    if url:  # a running service answers, with its own VLM settings
-        local_only = [*vlm_flags.values(), config, trace, temperature, seed, time_mode, frames]
-        local_only += [segment_frames, image_max_side, max_position_offset]
-        if any(v is not None for v in local_only) or hide_scores:
+    url = resolve_server(server, memory)
+    if url:  # a running service answers, with its own model
+        if navigate:
+            raise InputError("--navigate plans on a local memory's map: give --memory, not --server")
+        if any(v is not None for v in [*model.values(), config, trace, segment_frames]):
             raise InputError(
-                "with --server the service's own VLM settings are used: give only --method/--offline, "
-                "--preset, --top-k, --max-tool-calls and --allow-unsupported"
+                "with --server the service's own VLM settings are used: leave out the model's "
+                "connection flags (--base-url, --model, --provider, ...), --config, --trace and --segment-frames"
             )
-        MethodOptions.of(name, preset=preset).check()  # an unknown method or preset: one line, no request
-        with ServerClient(url) as remote:
-            method_asked = None if method is None and not offline else name
-            try:
-                data = remote.ask(
-                    question,
-                    method_asked,
-                    parse_top_k(top_k),
-                    max_tool_calls,
-                    image,
-                    preset,
-                    allow_unsupported,
-                )
-            except QuestionFailed as e:
-                if e.answer is None:
-                    raise
-                data, refusal = e.answer, str(e)
-            else:
-                refusal = ""
-            if sheet is not None:
-                from ravenmem.viz.sheet import answer_title, remote_sheet
+        data, refusal, code = _ask_remote(url, args, image, sheet)
+    else:
+        assert memory is not None  # resolve_server asked for one of the two
+        local = {"trace_path": trace, "segment_frames": segment_frames}
+        data, refusal, code = _ask_local(memory, args, image, sheet, model, config, local)
+    if sheet is not None:
+        data["sheet"] = str(sheet)
+    _output(data, json_out, refusal, code)
 
-                remote_sheet(data["evidence"], remote.picture, sheet, answer_title(data))
-                data["sheet"] = str(sheet)
-        for ev in data["evidence"]:
-            ev["image_file"] = ev.get("image")
-        _output(data, json_out, refusal or None, 1 if refusal else 0)
-        return
+
+# every field of the one ask request (`runtime.ask.AskArgs`) and the option of `ravenmem ask`
+# that sets it (a test ties them): what a question is, the same here as over HTTP, MCP and ROS
+ASK_OPTIONS = {
+    "question": "QUESTION",
+    "image": "--image",
+    "image_memory_id": "--image-memory-id",
+    "method": "--method",
+    "preset": "--preset",
+    "top_k": "--top-k",
+    "max_tool_calls": "--max-tool-calls",
+    "temperature": "--temperature",
+    "seed": "--seed",
+    "show_scores": "--hide-scores",
+    "time_mode": "--time-mode",
+    "frames": "--frames",
+    "image_max_side": "--image-max-side",
+    "max_position_offset": "--max-position-offset",
+    "navigate": "--navigate",
+    "start": "--from",
+    "robot_radius": "--robot-radius",
+    "allow_unsupported": "--allow-unsupported",
+}
+
+
+def _ask_args(**given: Any) -> Any:
+    """The options as the one ask request (`AskArgs`), checked there: a question longer than the
+    bound, an unknown method or preset is one line."""
+    from ravenmem.agent import parse_top_k
+    from ravenmem.agent.base import METHODS
+    from ravenmem.runtime.ask import AskArgs
+
+    from .nav import parse_start
+
+    if given["method"] is not None:
+        METHODS.get(given["method"])  # an unknown method: one line, before any request
+    given["top_k"] = parse_top_k(given["top_k"])
+    given["start"] = parse_start(given["start"])
+    return AskArgs.check({k: v for k, v in given.items() if v is not None})
+
+
+def _ask_remote(
+    url: str, args: Any, image: Path | None, sheet: Path | None
+) -> tuple[dict[str, Any], str | None, int]:
+    """The question, answered by a running service (its own model); evidence images as URLs."""
+    from ravenmem.agent import QuestionFailed
+    from ravenmem.server.client import ServerClient
+
+    with ServerClient(url) as remote:
+        try:
+            data, refusal = remote.ask(args, image), None
+        except QuestionFailed as e:
+            if e.answer is None:
+                raise
+            data, refusal = e.answer, str(e)
+        if sheet is not None:
+            from ravenmem.viz.sheet import answer_title, remote_sheet
+
+            remote_sheet(data["evidence"], remote.picture, sheet, answer_title(data))
+    for ev in data["evidence"]:
+        ev["image_file"] = ev.get("image")
+    return data, refusal, 1 if refusal else 0
+
+
+def _ask_local(
+    memory: Path,
+    args: Any,
+    image: Path | None,
+    sheet: Path | None,
+    model: dict[str, Any],
+    config: Path | None,
+    local: dict[str, Any],
+) -> tuple[dict[str, Any], str | None, int]:
+    """The question, answered here: the model from the flags, environment and config file."""
+    import ravenmem
+    from ravenmem.agent import AskRequest, MethodOptions, VLMConfig, ask
+    from ravenmem.imageio import read_image
+    from ravenmem.runtime.service import evidence_json
+
+    name = args.method or "raven"
     vlm = None
     if MethodOptions.of(name).needs_vlm:  # a VLM method reads the VLM settings (a model-free one never does)
-        vlm = VLMConfig.resolve(config_path=config, **vlm_flags)
-    opts = MethodOptions.of(
-        name,
-        vlm=vlm,
-        preset=preset,
-        top_k=parse_top_k(top_k),
-        max_tool_calls=max_tool_calls,
-        trace_path=trace,
-        frames=frames,
-        temperature=temperature,
-        seed=seed,
-        show_scores=False if hide_scores else None,
-        time_mode=time_mode,
-        segment_frames=segment_frames,
-        image_max_side=image_max_side,
-        max_position_offset=max_position_offset,
-    ).check()
-    grid, start = _navigation_inputs(memory, from_, robot_radius) if navigate else (None, None)
+        vlm = VLMConfig.resolve(config_path=config, **model)
+    opts = args.to_options(name, vlm=vlm, **local)
+    grid = _navigation_inputs(memory, args.robot_radius) if args.navigate else None
     img = read_image(image) if image is not None else None
-    assert memory is not None  # resolve_server asked for one of the two
     with ravenmem.open(memory) as mem:
+        if args.image_memory_id is not None:
+            img = mem.load_image(mem.get([args.image_memory_id])[0])
         plan = None
         if grid is not None:
             from ravenmem.nav.goals import goal_for
 
             def plan(ans: Any, allow: bool) -> Any:
                 return goal_for(
-                    ans, mem, start, robot_radius=robot_radius, grid=grid, allow_unsupported=allow
+                    ans, mem, args.start, robot_radius=args.robot_radius, grid=grid, allow_unsupported=allow
                 )
 
-        result = ask(mem, AskRequest(question, opts, img, plan, allow_unsupported))
-        ans = result.answer
+        result = ask(mem, AskRequest(args.question, opts, img, plan, args.allow_unsupported))
         if sheet is not None:
             from ravenmem.viz.sheet import answer_sheet
 
-            answer_sheet(mem, ans.model_dump(mode="json"), sheet)
-        data = ans.model_dump(mode="json")
+            answer_sheet(mem, result.answer.model_dump(mode="json"), sheet)
         # only pictures inside the memory folder are named (a stored path is never shown as is)
-        files = {r.id: mem.image_file(r) for r in mem.stored([e.id for e in ans.evidence])}
-        for ev in data["evidence"]:
-            f = files.get(ev["id"])
-            ev["image_file"] = str(f) if f else None
-        if result.navigation is not None:
-            data["navigation"] = result.navigation
-    if sheet is not None:
-        data["sheet"] = str(sheet)
-    _output(data, json_out, result.refusal, result.exit_code)
+        data = evidence_json(mem, result.answer, lambda rec, f: str(f) if f else None, key="image_file")
+    if result.plan is not None:
+        data["navigation"] = result.plan.as_dict()
+    return data, result.refusal, result.exit_code
 
 
-def _navigation_inputs(
-    memory: Path | None, from_: str | None, robot_radius: float | None
-) -> tuple[Any, tuple[float, float] | None]:
-    """The memory's map and the start, checked before the question costs a model call."""
-    from ravenmem.errors import InputError
+def _navigation_inputs(memory: Path, robot_radius: float | None) -> Any:
+    """The memory's map, loaded before the question costs a model call."""
     from ravenmem.nav.grid import OccupancyGrid
 
-    from .nav import parse_start
-
-    assert memory is not None
-    grid = OccupancyGrid.load(memory)  # no map: one line naming how to build one
-    start = parse_start(from_)
-    if robot_radius is not None and not (math.isfinite(robot_radius) and robot_radius >= 0):
-        raise InputError(f"--robot-radius: expected a finite radius >= 0 in metres, got {robot_radius}")
-    return grid, start
+    return OccupancyGrid.load(memory)  # no map: one line naming how to build one
 
 
 def _output(data: dict[str, Any], json_out: bool, refusal: str | None, code: int) -> None:

@@ -30,6 +30,7 @@ from .options import (
     BATCH,
     DEPTH_SCALE,
     MEMORY_ID,
+    NAME,
     PICTURE,
     RATE,
     SECONDS,
@@ -79,27 +80,6 @@ def short_path(p: str | None) -> str:
 
 def print_json(obj: Any) -> None:
     sys.stdout.write(json.dumps(obj, indent=2, default=str) + "\n")
-
-
-def parse_options(items: list[str], what: str) -> dict[str, Any]:
-    """`KEY=VALUE` strings -> kwargs; numbers and true/false are converted, the rest stay strings."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"{what}: expected KEY=VALUE, got {item!r}")
-        val: Any = raw
-        if raw.lower() in ("true", "false"):
-            val = raw.lower() == "true"
-        else:
-            for conv in (int, float):
-                try:
-                    val = conv(raw)
-                    break
-                except ValueError:
-                    pass
-        out[key.strip().replace("-", "_")] = val
-    return out
 
 
 def parse_floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
@@ -155,6 +135,7 @@ def ingest(
     store: Annotated[str | None, typer.Option(help="store URI for a new memory (default: embedded)")] = None,
     keyframes: Annotated[
         str | None,
+        NAME,
         typer.Option(
             help="keyframe rules: 'default' (when left out: moved 0.5 m or turned 15 deg or 5 s passed, "
             "then cosine <= 0.97 to the last keyframe), 'all' (every frame), only the rules named "
@@ -192,6 +173,7 @@ def ingest(
     build_map: Annotated[bool, typer.Option("--map/--no-map", help="build the map from depth frames")] = True,
     map_id: Annotated[
         str | None,
+        NAME,
         typer.Option(
             help="the map the poses are in (default: one per recording); a memory in another map "
             "is refused (see `ravenmem align`)"

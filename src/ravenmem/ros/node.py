@@ -28,6 +28,7 @@ from .link import LinkConfig, RosLink, goal_bytes, goal_of, writer_sink
 from .services import ServiceBackend, ask_reply, search_reply
 
 if TYPE_CHECKING:
+    from ..agent.ask import AskResult
     from ..runtime.service import Service
 
 TICK_S = 0.1  # how often waiting images are settled
@@ -61,13 +62,10 @@ class NodeLogic:
         self.link = RosLink(cfg, writer_sink(service.writer, cfg.source), frame_check=service.frame_check)  # type: ignore[arg-type]
         self.backend = ServiceBackend(service, self.link.poses.latest_xy)
 
-    def goal(self, answer: dict[str, Any], stamp: float | None = None) -> bytes | None:
-        """CDR of the goal PoseStamped to publish for an answer (planned now when the answer has
-        no plan yet, from the robot's latest pose), None when there is none."""
-        if "navigation" not in answer:
-            nav = self.service.plan_json(answer, self.link.poses.latest_xy())
-            answer = answer | ({"navigation": nav} if nav is not None else {})
-        goal = goal_of(answer)
+    def goal(self, result: AskResult, stamp: float | None = None) -> bytes | None:
+        """CDR of the goal PoseStamped to publish for a result (planned now when the question
+        asked for no plan, from the robot's latest pose), None when there is none."""
+        goal = goal_of(self.service.plan_of(result, self.link.poses.latest_xy()))
         return None if goal is None else goal_bytes(goal, stamp)
 
     def ask(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -131,9 +129,9 @@ class LinkNode:
                 self.node.create_service(srv, f"/{cfg.services}/{service_name}", callback)
         self.node.create_timer(TICK_S, link.tick)
 
-    def on_answer(self, answer: dict[str, Any]) -> None:
-        """The service's answer hook: publish the answer's goal (when there is a goal topic)."""
-        payload = self.logic.goal(answer) if self.goal_pub is not None else None
+    def on_answer(self, result: AskResult) -> None:
+        """The service's answer hook: publish the result's goal (when there is a goal topic)."""
+        payload = self.logic.goal(result) if self.goal_pub is not None else None
         if payload is not None and self.goal_pub is not None:
             self.goal_pub.publish(payload)
             self.logic.link.stats.add("goals")

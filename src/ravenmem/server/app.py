@@ -18,19 +18,17 @@ from typing import Annotated, Any, TypeVar
 from fastapi import FastAPI, File, Form, Query, Request, UploadFile
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException
 from starlette.routing import Route
 
-from ..agent.ask import AskResult
 from ..errors import InputError, NotFoundError
 from ..fsio import disk_full
-from ..memory.protocol import MAX_K
+from ..runtime.ask import AskArgs
 from ..runtime.events import StreamRefused
-from ..runtime.images import decode_base64_image, decode_depth, decode_image
+from ..runtime.images import decode_depth, decode_image
 from ..runtime.service import Service
-from ..types import Frame, MemoryRecord, Pose, check_id, check_time
+from ..types import Frame, MemoryRecord, Pose, check_time
 from .http_errors import add_error_handlers
 from .search_routes import add_search_routes
 from .security import DOCS_STATIC, Guard
@@ -40,35 +38,6 @@ T = TypeVar("T")
 
 KEEPALIVE_S = 15.0
 STATIC = resources.files("ravenmem.server") / "static"
-
-
-class AskBody(BaseModel):
-    """A question, as `ravenmem ask` takes it. The VLM is the service's own (never the caller's)."""
-
-    model_config = ConfigDict(extra="forbid")
-    question: str = Field(..., min_length=1, max_length=2000, description="the question")
-    method: str | None = Field(
-        None, description="raven | offline | embedder-only | vlm-only | caption | random"
-    )
-    preset: str | None = Field(None, description="raven-qa | navqa | findingdory: the paper's settings")
-    top_k: int | dict[str, int] | None = Field(
-        None, description=f"memories per tool call: N, or per tool {{'text': 30, 'time': 200}} (1 to {MAX_K})"
-    )
-    max_tool_calls: int | None = Field(
-        None, ge=1, le=20, description="tool calls before the model must answer"
-    )
-    image: str | None = Field(None, description="a query picture: base64 JPEG/PNG or a data: URL")
-    image_memory_id: Annotated[int, BeforeValidator(check_id)] | None = Field(
-        None, description="use this memory's picture as the query picture"
-    )
-    navigate: bool = Field(
-        False, description="also plan a path on the memory's map to the answer (its goal: `navigation`)"
-    )
-    allow_unsupported: bool = Field(
-        False,
-        description="use (and drive to) a position farther than the support threshold from every "
-        "memory the model was shown; without it such an answer is refused with 422",
-    )
 
 
 def create_app(service: Service, token: str | None = None, loopback: bool = True) -> FastAPI:
@@ -143,37 +112,12 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
 
     # ---------------------------------------------------------------- questions
     @app.post("/ask", tags=["ask"], response_model=None)
-    async def ask(body: AskBody, request: Request) -> dict[str, Any] | JSONResponse:
+    async def ask(body: AskArgs, request: Request) -> dict[str, Any] | JSONResponse:
         """Answer a question as `ravenmem ask --json` does (evidence images as URLs). A question
         that failed gets 502 (504: out of time), an unsupported position 422, each with the
         one-line reason in `error` and the answer in `answer`."""
-        picture = None
-        if body.image is not None and body.image_memory_id is not None:
-            raise InputError("give image or image_memory_id, not both")
-        if body.image is not None:
-            picture = await run_in_threadpool(decode_base64_image, body.image, cfg.max_pixels, "image", gate)
-
-        def run() -> tuple[AskResult, dict[str, Any]]:
-            img = picture
-            if body.image_memory_id is not None:
-                img = service.mem.load_image(service.record(body.image_memory_id))
-                if img is None:
-                    raise InputError(f"memory {body.image_memory_id} has no stored picture")
-            result = service.ask(
-                body.question,
-                body.method,
-                body.top_k,
-                body.max_tool_calls,
-                img,
-                body.preset,
-                body.navigate,
-                body.allow_unsupported,
-            )
-            data = service.result_json(result, image_url_for(request))
-            service.publish_answer(data, drive=result.refusal is None)
-            return result, data
-
-        result, data = await blocking(run)
+        result = await blocking(lambda: service.ask(body))
+        data = service.result_json(result, image_url_for(request))
         if result.refusal:
             reason = " ".join(result.refusal.split())
             return JSONResponse({"error": reason, "answer": data}, status_code=result.status)

@@ -14,6 +14,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..fsio import MAX_IMAGE, read_bounded
+from ..runtime.ask import AskArgs
 from ..tools import Tool, ToolArgs
 
 ENV_SERVER = "RAVENMEM_SERVER"
@@ -93,25 +94,11 @@ class ServerClient:
         files = {"image": (image.name, data, "application/octet-stream")}
         return dict(self._call("POST", f"/search/{tool.key}", params=params, files=files))
 
-    def ask(
-        self,
-        question: str,
-        method: str | None = None,
-        top_k: int | dict[str, int] | None = None,
-        max_tool_calls: int | None = None,
-        image: Path | None = None,
-        preset: str | None = None,
-        allow_unsupported: bool = False,
-    ) -> dict[str, Any]:
-        """A question, answered as `ravenmem ask --json` prints it (evidence images as URLs); a
-        question the service refused (failed, unsupported) raises `QuestionFailed` with the answer."""
-        body: dict[str, Any] = {"question": question}
-        if allow_unsupported:
-            body["allow_unsupported"] = True
-        given = (("method", method), ("preset", preset), ("top_k", top_k), ("max_tool_calls", max_tool_calls))
-        for key, val in given:
-            if val is not None:
-                body[key] = val
+    def ask(self, args: AskArgs, image: Path | None = None) -> dict[str, Any]:
+        """A question (the one request, `AskArgs`), answered as `ravenmem ask --json` prints it
+        (evidence images as URLs); `image` uploads a query picture. A question the service
+        refused (failed, unsupported) raises `QuestionFailed` with the answer."""
+        body = args.given()
         if image is not None:
             body["image"] = base64.b64encode(_read(image)).decode()
         return dict(self._call("POST", "/ask", json=body))

@@ -71,7 +71,8 @@ def add_error_handlers(app: FastAPI, folder: Path) -> None:
         if len(loc) > 1 and loc[0] in ("query", "body", "path", "form", "header"):
             loc = loc[1:]
         where = ".".join(loc) or "request"
-        return reply(422, f"{where}: {e.get('msg', 'invalid')}")
+        msg = str(e.get("msg", "invalid")).removeprefix("Value error, ")
+        return reply(422, f"{where}: {msg}")
 
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, exc: HTTPException) -> JSONResponse:

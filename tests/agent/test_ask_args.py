@@ -142,3 +142,36 @@ def test_a_long_question_is_refused_by_the_cli(cli, mem_path):
     )
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["method"] == "offline"
+
+
+def test_the_status_comes_from_the_typed_outcome_not_from_words():
+    """504 for a question out of time and 502 for a failed model whatever `error` says; 422 for
+    an unsupported position; the failure kind is always set on a failed answer."""
+    from ravenmem.agent.ask import AskResult
+    from ravenmem.agent.schema import Answer
+
+    late = Answer(failed=True, failure="out_of_time", error="the model said nothing")
+    broken = Answer(failed=True, error="out of time (the words of a model's reply)")
+    assert AskResult(late, refusal="x").status == 504 and AskResult(late).outcome == "out_of_time"
+    assert broken.failure == "model_failed" and AskResult(broken, refusal="x").status == 502
+    assert AskResult(Answer(unsupported=True), refusal="unsupported answer").status == 422
+    assert AskResult(Answer()).status == 200 and Answer(failure="no_answer").failure is None
+
+
+def test_the_agent_takes_method_options_as_they_are(mem_path, server):
+    """`Agent(memory, options)`: the preset is applied once (`with_preset` says so), and the
+    options a question sets win over the preset's."""
+    import ravenmem
+    from ravenmem.agent import MethodOptions
+    from ravenmem.agent.loop import Agent
+    from tests.agent.conftest import config_for
+
+    opts = MethodOptions(method="raven", vlm=config_for(server), preset="findingdory", top_k={"text": 2})
+    applied = opts.with_preset()
+    assert applied.preset_applied and applied.with_preset() is applied
+    with ravenmem.open(mem_path) as mem:
+        agent = Agent(mem, opts)
+        same = Agent(mem, applied)
+        kw = Agent(mem, vlm=config_for(server), preset="findingdory", top_k={"text": 2})
+    assert agent.ks == same.ks == kw.ks and agent.ks["search_text"] == 2
+    assert agent.max_tool_calls == applied.max_tool_calls and agent.preset == "findingdory"

@@ -51,7 +51,6 @@ ASK = f"{PACKAGE}/srv/Ask"
 SEARCH = f"{PACKAGE}/srv/Search"
 MEMORY = f"{PACKAGE}/msg/Memory"
 SERVICES = {"ask": ASK, "search": SEARCH}
-MAX_K = 1000
 
 
 def interface_dir() -> Any:
@@ -174,8 +173,6 @@ def search_reply(backend: Backend, request: dict[str, Any]) -> dict[str, Any]:
     tool = str(request.get("tool") or "text")
     k = int(request.get("k") or 5)
     near = [float(v) for v in request.get("near") or []]
-    if not 1 <= k <= MAX_K:
-        return {"memories": [], "error": f"k must be from 1 to {MAX_K}, got {k}"}
     if near and len(near) != 3:
         return {"memories": [], "error": "near must be empty or x, y, radius"}
     try:
@@ -295,22 +292,12 @@ class ServiceBackend:
     def search(
         self, tool: str, query: str, k: int, after: str | None, before: str | None, near: list[float] | None
     ) -> list[dict[str, Any]]:
+        from ..runtime.service import tool_args
         from ..tools import get_tool
 
         t = get_tool(tool)
-        args: dict[str, Any] = {"after": after, "before": before}
-        if t.key == "text":
-            args["query"] = query
-            if near:
-                args["near"] = near
-        elif t.key == "time":
-            args["time"] = query
-        elif t.key == "position":
-            xyz = [float(v) for v in query.replace(" ", "").split(",") if v]
-            if len(xyz) not in (2, 3) or not all(math.isfinite(v) for v in xyz):
-                raise RavenmemError(f"position query: expected 'x,y' or 'x,y,z', got {query!r}")
-            args |= {"x": xyz[0], "y": xyz[1], "z": xyz[2] if len(xyz) == 3 else None}
-        else:
+        if t.key == "image":
             raise RavenmemError(f"tool {t.name} needs a picture: ask with the HTTP API or MCP instead")
+        args = tool_args(t.key, query, "position query", after, before, near if t.key == "text" else None)
         hits = self.service.search(t, t.validate(args), k)
         return self.service.rows(hits, lambda rec: None)

@@ -421,3 +421,36 @@ def evidence_json(
         rec = recs.get(ev["id"])
         ev[key] = name(rec, mem.image_file(rec)) if rec is not None else None
     return data
+
+
+def tool_args(
+    key: str,
+    query: str | None,
+    what: str,
+    after: str | None = None,
+    before: str | None = None,
+    near: list[float] | None = None,
+    radius: float | None = None,
+) -> dict[str, Any]:
+    """The arguments of tool `key` (text, time, position) for a query given as one string, as
+    the CLI's options and a `ravenmem_msgs/srv/Search` request give it: the text, the time
+    expression, or "x,y[,z]" (`what` names it in a one-line error); `near` (x, y, r) for the
+    text tool, `radius` for the position tool. The image tool takes a picture, not a string."""
+    args: dict[str, Any] = {"after": after, "before": before}
+    if key == "text":
+        args["query"] = query
+        if near:
+            args["near"] = near
+    elif key == "time":
+        args["time"] = query
+    elif key == "position":
+        try:
+            xyz = [float(v) for v in (query or "").replace(" ", "").split(",")]
+        except ValueError:
+            xyz = []
+        if len(xyz) not in (2, 3) or not all(np.isfinite(xyz)):
+            raise InputError(f"{what}: expected 'x,y' or 'x,y,z' in finite metres, got {query!r}")
+        args |= {"x": xyz[0], "y": xyz[1], "z": xyz[2] if len(xyz) == 3 else None, "radius": radius}
+    else:
+        raise InputError(f"{what}: the {key} tool takes a picture, not a query string")
+    return args

@@ -19,7 +19,7 @@ import mcp_types as types
 from mcp.server.lowlevel import Server
 
 from ..errors import RavenmemError
-from ..memory.protocol import MAX_K, check_k
+from ..memory.protocol import MAX_K
 from ..runtime.ask import AskArgs, input_schema
 from ..runtime.images import decode_base64_image
 from ..runtime.service import Service
@@ -106,7 +106,7 @@ def _base_url(ctx: Any) -> str | None:
 
 
 def _search(service: Service, tool: Tool, args: dict[str, Any], base: str | None) -> types.CallToolResult:
-    k = check_k(args.pop("k", 5))
+    k = args.pop("k", 5)  # checked once, where the tool runs (`Tool.run`)
     picture = args.pop("image", None) if tool.name == "search_image" else None
     image = None
     if picture is not None:

@@ -34,10 +34,11 @@ from .options import (
     TOOL_CALLS,
     TOP_K,
     Force,
+    MemoryOpt,
+    MemoryOrServerOpt,
     choice,
 )
 
-MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 BaseUrlOpt = Annotated[
     str | None, typer.Option("--base-url", help="OpenAI-compatible endpoint, e.g. http://localhost:8000/v1")
 ]
@@ -75,7 +76,6 @@ ImageSideOpt = Annotated[
 
 # the options of `ravenmem ask`, one alias each (the command reads as its list of options)
 QuestionArg = Annotated[str, typer.Argument(help="the question, e.g. 'Where did I leave the red backpack?'")]
-MemoryOrServerOpt = Annotated[Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)")]
 ImageOpt = Annotated[Path | None, typer.Option(help="a query image ('where did I see this?')")]
 ImageIdOpt = Annotated[
     int | None, MEMORY_ID, typer.Option(help="use this memory's picture as the query picture")

@@ -37,6 +37,8 @@ from .options import (
     STRIDE,
     THUMB_SIZE,
     Force,
+    MemoryOpt,
+    MemoryOrServerOpt,
     check_commands,
 )
 from .options import DISTANCE as DISTANCE_KIND
@@ -60,9 +62,7 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
 )
 console = out_console()
-MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
-MemoryOrServerOpt = Annotated[Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)")]
 ServerOpt = Annotated[
     str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
 ]

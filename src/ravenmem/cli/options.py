@@ -222,6 +222,20 @@ NAME = Kind("a non-empty value", (AfterValidator(_named),))  # a name or spec: '
 Force = Annotated[bool, typer.Option("--force", help="replace an output file that exists")]
 
 
+def memory_path(text: str) -> Path:
+    """A memory folder as given: an empty one ('') is refused (it would mean the current folder)."""
+    if not text.strip():
+        raise typer.BadParameter("must not be empty (give the memory folder; '.' for this one)")
+    return Path(text)
+
+
+# the memory a command reads or writes, declared once for every command
+MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder", parser=memory_path)]
+MemoryOrServerOpt = Annotated[
+    Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)", parser=memory_path)
+]
+
+
 # ---------------------------------------------------------------- the model of a command
 def _kinds(func: Callable[..., Any]) -> dict[str, tuple[Any, Kind, str]]:
     """name -> (value type without None, kind, how the user writes the option) for every

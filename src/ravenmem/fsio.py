@@ -20,6 +20,7 @@ from __future__ import annotations
 import errno
 import functools
 import json
+import logging
 import os
 import re
 import sqlite3
@@ -41,6 +42,7 @@ from .errors import InputError, RavenmemError
 
 P = ParamSpec("P")
 R = TypeVar("R")
+_log = logging.getLogger(__name__)
 _TEMP_NAME = re.compile(r"\..+\.[0-9a-f]{12}\.tmp")
 
 MAX_TEXT = 64 << 20  # a list, a table or a question file: 64 MiB (a pose track of 500,000 rows is 40)
@@ -86,13 +88,37 @@ def sqlite_reader(path: str | os.PathLike[str]) -> sqlite3.Connection:
     shares the writer's files. On a database at rest a read-only connection would create the
     `-wal` and `-shm` files and leave them behind, so a normal connection is opened with
     `query_only` set: its close removes the two files it created (an empty WAL: the database
-    file itself is untouched). Usable from any thread (callers serialise access)."""
+    file itself is untouched). In a folder this process cannot write (read-only media, an
+    archive, another user's memory) neither can be created: the database is read as it is,
+    `immutable=1` (no locks, no files), unless a writer's `-wal` and `-shm` are both there to
+    be read with it. Usable from any thread (callers serialise access)."""
     p = Path(path)
-    if Path(f"{p}-wal").exists() or not os.access(p.parent, os.W_OK):
-        uri = f"file:{quote(str(p.resolve()))}?mode=ro"
-        conn = sqlite3.connect(uri, uri=True, check_same_thread=False, isolation_level=None, timeout=30.0)
-    else:
-        conn = sqlite3.connect(p, check_same_thread=False, isolation_level=None, timeout=30.0)
+    wal, shm = Path(f"{p}-wal"), Path(f"{p}-shm")
+    if not os.access(p.parent, os.W_OK):
+        if wal.exists() and shm.exists():
+            conn = _open_reader(p, "mode=ro")
+            try:
+                conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+                return conn
+            except sqlite3.OperationalError:  # the -shm cannot be mapped: read the database alone
+                conn.close()
+        if wal.exists() and wal.stat().st_size > 0:
+            _log.warning(
+                "%s: the writes in its -wal file cannot be read here (no -shm beside it, and the "
+                "folder cannot be written); reading the database as last checkpointed",
+                p,
+            )
+        return _open_reader(p, "mode=ro&immutable=1")
+    if wal.exists():
+        return _open_reader(p, "mode=ro")
+    conn = sqlite3.connect(p, check_same_thread=False, isolation_level=None, timeout=30.0)
+    conn.execute("PRAGMA query_only=1")
+    return conn
+
+
+def _open_reader(p: Path, mode: str) -> sqlite3.Connection:
+    uri = f"file:{quote(str(p.resolve()))}?{mode}"
+    conn = sqlite3.connect(uri, uri=True, check_same_thread=False, isolation_level=None, timeout=30.0)
     conn.execute("PRAGMA query_only=1")
     return conn
 

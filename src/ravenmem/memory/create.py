@@ -15,7 +15,7 @@ from pathlib import Path
 from ..embed.base import Embedder
 from ..errors import InputError, MemoryBusyError
 from ..store.base import open_store
-from .core import check_store_present, read_folder, resolve_embedder
+from .core import check_store_present, read_folder, resolve_embedder, take_writer
 from .facade import Memory
 from .folder import LOCK, MANIFEST, Created, is_memory
 from .lock import WriterLock
@@ -118,8 +118,7 @@ def open(  # noqa: A001
     if not writable or not is_memory(p):
         return Memory(p, *read_folder(p, embedder), external_images=external_images)
     check_store_present(p, Manifest.load(p))  # before the lock file is touched
-    lock = WriterLock(p)
-    lock.acquire(wait)
+    lock = take_writer(p, wait)
     try:
         mem = Memory(p, *read_folder(p, embedder, writable=True), external_images=external_images, lock=lock)
     except BaseException:

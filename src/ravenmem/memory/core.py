@@ -184,6 +184,12 @@ class Core:
             ctx = None
         return parse_time(expr, ctx)
 
+    def _named_time(self, name: str, expr: TimeLike) -> float:
+        try:
+            return self.parse_time(expr)
+        except InputError as e:
+            raise InputError(f"{name}: {e}") from None
+
     def make_filter(
         self, after: TimeLike = None, before: TimeLike = None, near: Near | None = None
     ) -> Filter:
@@ -201,8 +207,8 @@ class Core:
             except InputError as e:
                 raise InputError(f"near {list(near)!r}: {e}") from None
         return Filter(
-            after=None if after is None else self.parse_time(after),
-            before=None if before is None else self.parse_time(before),
+            after=None if after is None else self._named_time("after", after),
+            before=None if before is None else self._named_time("before", before),
             region=region,
         )
 

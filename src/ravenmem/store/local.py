@@ -153,7 +153,28 @@ class LocalStore:
         if read_only:
             self._saved_max = self._vi_upto  # nothing to save, ever
         else:
+            self._set_aside_damaged()
             self._maintain()
+
+    def _set_aside_damaged(self) -> None:
+        """A writer's open moves rows with values out of range (`_sql.damaged`) into the
+        `memories_aside` table, so that no later read or write trips over them."""
+        bad = _sql.damaged(self._conn)
+        if len(bad) == 0:
+            return
+        gone = _sql.set_aside(self._conn, bad)
+        self._deletions += len(gone)
+        self._count -= len(gone)
+        self._vi.remove(gone)
+        self._dirty = True
+        shown = ", ".join(str(i) for i in gone[:10].tolist()) + (" ..." if len(gone) > 10 else "")
+        log.warning(
+            "%s: %d memories with a damaged time or pose (id %s) set aside in its table %s",
+            self._db_path,
+            len(gone),
+            shown,
+            _sql.ASIDE,
+        )
 
     # --- index lifecycle ---------------------------------------------------------------------------
     def _open_index(self) -> tuple[VectorIndex, int]:

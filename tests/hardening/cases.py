@@ -183,6 +183,12 @@ CASES: list[Case] = [
     ),
     cli("ask 'where is red?' -m {mem} --offline --config /dev/zero", "--config"),
     cli("map -m {mem} --import-nav2 {files}/map-huge.yaml --overwrite", "limit"),
+    # ------------------------------------------------------------ bombs and FIFOs in map files
+    cli("map -m {mem} --import-nav2 {files}/map-bomb-png.yaml --overwrite", "pixels"),
+    cli("map -m {mem} --import-nav2 {files}/map-bomb-pgm.yaml --overwrite", "pixels"),
+    cli("map -m {mem} --import-nav2 {files}/map-bomb-pgm-limit.yaml --overwrite", "pixels"),
+    cli("map -m {mem} --import-nav2 {files}/map-fifo.yaml --overwrite", "regular file"),
+    cli("map -m {mem} --import-nav2 {files}/map-dev-zero.yaml --overwrite", "/dev/zero"),
     cli("eval study embedders --labels /dev/zero --images {tmp} --embedders offline", "/dev/zero"),
     # ------------------------------------------------------------ outputs never destroy inputs
     cli("search -m {mem} red --sheet {mem}/memory.json", "--sheet"),

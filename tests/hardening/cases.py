@@ -37,7 +37,8 @@ class Case:
     @property
     def name(self) -> str:
         extra = json.dumps(self.body, sort_keys=True)[:60] if self.body else ""
-        return f"{self.front}: {self.call} {extra}".strip()
+        name = f"{self.front}: {self.call} {extra}".strip()
+        return name.encode("utf-8", "backslashreplace").decode("utf-8")  # a name that is not UTF-8, printable
 
 
 def cli(line: str, expect: str) -> Case:
@@ -96,6 +97,16 @@ CASES: list[Case] = [
     mcp("search_time", "out of range", time="99999999999 days ago"),
     mcp("search_text", "after", query="red", after=1e308),
     mcp("search_position", "before", x=1, y=1, before=-1e12),
+    # ------------------------------------------------------------ also seen: names, files, uploads
+    cli("ingest {files}/tum-ok -m {files}/loop-a --embedder test-color", "symbolic link"),
+    cli("ingest {files}/tum-ok -m '{tmp}/bad\udcff.mem' --embedder test-color", "UTF-8"),
+    cli("info -m '{tmp}/bad\udcff.mem'", "UTF-8"),
+    cli("serve -m {mem} --log-level nope", "--log-level"),
+    cli(
+        "import {files}/vectors.npy --meta {files}/notes.parquet -m {tmp}/new.mem --embedder test-color",
+        "Parquet",
+    ),
+    http("POST /memories", "cells", **post() | {"files": "frame+depth-bomb"}),
     # ------------------------------------------------------------ ids past SQLite's INTEGER
     http(f"GET /memories/{BIG}", BIG),
     http(f"GET /memories/{BIG}/image", BIG),

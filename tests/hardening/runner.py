@@ -98,6 +98,15 @@ def hostile_files(folder: Path) -> Path:
     ]:
         _nav2(folder, f"map-bomb-{name}", "0.05", "[0.0, 0.0, 0.0]", image=image)
     _nav2(folder, "map-fifo", "0.05", "[0.0, 0.0, 0.0]", image="fifo")
+    for a, b in (("loop-a", "loop-b"), ("loop-b", "loop-a")):  # a symbolic link loop
+        if not (folder / a).is_symlink():
+            (folder / a).symlink_to(folder / b)
+    np.save(folder / "vectors.npy", np.zeros((3, 4), np.float32))
+    (folder / "notes.parquet").write_text("not a parquet file\n")
+    with open(folder / "depth-bomb.npy", "wb") as f:  # a header claiming 10^10 cells, no data
+        np.lib.format.write_array_header_1_0(
+            f, {"descr": "<f4", "fortran_order": False, "shape": (100000, 100000)}
+        )
     _nav2(folder, "map-dev-zero", "0.05", "[0.0, 0.0, 0.0]", image="/dev/zero")
     with open(folder / "huge-poses.csv", "wb") as f:  # sparse: past the limit, nothing to read
         f.truncate(600 << 20)
@@ -188,10 +197,11 @@ def run_cli(run: Run, case: Case) -> tuple[str, str]:
 
 def _files(run: Run, spec: str) -> dict[str, Any]:
     folder = Path(run.places["files"])
-    if spec == "frame+depth":
+    if spec.startswith("frame+"):
+        depth = {"frame+depth": "depth.png", "frame+depth-bomb": "depth-bomb.npy"}[spec]
         return {
             "image": ("frame.png", (folder / "frame.png").read_bytes(), "image/png"),
-            "depth": ("depth.png", (folder / "depth.png").read_bytes(), "image/png"),
+            "depth": (depth, (folder / depth).read_bytes(), "application/octet-stream"),
         }
     return {"image": (spec, (folder / spec).read_bytes(), "image/png")}
 

@@ -117,3 +117,19 @@ def test_a_damaged_row_never_bricks_the_memory_at_the_next_write(
     with ravenmem.open(mem, embedder=ColorEmbedder()) as m:
         m.add(solid("blue"), Pose(0.0, 0.0), T0 + 999)
         assert m.count() == n + 1
+
+
+# ---------------------------------------------------------------- a garbage sidecar
+def test_a_garbage_groups_table_is_set_aside_and_the_ingest_goes_on(tmp_path: Path, driver: Driver) -> None:
+    mem = make_memory(tmp_path / "m.mem")
+    garbage = bytes(range(256)) * 20
+    (mem / "lifelong.sqlite").write_bytes(garbage)
+    tum = str(Path(__file__).parents[2] / "examples" / "tum_desk")
+    r = driver.run(["ingest", tum, "-m", str(mem), "--embedder", "test-color", "--json"])
+    assert r["rc"] == 0 and "Traceback" not in str(r["stderr"]), r
+    assert "set aside" in str(r["stderr"])
+    assert (mem / "lifelong.sqlite.aside").read_bytes() == garbage  # kept for a person, as it was
+    info = driver.run(["info", "-m", str(mem), "--json"])
+    assert info["rc"] == 0 and json.loads(str(info["stdout"]))["memories"] > 5, info
+    r = driver.run(["consolidate", "-m", str(mem), "--budget", "3", "--json"])  # the new table works
+    assert r["rc"] == 0, r

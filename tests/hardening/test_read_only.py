@@ -209,3 +209,49 @@ def test_a_write_is_one_line(read_only: tuple[Runner, Path], args: tuple[str, ..
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert len(lines) == 1 and lines[0].startswith("error: ") and "cannot write" in lines[0], lines
     assert snapshot(folder) == before
+
+
+# ---------------------------------------------------------------- a full disk
+FULL = """
+mount -t tmpfs -o size=4m tmpfs "$2" || exit 97
+cp -a "$1" "$2/m.mem" && (dd if=/dev/zero of="$2/fill" bs=4k 2>/dev/null; true)
+shift 2
+"$@"
+echo "--- files" && ls -A "$(dirname "$0")/m.mem"
+"""
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("info", "--json"),
+        ("search", "red", "--json"),
+        ("search", "--time", "start", "--json"),
+        ("ask", "where is red?", "--offline", "--json"),
+    ],
+    ids=lambda a: " ".join(a[:2]),
+)
+def test_reads_answer_on_a_full_disk(tmp_path: Path, args: tuple[str, ...]) -> None:
+    """A reader on a full disk cannot make the -wal and -shm files: it reads the database as
+    it is, answers, and leaves no file behind."""
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare: cannot mount a full file system here")
+    mem = make_memory(tmp_path / "m.mem")
+    mnt = tmp_path / "full"
+    mnt.mkdir()
+    cmd = [sys.executable, "-m", "ravenmem.cli.main", args[0], "-m", str(mnt / "m.mem"), *args[1:]]
+    script = FULL.replace('"$(dirname "$0")', f'"{mnt}')
+    r = subprocess.run(
+        ["unshare", "-m", "sh", "-c", script, "sh", str(mem), str(mnt), *cmd],
+        capture_output=True,
+        text=True,
+        env=_env(_site(tmp_path)),
+        timeout=300,
+    )
+    if r.returncode == 97 or "unshare:" in r.stderr:
+        pytest.skip(f"cannot mount a small file system here: {r.stderr.strip()[-200:]}")
+    out, _, files = r.stdout.partition("--- files\n")
+    assert "Traceback" not in r.stderr and json.loads(out), r.stderr[-2000:]
+    if args[0] == "info":
+        assert json.loads(out)["memories"] == 5
+    assert sorted(files.split()) == sorted(p.name for p in mem.iterdir())  # nothing written

@@ -114,7 +114,10 @@ def parse_time(expr: str | float | int, ctx: TimeContext | None) -> float:
     t = _parse_time(expr, ctx)
     if not math.isfinite(t):
         raise InputError(f"time {expr!r} is not a finite time")
-    if not T_MIN <= t <= T_MAX:
+    # a memory an earlier version let older or later times into (before they were checked at
+    # the door) may still be searched from its own `start` or `end`
+    lo, hi = (T_MIN, T_MAX) if ctx is None else (min(T_MIN, ctx.start), max(T_MAX, ctx.end))
+    if not lo <= t <= hi:
         raise InputError(f"time {_shown(expr)} is out of range ({RANGES['t']})")
     return t
 

@@ -37,6 +37,8 @@ class Case:
     @property
     def name(self) -> str:
         extra = json.dumps(self.body, sort_keys=True)[:60] if self.body else ""
+        if "files" in self.body:  # the upload tells two live adds of the same fields apart
+            extra += f" [{self.body['files']}]"
         name = f"{self.front}: {self.call} {extra}".strip()
         return name.encode("utf-8", "backslashreplace").decode("utf-8")  # a name that is not UTF-8, printable
 

@@ -8,6 +8,7 @@ accent-folded, by a contentless FTS5 table (the text itself is stored once, in `
 from __future__ import annotations
 
 import sqlite3
+import sys
 import time
 from collections.abc import Iterator, Sequence
 from typing import Any
@@ -16,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..fsio import rollback
-from ..types import MAX_ANGLE, MAX_COORD, T_MAX, T_MIN, Filter, MemoryRecord, Pose
+from ..types import MAX_ANGLE, MAX_COORD, Filter, MemoryRecord, Pose
 from ._common import POSE_COLUMNS, RECORD_COLUMNS, norm_text, pose_values, record_from, record_values
 
 COLS = ", ".join(("id", *RECORD_COLUMNS))  # the `memories` table's columns, as SCHEMA creates them
@@ -198,12 +199,15 @@ def _delete_rows(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
     return np.array(sorted(gone), np.int64)
 
 
-# A stored value outside the ranges every write is checked against (`ravenmem.types`): what a
-# disk error, another program or a writer from before the checks leaves. SQLite keeps NaN as
+_MAX_FLOAT = sys.float_info.max  # a finite number compares within +-this; inf and text do not
+# A stored value no read can make a record of: a position or heading outside the ranges every
+# write is checked against (`ravenmem.types`), a time that is not a finite number (times out of
+# range stay: an earlier version stored some, and they are read and shown as numbers). What a
+# disk error, another program or a writer from before the checks leaves: SQLite keeps NaN as
 # NULL (refused by NOT NULL), so what is left is +-inf, a huge number, or text or a blob in a
 # REAL column; each compares outside BETWEEN, so one scan of the table finds them all.
 _SANE = (
-    f"typeof(t) = 'real' AND t BETWEEN {T_MIN!r} AND {T_MAX!r}"
+    f"typeof(t) = 'real' AND t BETWEEN {-_MAX_FLOAT!r} AND {_MAX_FLOAT!r}"
     + "".join(f" AND typeof({c}) = 'real' AND {c} BETWEEN {-MAX_COORD!r} AND {MAX_COORD!r}" for c in "xyz")
     + f" AND typeof(yaw) = 'real' AND yaw BETWEEN {-MAX_ANGLE!r} AND {MAX_ANGLE!r}"
     + "".join(f" AND ({c} IS NULL OR {c} BETWEEN -2.0 AND 2.0)" for c in ("qx", "qy", "qz", "qw"))

@@ -65,6 +65,7 @@ from .presence import check_present
 log = logging.getLogger(__name__)
 UID_KEY = "store.uid"
 POSES_KEY = "store.poses"  # bumped by every `set_poses`: the columns cache is of one pose epoch
+_MAX_T = 1.7976931348623157e308  # every finite time is within +-this; inf and text are not
 _RERANK_MIN = 32  # candidates re-ranked per query at least (k = 1 still gets a margin)
 
 
@@ -456,7 +457,9 @@ class LocalStore(IndexLifecycle):
         """Counts, time span, spatial extent, index kind, bytes on disk (SQLite + caches)."""
         with self._lock:
             self._check_open()
-            t_min, t_max = self._conn.execute("SELECT MIN(t), MAX(t) FROM memories").fetchone()
+            t_min, t_max = self._conn.execute(  # of finite times: a damaged row's is not one
+                "SELECT MIN(t), MAX(t) FROM memories WHERE t BETWEEN ? AND ?", (-_MAX_T, _MAX_T)
+            ).fetchone()
             ext = self._columns().extent()
             files = [
                 self._db_path,
@@ -578,7 +581,10 @@ class LocalStore(IndexLifecycle):
             ).fetchall()
             if not rows:
                 break
-            a = np.array(rows, np.float64)
+            try:
+                a = np.array(rows, np.float64)
+            except (TypeError, ValueError):  # a damaged row (text in a REAL column): NaN here
+                a = np.array([[_number(v) for v in r] for r in rows], np.float64)
             cols.append(a[:, 0].astype(np.int64), a[:, 1], a[:, 2], a[:, 3], a[:, 4])
             last = int(a[-1, 0])
 
@@ -595,6 +601,15 @@ def _top(ids: np.ndarray, scores: np.ndarray, k: int) -> list[tuple[int, float]]
     """The k best (id, score), best first, the older memory first on ties."""
     order = np.lexsort((ids, -scores))[:k]
     return [(int(ids[i]), float(scores[i])) for i in order]
+
+
+def _number(v: object) -> float:
+    """A stored column value as a float, NaN when it is not a number (a damaged row, which the
+    next writer sets aside)."""
+    try:
+        return float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return float("nan")
 
 
 def _finite(v: object) -> bool:

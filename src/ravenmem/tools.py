@@ -54,7 +54,9 @@ def check_time_arg(v: Any) -> Any:
     except (ValueError, OverflowError):
         return v
     if not math.isfinite(f):
-        raise ValueError("time must be finite")
+        raise ValueError(
+            "time must be finite" if isinstance(v, float) else f"time {v!r} is not a finite time"
+        )
     if not -T_MAX <= f <= T_MAX:
         raise ValueError(f"time {v!r} is out of range ({RANGES['t']})")
     return v

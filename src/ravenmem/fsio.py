@@ -20,6 +20,7 @@ from __future__ import annotations
 import errno
 import functools
 import json
+import logging
 import os
 import re
 import sqlite3
@@ -41,6 +42,7 @@ from .errors import InputError, RavenmemError
 
 P = ParamSpec("P")
 R = TypeVar("R")
+_log = logging.getLogger(__name__)
 _TEMP_NAME = re.compile(r"\..+\.[0-9a-f]{12}\.tmp")
 
 MAX_TEXT = 64 << 20  # a list, a table or a question file: 64 MiB (a pose track of 500,000 rows is 40)
@@ -86,13 +88,66 @@ def sqlite_reader(path: str | os.PathLike[str]) -> sqlite3.Connection:
     shares the writer's files. On a database at rest a read-only connection would create the
     `-wal` and `-shm` files and leave them behind, so a normal connection is opened with
     `query_only` set: its close removes the two files it created (an empty WAL: the database
-    file itself is untouched). Usable from any thread (callers serialise access)."""
+    file itself is untouched). Where those files cannot be made (read-only media, an archive,
+    another user's memory, a full disk) the database is read as it is, `immutable=1` (no locks,
+    no files), unless a writer's `-wal` and `-shm` are both there to be read with it. Usable
+    from any thread (callers serialise access)."""
     p = Path(path)
-    if Path(f"{p}-wal").exists() or not os.access(p.parent, os.W_OK):
-        uri = f"file:{quote(str(p.resolve()))}?mode=ro"
-        conn = sqlite3.connect(uri, uri=True, check_same_thread=False, isolation_level=None, timeout=30.0)
-    else:
-        conn = sqlite3.connect(p, check_same_thread=False, isolation_level=None, timeout=30.0)
+    wal, shm = Path(f"{p}-wal"), Path(f"{p}-shm")
+    if not os.access(p.parent, os.W_OK) or _free_bytes(p.parent) < 1 << 20:
+        if wal.exists() and shm.exists():
+            conn = _probe(_open_reader(p, "mode=ro"))
+            if conn is not None:
+                return conn
+        return _immutable(p, wal)
+    if wal.exists():
+        conn = _probe(_open_reader(p, "mode=ro"))
+        return conn if conn is not None else _immutable(p, wal)
+    conn = sqlite3.connect(p, check_same_thread=False, isolation_level=None, timeout=30.0)
+    conn.execute("PRAGMA query_only=1")
+    probed = _probe(conn)
+    return probed if probed is not None else _immutable(p, wal)
+
+
+def _free_bytes(folder: Path) -> int:
+    """Bytes this process may still write in `folder`'s file system (a lot when unknown)."""
+    try:
+        st = os.statvfs(folder)
+    except (OSError, AttributeError):
+        return 1 << 62
+    return st.f_bavail * st.f_frsize
+
+
+# what SQLite says when the -wal or -shm cannot be created or mapped (no space, no permission)
+_CANNOT_SHARE = ("SQLITE_IOERR", "SQLITE_CANTOPEN", "SQLITE_FULL", "SQLITE_READONLY")
+
+
+def _probe(conn: sqlite3.Connection) -> sqlite3.Connection | None:
+    """`conn` after a first read (which creates or maps the -wal and -shm files), or None
+    (closed) when those files cannot be had; other errors are raised."""
+    try:
+        conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+        return conn
+    except sqlite3.OperationalError as e:
+        conn.close()
+        if not str(getattr(e, "sqlite_errorname", "")).startswith(_CANNOT_SHARE):
+            raise
+        return None
+
+
+def _immutable(p: Path, wal: Path) -> sqlite3.Connection:
+    if wal.exists() and wal.stat().st_size > 0:
+        _log.warning(
+            "%s: the writes in its -wal file cannot be read here (its -shm cannot be made or "
+            "mapped: a read-only folder or a full disk); reading the database as last checkpointed",
+            p,
+        )
+    return _open_reader(p, "mode=ro&immutable=1")
+
+
+def _open_reader(p: Path, mode: str) -> sqlite3.Connection:
+    uri = f"file:{quote(str(p.resolve()))}?{mode}"
+    conn = sqlite3.connect(uri, uri=True, check_same_thread=False, isolation_level=None, timeout=30.0)
     conn.execute("PRAGMA query_only=1")
     return conn
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 
 from .errors import InputError
+from .types import RANGES, T_MAX, T_MIN
 
 _UNITS = {
     "s": 1.0,
@@ -104,13 +105,34 @@ def _clock_seconds(m: re.Match[str]) -> float:
 def parse_time(expr: str | float | int, ctx: TimeContext | None) -> float:
     """Resolve a time expression to Unix seconds; `ctx` is needed for relative forms.
 
-    The result is always a finite number: `nan`, `inf`, `1e400` (and anything that resolves to
-    them) are refused with an `InputError` rather than silently matching nothing.
+    The result is always a time a memory can hold (`ravenmem.types.T_MIN` to `T_MAX`, 1970 to
+    2100): `nan`, `inf`, `1e400`, `1e308`, `99999999999 days ago` (and anything that resolves
+    to them) are refused with an `InputError` rather than silently matching nothing, or
+    everything: this is the one door every time a user gives goes through (search filters,
+    `forget`, the HTTP and MCP tools, the agent's tool calls), so no command acts on one.
     """
     t = _parse_time(expr, ctx)
     if not math.isfinite(t):
         raise InputError(f"time {expr!r} is not a finite time")
+    # a memory an earlier version let older or later times into (before they were checked at
+    # the door) may still be searched from its own `start` or `end`
+    lo, hi = (T_MIN, T_MAX) if ctx is None else (min(T_MIN, ctx.start), max(T_MAX, ctx.end))
+    if not lo <= t <= hi:
+        raise InputError(f"time {_shown(expr)} is out of range ({RANGES['t']})")
     return t
+
+
+def named_time(name: str, expr: str | float | int, ctx: TimeContext | None) -> float:
+    """`parse_time`, its error naming the option or field the time was given as."""
+    try:
+        return parse_time(expr, ctx)
+    except InputError as e:
+        raise InputError(f"{name}: {e}") from None
+
+
+def _shown(expr: object) -> str:
+    text = repr(expr)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _parse_time(expr: str | float | int, ctx: TimeContext | None) -> float:

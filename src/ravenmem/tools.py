@@ -28,7 +28,7 @@ from .errors import InputError
 from .memory.diversity import SAME_VIEW
 from .memory.protocol import MAX_K, MemoryLike, check_k
 from .timeparse import fmt_time
-from .types import MAX_COORD, MAX_ID, Hit, MemoryRecord, Region, check_id
+from .types import MAX_COORD, MAX_ID, RANGES, T_MAX, Hit, MemoryRecord, Region, check_id
 
 TimeArg = float | str
 Order = Literal["best first", "chronological", "nearest first"]
@@ -42,6 +42,26 @@ _TIME_DOC = (
 )
 
 
+def check_time_arg(v: Any) -> Any:
+    """A time as given, refused at the door when it is a number no memory time can come from
+    (neither Unix seconds up to T_MAX nor an offset from a recording's start): `1e308`,
+    `-1e12`, `nan`. Phrases are resolved, and range-checked again, against the memory
+    (`ravenmem.timeparse.parse_time`)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, str)):
+        return v
+    try:
+        f = float(v)
+    except (ValueError, OverflowError):
+        return v
+    if not math.isfinite(f):
+        raise ValueError(
+            "time must be finite" if isinstance(v, float) else f"time {v!r} is not a finite time"
+        )
+    if not -T_MAX <= f <= T_MAX:
+        raise ValueError(f"time {v!r} is out of range ({RANGES['t']})")
+    return v
+
+
 class ToolArgs(BaseModel):
     """Filters every tool takes: a time window."""
 
@@ -52,9 +72,7 @@ class ToolArgs(BaseModel):
     @field_validator("after", "before", mode="before")
     @classmethod
     def _time(cls, v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            raise ValueError("time must be finite")
-        return v
+        return check_time_arg(v)
 
 
 class _Near(ToolArgs):
@@ -127,9 +145,7 @@ class TimeArgs(ToolArgs):
     @field_validator("time", mode="before")
     @classmethod
     def _finite(cls, v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            raise ValueError("time must be finite")
-        return v
+        return check_time_arg(v)
 
 
 class PositionArgs(ToolArgs):

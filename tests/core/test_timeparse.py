@@ -85,3 +85,27 @@ def test_numbers_of_any_numeric_type():
         parse_time([12], CTX)  # type: ignore[arg-type]
     with pytest.raises(InputError, match="number or a string"):
         parse_time(True, CTX)
+
+
+@pytest.mark.parametrize(
+    "expr",
+    [
+        "1e308",
+        -1e12,
+        "-1e308",
+        1e12,
+        "99999999999 days ago",
+        "9999-12-31T00:00:00Z",
+        "0001-01-01",
+        "-5000000000",
+    ],
+)
+def test_times_no_memory_can_hold_are_refused(expr):
+    """One range for every time a user gives (`ravenmem.types.T_MIN`..`T_MAX`), stored or not."""
+    with pytest.raises(InputError, match="out of range"):
+        parse_time(expr, CTX)
+
+
+def test_the_range_ends_are_times():
+    assert parse_time("4102444800", CTX) == 4102444800.0
+    assert parse_time("1970-01-01T00:00:00Z", CTX) == 0.0

@@ -37,7 +37,10 @@ class Case:
     @property
     def name(self) -> str:
         extra = json.dumps(self.body, sort_keys=True)[:60] if self.body else ""
-        return f"{self.front}: {self.call} {extra}".strip()
+        if "files" in self.body:  # the upload tells two live adds of the same fields apart
+            extra += f" [{self.body['files']}]"
+        name = f"{self.front}: {self.call} {extra}".strip()
+        return name.encode("utf-8", "backslashreplace").decode("utf-8")  # a name that is not UTF-8, printable
 
 
 def cli(line: str, expect: str) -> Case:
@@ -77,6 +80,35 @@ CASES: list[Case] = [
     cli("ingest {files}/tum-t-1e12 -m {mem} --embedder test-color", "timestamp"),
     cli("ingest {files}/tum-gt1e15 -m {mem} --embedder test-color", "'t'"),
     cli("ingest {files}/tum-x1e308 -m {mem} --embedder test-color", "'x'"),
+    # ------------------------------------------------------------ absurd times in filters and in forget
+    cli("search -m {mem} --time 1e308", "out of range"),
+    cli("search -m {mem} --time '99999999999 days ago'", "out of range"),
+    cli("search -m {mem} red --after 1e308", "after"),
+    cli("search -m {mem} red --before -1e12", "before"),
+    cli("search -m {mem} --position 1,1 --after '99999999999 days ago'", "after"),
+    cli("forget -m {mem} --before 1e308", "before"),
+    cli("forget -m {mem} --after -1e308", "after"),
+    cli("forget -m {mem} --before '99999999999 days ago'", "before"),
+    cli("forget -m {mem} --after 9999-12-31T00:00:00Z --dry-run", "after"),
+    http("GET /search/time?t=1e308", "time"),
+    http("GET /search/time?t=99999999999%20days%20ago", "out of range"),
+    http("GET /search/text?q=red&after=1e308", "after"),
+    http("GET /search/position?x=1&y=1&before=-1e12", "before"),
+    http("GET /search/image?memory_id=1&before=99999999999%20days%20ago", "before"),
+    http("POST /search/image?after=1e308", "after", files="frame.png"),
+    mcp("search_time", "out of range", time="99999999999 days ago"),
+    mcp("search_text", "after", query="red", after=1e308),
+    mcp("search_position", "before", x=1, y=1, before=-1e12),
+    # ------------------------------------------------------------ also seen: names, files, uploads
+    cli("ingest {files}/tum-ok -m {files}/loop-a --embedder test-color", "symbolic link"),
+    cli("ingest {files}/tum-ok -m '{tmp}/bad\udcff.mem' --embedder test-color", "UTF-8"),
+    cli("info -m '{tmp}/bad\udcff.mem'", "UTF-8"),
+    cli("serve -m {mem} --log-level nope", "--log-level"),
+    cli(
+        "import {files}/vectors.npy --meta {files}/notes.parquet -m {tmp}/new.mem --embedder test-color",
+        "Parquet",
+    ),
+    http("POST /memories", "cells", **post() | {"files": "frame+depth-bomb"}),
     # ------------------------------------------------------------ ids past SQLite's INTEGER
     http(f"GET /memories/{BIG}", BIG),
     http(f"GET /memories/{BIG}/image", BIG),
@@ -164,6 +196,12 @@ CASES: list[Case] = [
     ),
     cli("ask 'where is red?' -m {mem} --offline --config /dev/zero", "--config"),
     cli("map -m {mem} --import-nav2 {files}/map-huge.yaml --overwrite", "limit"),
+    # ------------------------------------------------------------ bombs and FIFOs in map files
+    cli("map -m {mem} --import-nav2 {files}/map-bomb-png.yaml --overwrite", "pixels"),
+    cli("map -m {mem} --import-nav2 {files}/map-bomb-pgm.yaml --overwrite", "pixels"),
+    cli("map -m {mem} --import-nav2 {files}/map-bomb-pgm-limit.yaml --overwrite", "pixels"),
+    cli("map -m {mem} --import-nav2 {files}/map-fifo.yaml --overwrite", "regular file"),
+    cli("map -m {mem} --import-nav2 {files}/map-dev-zero.yaml --overwrite", "/dev/zero"),
     cli("eval study embedders --labels /dev/zero --images {tmp} --embedders offline", "/dev/zero"),
     # ------------------------------------------------------------ outputs never destroy inputs
     cli("search -m {mem} red --sheet {mem}/memory.json", "--sheet"),

@@ -57,9 +57,10 @@ def _gt(times: list[float], x: str = "0") -> list[str]:
     return [f"{t!r} {x} 0 0 0 0 0 1" for t in times]
 
 
-def _nav2(folder: Path, name: str, resolution: str, origin: str, pad: int = 0) -> None:
-    Image.fromarray(np.full((4, 4), 254, np.uint8)).save(folder / f"{name}.pgm")
-    text = f"image: {name}.pgm\nresolution: {resolution}\norigin: {origin}\nnegate: 0\n"
+def _nav2(folder: Path, name: str, resolution: str, origin: str, pad: int = 0, image: str = "") -> None:
+    if not image:
+        Image.fromarray(np.full((4, 4), 254, np.uint8)).save(folder / f"{name}.pgm")
+    text = f"image: {image or name + '.pgm'}\nresolution: {resolution}\norigin: {origin}\nnegate: 0\n"
     (folder / f"{name}.yaml").write_text(text + ("# " + "x" * pad + "\n" if pad else ""))
 
 
@@ -84,6 +85,29 @@ def hostile_files(folder: Path) -> Path:
     _nav2(folder, "map-huge", "0.05", "[0.0, 0.0, 0.0]", pad=2 << 20)
     if not (folder / "fifo").exists():
         os.mkfifo(folder / "fifo")
+    # map images that are bombs (a few bytes claiming 400 and 900 megapixels) or a FIFO
+    huge_png(folder / "bomb-400mp.png", 20000, 20000)
+    (folder / "bomb-900mp.pgm").write_bytes(b"P5\n30000 30000\n255\n" + bytes(64))
+    (folder / "bomb-100mp+.pgm").write_bytes(
+        b"P5\n10001 10000\n255\n" + bytes(64)
+    )  # past the map limit, not Pillow's
+    for name, image in [
+        ("png", "bomb-400mp.png"),
+        ("pgm", "bomb-900mp.pgm"),
+        ("pgm-limit", "bomb-100mp+.pgm"),
+    ]:
+        _nav2(folder, f"map-bomb-{name}", "0.05", "[0.0, 0.0, 0.0]", image=image)
+    _nav2(folder, "map-fifo", "0.05", "[0.0, 0.0, 0.0]", image="fifo")
+    for a, b in (("loop-a", "loop-b"), ("loop-b", "loop-a")):  # a symbolic link loop
+        if not (folder / a).is_symlink():
+            (folder / a).symlink_to(folder / b)
+    np.save(folder / "vectors.npy", np.zeros((3, 4), np.float32))
+    (folder / "notes.parquet").write_text("not a parquet file\n")
+    with open(folder / "depth-bomb.npy", "wb") as f:  # a header claiming 10^10 cells, no data
+        np.lib.format.write_array_header_1_0(
+            f, {"descr": "<f4", "fortran_order": False, "shape": (100000, 100000)}
+        )
+    _nav2(folder, "map-dev-zero", "0.05", "[0.0, 0.0, 0.0]", image="/dev/zero")
     with open(folder / "huge-poses.csv", "wb") as f:  # sparse: past the limit, nothing to read
         f.truncate(600 << 20)
     (folder / "notes.txt").write_text("not a picture\n")
@@ -173,10 +197,11 @@ def run_cli(run: Run, case: Case) -> tuple[str, str]:
 
 def _files(run: Run, spec: str) -> dict[str, Any]:
     folder = Path(run.places["files"])
-    if spec == "frame+depth":
+    if spec.startswith("frame+"):
+        depth = {"frame+depth": "depth.png", "frame+depth-bomb": "depth-bomb.npy"}[spec]
         return {
             "image": ("frame.png", (folder / "frame.png").read_bytes(), "image/png"),
-            "depth": ("depth.png", (folder / "depth.png").read_bytes(), "image/png"),
+            "depth": (depth, (folder / depth).read_bytes(), "application/octet-stream"),
         }
     return {"image": (spec, (folder / spec).read_bytes(), "image/png")}
 

@@ -56,12 +56,15 @@ def align(
         raise InputError("give --to (the memory whose map to align with), or --undo")
     if from_.resolve() == to.resolve():
         raise InputError(f"--from and --to are the same memory ({from_})")
+    given = None
+    if transform is not None:  # checked before either memory is opened
+        x, y, z, yaw_deg = parse_floats(transform, (4,), "--transform")
+        try:
+            given = Transform(x, y, z, math.radians(yaw_deg))
+        except InputError as e:
+            raise InputError(f"--transform: {e}") from None
     with ravenmem.open(to) as b, ravenmem.open(from_, writable=apply) as a:
-        if transform is not None:
-            x, y, z, yaw_deg = parse_floats(transform, (4,), "--transform")
-            found = al.Alignment(Transform(x, y, z, math.radians(yaw_deg)), a.map_id, b.map_id, "given")
-        else:
-            found = al.estimate(a, b)
+        found = al.Alignment(given, a.map_id, b.map_id, "given") if given is not None else al.estimate(a, b)
         out = {"from": str(from_), "to": str(to), **found.as_dict()}
         if apply:
             out["applied"] = al.apply(a, found.transform, b.map_id, b.frame_id)

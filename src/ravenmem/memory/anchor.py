@@ -35,7 +35,7 @@ from ..types import Pose
 from .core import Core
 from .folder import ANCHOR, ANCHOR_JOURNAL, ANCHOR_POSES
 from .manifest import Manifest, is_name
-from .transform import Transform, chunks, finish, load_originals, pose_table
+from .transform import Transform, chunks, finish, load_originals, pose_of, pose_table
 
 DEFAULT_FRAME = "map"
 
@@ -115,6 +115,7 @@ class Anchoring(Core):
         with writer.change():
             origin = dict((self.manifest.anchor or {}).get("from") or {})
             origin = origin or {"frame_id": self.frame_id, "map_id": self.map_id}
+            _check_moves(self, transform)  # every pose it would write, before anything is written
             _keep_originals(self)
             record = {
                 "transform": transform.as_list(),
@@ -144,6 +145,31 @@ class Anchoring(Core):
         """The transform the stored poses went through (identity when never re-anchored)."""
         a = self.manifest.anchor
         return Transform.of(a["transform"]) if a else Transform()
+
+
+def _check_moves(mem: Anchoring, t: Transform) -> None:
+    """Refuse a transform that would move any memory out of the map's range (a one-line
+    InputError naming the first such memory), before a journal is written: a journal the
+    writer cannot finish would stop every later write."""
+    ids, table = load_originals(mem.path)
+    have = set(ids.tolist())
+    back = mem.current_transform().inverse()
+    for part in chunks(np.arange(len(ids))):
+        for k in part:
+            _moved(t, pose_of(table[k]), int(ids[k]))
+    for chunk in chunks(mem.store.select()):
+        todo = [i for i in chunk if i not in have]
+        for rec in mem.store.get(todo) if todo else []:
+            _moved(t, back.apply(rec.pose), rec.id)
+
+
+def _moved(t: Transform, original: Pose, memory_id: int) -> None:
+    try:
+        t.apply(original)
+    except InputError as e:
+        raise InputError(
+            f"transform {t.as_list()} would move memory {memory_id} out of the map ({e}); nothing was moved"
+        ) from None
 
 
 def _keep_originals(mem: Anchoring) -> None:

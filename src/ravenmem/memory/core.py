@@ -9,8 +9,10 @@ lifelong operations and the writes, each in its own module over this one.
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
+import os
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -113,8 +115,7 @@ class Core:
             if self._closed:
                 raise InputError(f"memory {self.path} is closed")
             check_store_present(self.path, self.manifest)  # before the lock file is touched
-            lock = WriterLock(self.path)
-            lock.acquire(wait)
+            lock = take_writer(self.path, wait)
             try:
                 # what this Memory read at open may be stale: another writer may have added
                 # memories (the store hands out ids from its own count) or ingest records since.
@@ -183,6 +184,12 @@ class Core:
             ctx = None
         return parse_time(expr, ctx)
 
+    def _named_time(self, name: str, expr: TimeLike) -> float:
+        try:
+            return self.parse_time(expr)
+        except InputError as e:
+            raise InputError(f"{name}: {e}") from None
+
     def make_filter(
         self, after: TimeLike = None, before: TimeLike = None, near: Near | None = None
     ) -> Filter:
@@ -200,8 +207,8 @@ class Core:
             except InputError as e:
                 raise InputError(f"near {list(near)!r}: {e}") from None
         return Filter(
-            after=None if after is None else self.parse_time(after),
-            before=None if before is None else self.parse_time(before),
+            after=None if after is None else self._named_time("after", after),
+            before=None if before is None else self._named_time("before", before),
             region=region,
         )
 
@@ -338,6 +345,23 @@ def read_folder(
     check_store_present(p, manifest)
     opts = {"read_only": not writable} if store_kind(manifest.store) == "local" else {}
     return manifest, open_store(manifest.store_uri(p), dim=manifest.dim, **opts), emb
+
+
+def take_writer(p: Path, wait: bool | float) -> WriterLock:
+    """The writer lock of memory folder `p`, taken. A folder this process cannot write (read-only
+    media, an archive, another user's memory) is a one-line error here, before any work: every
+    reading command still answers there, since readers never take the lock."""
+    lock = WriterLock(p)
+    try:
+        lock.acquire(wait)
+    except OSError as e:
+        if e.errno not in (errno.EROFS, errno.EACCES, errno.EPERM):
+            raise
+        raise InputError(
+            f"{p}: cannot write in this memory folder ({os.strerror(e.errno)}); "
+            "reading commands (info, search, ask) still work"
+        ) from None
+    return lock
 
 
 def check_store_present(p: Path, manifest: Manifest) -> None:

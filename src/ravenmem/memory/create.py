@@ -15,13 +15,28 @@ from pathlib import Path
 from ..embed.base import Embedder
 from ..errors import InputError, MemoryBusyError
 from ..store.base import open_store
-from .core import check_store_present, read_folder, resolve_embedder
+from .core import check_store_present, read_folder, resolve_embedder, take_writer
 from .facade import Memory
 from .folder import LOCK, MANIFEST, Created, is_memory
 from .lock import WriterLock
 from .manifest import Manifest, store_for_create, store_kind, trust_store
 
 __all__ = ["create", "open"]
+
+
+def check_folder_name(p: Path) -> Path:
+    """Refuse, before anything is created, a memory path SQLite cannot open (a name that is not
+    UTF-8) or that cannot become a folder (a symbolic link that leads nowhere, or in a loop)."""
+    try:
+        str(p).encode("utf-8")
+    except UnicodeEncodeError:
+        shown = str(p).encode("utf-8", "backslashreplace").decode("ascii", "backslashreplace")
+        raise InputError(
+            f"{shown}: a memory folder's path must be valid UTF-8 (SQLite cannot open it)"
+        ) from None
+    if p.is_symlink() and not p.exists():
+        raise InputError(f"{p}: a symbolic link that leads nowhere (or round in a loop); give a folder")
+    return p
 
 
 def create(
@@ -45,7 +60,7 @@ def create(
     opening the store fails, what was created is removed again. `store`: None for the embedded
     store, `milvus:///PATH/INSIDE/THE/FOLDER/file.db` for Milvus Lite, `milvus://HOST:PORT`.
     """
-    p = Path(path)
+    p = check_folder_name(Path(path))
     if is_memory(p):
         if not exist_ok:
             raise InputError(f"{p} already holds a memory; open it, or choose another folder")
@@ -114,12 +129,11 @@ def open(  # noqa: A001
     `Memory.acquire_writer`), so the store is read after any other writer finished; a Memory
     opened for reading can write too (its first write takes the lock and re-reads the store).
     """
-    p = Path(path)
+    p = check_folder_name(Path(path))
     if not writable or not is_memory(p):
         return Memory(p, *read_folder(p, embedder), external_images=external_images)
     check_store_present(p, Manifest.load(p))  # before the lock file is touched
-    lock = WriterLock(p)
-    lock.acquire(wait)
+    lock = take_writer(p, wait)
     try:
         mem = Memory(p, *read_folder(p, embedder, writable=True), external_images=external_images, lock=lock)
     except BaseException:

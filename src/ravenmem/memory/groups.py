@@ -37,6 +37,7 @@ import numpy as np
 from ..fsio import rollback, sqlite_reader
 from ..store.base import Store
 from .folder import GROUPS
+from .recovery import set_aside
 
 Group = tuple[int, float, float]  # (count, first_t, last_t)
 log = logging.getLogger(__name__)
@@ -80,7 +81,20 @@ class GroupTable:
 
     def __init__(self, folder: Path) -> None:
         self.path = Path(folder) / GROUPS
-        self._conn = _connect(self.path, readonly=False)
+        try:
+            self._conn = _connect(self.path, readonly=False)
+        except sqlite3.DatabaseError as e:
+            if getattr(e, "sqlite_errorname", "") not in ("SQLITE_NOTADB", "SQLITE_CORRUPT"):
+                raise
+            # garbage where the groups should be (a disk error, a hand): kept for a person,
+            # and the writer starts a new table rather than refusing every write from now on
+            for extra in (Path(f"{self.path}{x}") for x in ("-wal", "-shm")):
+                if extra.exists():
+                    set_aside(extra, "belongs to the groups table set aside", "groups table file")
+            set_aside(
+                self.path, f"not a SQLite database ({e}); consolidated counts start afresh", "groups table"
+            )
+            self._conn = _connect(self.path, readonly=False)
 
     def begin(self, rows: Sequence[tuple[int, int, float, float]], drop: np.ndarray) -> int:
         """Phase 1: record (rep, count, first_t, last_t) rows and the ids the store is about to

@@ -14,12 +14,14 @@ import numpy as np
 
 from ..errors import InputError
 from ..store.base import Store
-from ..types import Pose
+from ..types import MAX_COORD, Pose
 from .folder import ANCHOR_JOURNAL, ANCHOR_POSES
 from .manifest import Manifest
 from .recovery import set_aside
 
 _CHUNK = 5000  # records read or written per store call
+MAX_SHIFT = 2 * MAX_COORD  # metres a transform may shift a map (both maps within +-MAX_COORD)
+MAX_TURN = 4 * math.pi  # radians a transform may turn a map (720 degrees)
 
 
 @dataclass(frozen=True)
@@ -36,6 +38,13 @@ class Transform:
     def __post_init__(self) -> None:
         if not all(math.isfinite(v) for v in (self.x, self.y, self.z, self.yaw)):
             raise InputError(f"transform: every value must be finite, got {self.as_list()}")
+        # one map into another: a shift no larger than two maps' range, a turn of at most two
+        # rounds; anything else is a typo (1e308 degrees turns every pose to a random heading)
+        if max(abs(self.x), abs(self.y), abs(self.z)) > MAX_SHIFT or abs(self.yaw) > MAX_TURN:
+            raise InputError(
+                f"transform {[float(f'{v:.6g}') for v in self.as_list()]}: out of range (x, y, z within "
+                f"+-{MAX_SHIFT:g} m, yaw within +-{math.degrees(MAX_TURN):g} degrees)"
+            )
 
     @classmethod
     def of(cls, values: Any) -> Transform:

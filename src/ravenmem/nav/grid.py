@@ -15,23 +15,27 @@ metadata for people and other tools.
 
 from __future__ import annotations
 
+import io
 import json
 import math
+import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 from scipy import ndimage
 
 from ..errors import InputError
-from ..fsio import atomic_open, atomic_write_json
+from ..fsio import MAX_IMAGE, atomic_open, atomic_write_json, read_bounded
 from ..memory.folder import MAP_GRID, MAP_META
 from ..types import Intrinsics, Pose
 from .base import Cell
 from .frame import MapFrame
 
 FORMAT_VERSION = 2
+MAX_MAP_CELLS = 100_000_000  # a map picture's pixels (10,000 x 10,000: 500 m square at 5 cm)
 _GROW = 32  # cells added at once when the map grows
 
 
@@ -527,3 +531,31 @@ def load_map(folder: str | Path) -> OccupancyGrid:
     corner), `grid.resolution` (metres per cell), `grid.trajectory` (N, 2), `grid.frame` (how
     map x, y relate to the memory's 3-D poses) and `grid.meta` (kind, sources)."""
     return OccupancyGrid.load(folder)
+
+
+def read_map_image(path: Path, what: str = "map image") -> np.ndarray:
+    """A map picture (a map_server PGM or PNG) as grey levels, (H, W) uint8, read within bounds
+    as pictures are: at most `fsio.MAX_IMAGE` bytes (a FIFO or a device is refused before it is
+    opened), at most MAX_MAP_CELLS pixels, checked from the header before anything is decoded
+    (a 900 MP bomb is a few kilobytes). Every failure is one InputError naming the file."""
+    data = read_bounded(path, MAX_IMAGE, what)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # bounded just below
+            with Image.open(io.BytesIO(data)) as im:
+                w, h = im.size
+                if w * h > MAX_MAP_CELLS:
+                    raise InputError(
+                        f"{what} {path}: {w}x{h} pixels is more than the limit of {MAX_MAP_CELLS} for a map"
+                    )
+                return np.asarray(im.convert("L"), np.uint8)
+    except InputError:
+        raise
+    except Image.DecompressionBombError:
+        raise InputError(f"{what} {path}: more pixels than the limit of {MAX_MAP_CELLS} for a map") from None
+    except UnidentifiedImageError:
+        raise InputError(f"{what} {path}: not a picture Pillow can read (PGM or PNG)") from None
+    except (OSError, ValueError, SyntaxError, EOFError) as e:  # a truncated or corrupt picture
+        raise InputError(
+            f"{what} {path}: unreadable ({str(e).splitlines()[0] if str(e) else type(e).__name__})"
+        ) from None

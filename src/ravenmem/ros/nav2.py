@@ -27,12 +27,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
+from PIL import Image
 
 from ..errors import InputError
 from ..fsio import MAX_CONFIG, atomic_write, read_text
 from ..nav.frame import MapFrame
-from ..nav.grid import MapConfig, OccupancyGrid
+from ..nav.grid import MapConfig, OccupancyGrid, read_map_image
 from ..types import check_coord
 
 FREE, OCCUPIED, UNKNOWN = 254, 0, 205
@@ -116,13 +116,9 @@ def import_map_server(yaml_path: str | Path) -> OccupancyGrid:
         raise InputError(f"{yaml_path}: no 'image'")
     img_path = Path(str(meta["image"]))
     img_path = img_path if img_path.is_absolute() else yaml_path.parent / img_path
-    try:
-        with Image.open(img_path) as im:
-            v = np.asarray(im.convert("L"), np.float64)
-    except FileNotFoundError:
-        raise InputError(f"{yaml_path}, field 'image': {img_path} not found") from None
-    except (UnidentifiedImageError, OSError, ValueError) as e:
-        raise InputError(f"{img_path}: unreadable map image ({e})") from None
+    if not img_path.exists():
+        raise InputError(f"{yaml_path}, field 'image': {img_path} not found")
+    v = read_map_image(img_path).astype(np.float32)  # bounded: bytes, pixels, no FIFO
     p = v / 255.0 if negate else (255.0 - v) / 255.0
     occ = (p > occ_t)[::-1]
     free = (p < free_t)[::-1]

@@ -133,6 +133,27 @@ def decode_base64_image(
     return decode_image(data, max_pixels, what, gate)
 
 
+def _load_npy(data: bytes, max_pixels: int, what: str) -> np.ndarray:
+    """A .npy upload, its header read and bounded first: a few bytes may claim 10^10 cells,
+    which `np.load` would allocate before finding the data is not there (HTTP 413)."""
+    f = io.BytesIO(data)
+    version = np.lib.format.read_magic(f)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+    elif version in ((2, 0), (3, 0)):
+        shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+    else:
+        raise InputError(f"{what}: .npy format version {version} is not supported")
+    cells = 1
+    for n in shape:
+        cells *= int(n)
+    if cells > max_pixels:
+        raise TooLargeError(f"{what}: a .npy array of {cells} cells is more than the limit of {max_pixels}")
+    if cells * dtype.itemsize > len(data):
+        raise InputError(f"{what}: the .npy header claims {cells} cells, the upload holds fewer")
+    return np.load(io.BytesIO(data), allow_pickle=False)
+
+
 def decode_depth(data: bytes, max_pixels: int, scale: float, what: str = "depth") -> np.ndarray:
     """A depth upload as float32 metres: a single-channel PNG (integers divided by `scale`, units
     per metre: 1000 for millimetres) or a `.npy` array (metres); 0 and invalid readings are NaN."""
@@ -146,7 +167,7 @@ def decode_depth(data: bytes, max_pixels: int, scale: float, what: str = "depth"
         raise InputError(f"{what}: depth_scale must be at most 1e6 units per metre, got {scale}")
     try:
         if data.startswith(b"\x93NUMPY"):
-            raw = np.load(io.BytesIO(data), allow_pickle=False)
+            raw = _load_npy(data, max_pixels, what)
         else:
             with warnings.catch_warnings():
                 warnings.simplefilter("error", Image.DecompressionBombWarning)

@@ -77,6 +77,8 @@ def serve(
     `ravenmem.ros.zenoh.start_link`); they are closed with it. `map_id`: the map live poses
     are in (`Memory.claim_map`: a memory in another map is refused before the port opens)."""
     check_bind(host, token)
+    if log_level not in ("critical", "error", "warning", "info", "debug", "trace"):
+        raise InputError(f"--log-level: expected critical, error, warning, info or debug, got {log_level!r}")
     require("fastapi", "serve")
     uvicorn = require("uvicorn", "serve")
     import ravenmem

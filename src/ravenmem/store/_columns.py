@@ -30,6 +30,9 @@ _MAGIC = b"RVMCOLS1"
 _HEADER = struct.Struct("<8sqqqI4x16s")  # magic, n, max id covered, deletions reflected, crc, store uid
 
 
+_FAR = 1e12  # metres: where a non-finite stored position is put for the nearest-neighbour tree
+
+
 class ColumnsFileError(Exception):
     """The columns file is missing or damaged: reload the columns from SQLite."""
 
@@ -222,6 +225,9 @@ class Columns:
     def _tree(self, planar: bool) -> tuple[cKDTree, int]:
         built = self._trees.get(planar)
         if built is None or self.n - built[1] > max(4096, built[1] // 16):
-            built = (cKDTree(self._points(planar, slice(0, self.n)).copy()), self.n)
+            # a damaged row (an infinite position: set aside by the next writer) is put far
+            # away rather than stopping the tree from being built
+            pts = np.nan_to_num(self._points(planar, slice(0, self.n)), nan=_FAR, posinf=_FAR, neginf=-_FAR)
+            built = (cKDTree(pts), self.n)
             self._trees[planar] = built
         return built

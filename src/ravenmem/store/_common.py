@@ -57,11 +57,20 @@ def record_values(r: MemoryRecord) -> tuple[object, ...]:
 def record_from(rid: int, values: Sequence[Any], embedding: np.ndarray | None = None) -> MemoryRecord:
     """The record stored as `values` (in `RECORD_COLUMNS` order; an empty image path is none)."""
     t, x, y, z, yaw, qx, qy, qz, qw, source, frame_index, image_path, ocr_text = values
-    quat = None if qx is None else (float(qx), float(qy), float(qz), float(qw))
+    try:
+        quat = None if qx is None else (float(qx), float(qy), float(qz), float(qw))
+        pose = Pose(float(x), float(y), float(z), float(yaw), quat)
+        t = float(t)
+        if not math.isfinite(t):
+            raise InputError(f"t: {t!r} is not a finite number")
+    except (InputError, TypeError, ValueError) as e:
+        raise InputError(
+            f"stored memory {rid} is damaged ({e}); the next writer of this memory sets it aside"
+        ) from None
     return MemoryRecord(
         id=int(rid),
-        t=float(t),
-        pose=Pose(float(x), float(y), float(z), float(yaw), quat),
+        t=t,
+        pose=pose,
         source=str(source),
         frame_index=int(frame_index),
         image_path=str(image_path) if image_path else None,

@@ -8,6 +8,8 @@ accent-folded, by a contentless FTS5 table (the text itself is stored once, in `
 from __future__ import annotations
 
 import sqlite3
+import sys
+import time
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -15,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..fsio import rollback
-from ..types import Filter, MemoryRecord, Pose
+from ..types import MAX_ANGLE, MAX_COORD, Filter, MemoryRecord, Pose
 from ._common import POSE_COLUMNS, RECORD_COLUMNS, norm_text, pose_values, record_from, record_values
 
 COLS = ", ".join(("id", *RECORD_COLUMNS))  # the `memories` table's columns, as SCHEMA creates them
@@ -167,29 +169,81 @@ def delete(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
     to drop on open. Returns the ids that existed (and are now gone)."""
     conn.execute("BEGIN IMMEDIATE")
     try:
-        gone: list[int] = []
-        for s in range(0, len(ids), 900):
-            chunk = [int(i) for i in ids[s : s + 900]]
-            marks = ",".join("?" * len(chunk))
-            rows = conn.execute(f"SELECT id, ocr_text FROM memories WHERE id IN ({marks})", chunk).fetchall()
-            if not rows:
-                continue
-            have = [r[0] for r in rows]
-            marks = ",".join("?" * len(have))
-            # a contentless FTS5 table forgets a row when given the text it indexed
-            conn.executemany(
-                "INSERT INTO ocr (ocr, rowid, folded) VALUES ('delete', ?, ?)",
-                [(i, norm_text(t)) for i, t in rows if t],
-            )
-            conn.execute(f"DELETE FROM memories WHERE id IN ({marks})", have)
-            conn.execute(f"DELETE FROM vectors WHERE id IN ({marks})", have)
-            conn.executemany("INSERT INTO deleted (id) VALUES (?)", [(i,) for i in have])
-            gone += have
+        gone = _delete_rows(conn, ids)
         conn.execute("COMMIT")
     except BaseException:
         rollback(conn)
         raise
+    return gone
+
+
+def _delete_rows(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
+    gone: list[int] = []
+    for s in range(0, len(ids), 900):
+        chunk = [int(i) for i in ids[s : s + 900]]
+        marks = ",".join("?" * len(chunk))
+        rows = conn.execute(f"SELECT id, ocr_text FROM memories WHERE id IN ({marks})", chunk).fetchall()
+        if not rows:
+            continue
+        have = [r[0] for r in rows]
+        marks = ",".join("?" * len(have))
+        # a contentless FTS5 table forgets a row when given the text it indexed
+        conn.executemany(
+            "INSERT INTO ocr (ocr, rowid, folded) VALUES ('delete', ?, ?)",
+            [(i, norm_text(t)) for i, t in rows if t],
+        )
+        conn.execute(f"DELETE FROM memories WHERE id IN ({marks})", have)
+        conn.execute(f"DELETE FROM vectors WHERE id IN ({marks})", have)
+        conn.executemany("INSERT INTO deleted (id) VALUES (?)", [(i,) for i in have])
+        gone += have
     return np.array(sorted(gone), np.int64)
+
+
+_MAX_FLOAT = sys.float_info.max  # a finite number compares within +-this; inf and text do not
+# A stored value no read can make a record of: a position or heading outside the ranges every
+# write is checked against (`ravenmem.types`), a time that is not a finite number (times out of
+# range stay: an earlier version stored some, and they are read and shown as numbers). What a
+# disk error, another program or a writer from before the checks leaves: SQLite keeps NaN as
+# NULL (refused by NOT NULL), so what is left is +-inf, a huge number, or text or a blob in a
+# REAL column; each compares outside BETWEEN, so one scan of the table finds them all.
+_SANE = (
+    f"typeof(t) = 'real' AND t BETWEEN {-_MAX_FLOAT!r} AND {_MAX_FLOAT!r}"
+    + "".join(f" AND typeof({c}) = 'real' AND {c} BETWEEN {-MAX_COORD!r} AND {MAX_COORD!r}" for c in "xyz")
+    + f" AND typeof(yaw) = 'real' AND yaw BETWEEN {-MAX_ANGLE!r} AND {MAX_ANGLE!r}"
+    + "".join(f" AND ({c} IS NULL OR {c} BETWEEN -2.0 AND 2.0)" for c in ("qx", "qy", "qz", "qw"))
+)
+ASIDE = "memories_aside"  # damaged rows, kept as they were (with their vector) for a person
+
+
+def damaged(conn: sqlite3.Connection) -> np.ndarray:
+    """Ids of the rows whose time, position, heading or orientation is out of range (sorted)."""
+    rows = conn.execute(f"SELECT id FROM memories WHERE NOT ({_SANE})").fetchall()
+    return np.array(sorted(r[0] for r in rows), np.int64)
+
+
+def set_aside(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
+    """Move damaged rows (with their vectors) into the `memories_aside` table and delete them
+    as `delete` does, in one transaction; returns the ids moved."""
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        conn.execute(
+            f"CREATE TABLE IF NOT EXISTS {ASIDE} AS SELECT *, NULL AS v, NULL AS set_aside FROM memories WHERE 0"
+        )
+        for s in range(0, len(ids), 900):
+            chunk = [int(i) for i in ids[s : s + 900]]
+            marks = ",".join("?" * len(chunk))
+            conn.execute(f"DELETE FROM {ASIDE} WHERE id IN ({marks})", chunk)
+            conn.execute(
+                f"INSERT INTO {ASIDE} SELECT m.*, v.v, ? FROM memories m LEFT JOIN vectors v ON v.id = m.id "
+                f"WHERE m.id IN ({marks})",
+                [time.time(), *chunk],
+            )
+        gone = _delete_rows(conn, ids)
+        conn.execute("COMMIT")
+    except BaseException:
+        rollback(conn)
+        raise
+    return gone
 
 
 def set_ocr_text(conn: sqlite3.Connection, ids: Sequence[int], texts: Sequence[str]) -> int:

@@ -51,8 +51,7 @@ def count_rows(path: Path) -> int:
     """Rows of a metadata file (Parquet from its footer, CSV/JSONL by counting lines)."""
     kind = _kind(path)
     if kind == "parquet":
-        pq: Any = require("pyarrow.parquet", "eval")
-        return int(pq.ParquetFile(path).metadata.num_rows)
+        return int(_parquet(path).metadata.num_rows)
     with open(path, "rb") as f:
         lines = sum(1 for line in f if line.strip())
     return lines - 1 if kind == "csv" else lines
@@ -91,6 +90,16 @@ def import_key(vectors: Path, meta: Path) -> str:
     return hashlib.sha256("|".join(parts).encode()).hexdigest()[:24]
 
 
+def _parquet(path: Path) -> Any:
+    """The Parquet file at `path`; a file that is not one is a one-line InputError."""
+    pq: Any = require("pyarrow.parquet", "eval")
+    try:
+        return pq.ParquetFile(path)
+    except (OSError, ValueError) as e:  # pyarrow's ArrowInvalid is a ValueError
+        why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(f"{path}: not a readable Parquet file ({why})") from None
+
+
 def _kind(path: Path) -> str:
     ext = path.suffix.lower()
     if ext in (".parquet", ".pq"):
@@ -106,8 +115,7 @@ def _header(path: Path) -> list[str]:
     """The column names of a metadata file (JSON Lines: the keys of its first row)."""
     kind = _kind(path)
     if kind == "parquet":
-        pq: Any = require("pyarrow.parquet", "eval")
-        return list(pq.ParquetFile(path).schema_arrow.names)
+        return list(_parquet(path).schema_arrow.names)
     with open(path, encoding="utf-8", newline="") as f:
         if kind == "csv":
             return next(csv.reader(f), [])
@@ -122,8 +130,7 @@ def _header(path: Path) -> list[str]:
 def _column_chunks(path: Path, chunk: int) -> Iterator[dict[str, list[Any]]]:
     kind = _kind(path)
     if kind == "parquet":
-        pq: Any = require("pyarrow.parquet", "eval")
-        pf = pq.ParquetFile(path)
+        pf = _parquet(path)
         names = [c for c in pf.schema_arrow.names if c in RECORD_COLUMNS]
         _need(names, path)
         for batch in pf.iter_batches(batch_size=chunk, columns=names):

@@ -32,7 +32,7 @@ import numpy as np
 
 from ...errors import InputError
 from ...fsio import reports_full_disk
-from ...timeparse import TimeContext, fmt_time, parse_time
+from ...timeparse import TimeContext, fmt_time, named_time
 from ...types import MemoryRecord
 from ..core import Core
 from ..folder import file_size, thumb_file
@@ -143,10 +143,12 @@ class Forgetting(Core):
         """
         writer = None if dry_run else self.writer()
         before_t = after_t = None
-        if (before is not None or after is not None) and self.count():
-            ctx = self.clock(save=not dry_run)
-            before_t = None if before is None else parse_time(before, ctx)
-            after_t = None if after is None else parse_time(after, ctx)
+        if before is not None or after is not None:  # checked before anything is written
+            ctx = self.clock(save=False) if self.count() else None
+            before_t = None if before is None else named_time("before", before, ctx)
+            after_t = None if after is None else named_time("after", after, ctx)
+            if ctx is not None and not dry_run:
+                self.clock(save=True)
         chosen, unknown = select(self, before_t, after_t, region, ids)
         stats = self.store.stats()
         n_before = int(stats.get("count") or 0)  # type: ignore[call-overload]

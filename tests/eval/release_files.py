@@ -28,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from tests.agent.scripted_server import answer
 from tests.eval.eval_helpers import solid, write_video
+from tests.eval.release_layouts import question_of
 
 HEADER = [
     "UUID",
@@ -171,12 +173,39 @@ FD_ROWS = [
         "Unordered Revisitation",
     ),
     (
+        "The robot's goal is: Revisit all the objects you interacted with yesterday in specific order. "
+        "The order to revisit them is: second, first.",
+        [[9, 10], [0, 1]],
+        "Multi-Goal Tasks",
+        "Ordered Revisitation",
+    ),
+    (
+        "The robot's goal is: Revisit all the receptacles you picked objects from yesterday.",
+        [[0, 1], [9, 10, 11]],
+        "Multi-Goal Tasks",
+        "Unordered Revisitation",
+    ),
+    (
         "The robot's goal is: Navigate to the receptacle that you interacted with at 6:01 yesterday.",
         [[4]],
         "Single-Goal Temporal Tasks",
         "Time-Based",
     ),
 ]
+
+
+def findingdory_forms_policy(body: dict[str, Any]) -> dict[str, Any]:
+    """A model answering each multi-goal instruction in another release's form: the RAVEN
+    prompt's space-separated "time" (06:00:00 = frame 0, 06:02:10 = frame 9), FindingDory's
+    own "frame_indices", and our "Goal times:" line (its second goal wrong)."""
+    q = question_of(body).lower()
+    if "placed objects on" in q:
+        return answer(question_type="time", answer="Both receptacles.", time="06:00:00 06:02:10")
+    if "specific order" in q:
+        return answer(question_type="time", answer="The second, then the first.", frame_indices=[9, 0])
+    if "picked objects from" in q:
+        return answer(question_type="time", answer="Goal times: 06:00:00 06:00:30", time="06:00:00")
+    return answer(question_type="time", answer="At 06:01.", time="06:01:00")
 
 
 def write_findingdory_release(root: Path) -> Path:

@@ -9,9 +9,20 @@ import json
 from pathlib import Path
 from typing import Any
 
+import pytest
+
+from tests.agent.scripted_server import ScriptedModel
 from tests.cli.helpers import assert_one_line_error
 from tests.eval.eval_helpers import plugin_site, rm
-from tests.eval.release_files import QUESTIONS, SLIP, ids, write_raven_release, write_remembr_release
+from tests.eval.release_files import (
+    QUESTIONS,
+    SLIP,
+    findingdory_forms_policy,
+    ids,
+    write_findingdory_release,
+    write_raven_release,
+    write_remembr_release,
+)
 
 EMB = ["--embedder", "test-color-eval", "--thumb-size", "32", "--workers", "1"]
 SLIP_ID = ids([*QUESTIONS, SLIP])[-1]
@@ -99,3 +110,37 @@ def test_cli_remembr_layout_loads_from_every_documented_folder(tmp_path: Path) -
     raven = write_raven_release(tmp_path / "RAVEN")
     g, err = _eval(f"navqa:{raven / 'data_vlm' / 'navqa'}", tmp_path / "raven", site)
     assert "UTC-5 (inferred" in err and g["accuracy"]["questions"] == len(QUESTIONS)
+
+
+def test_cli_findingdory_goals_in_every_release_form(tmp_path: Path) -> None:
+    pytest.importorskip("av")
+    pytest.importorskip("pyarrow")
+    root = write_findingdory_release(tmp_path / "findingdory")
+    site = plugin_site(tmp_path)
+    run = tmp_path / "run"
+    with ScriptedModel(default=findingdory_forms_policy) as srv:
+        r = rm(
+            "eval", "--dataset", f"findingdory:{root}", "--method", "raven", "--vlm", "scripted",
+            "--vlm-base-url", srv.base_url, *EMB, "--out", str(run), "--json", site=site,
+        )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    rows = [json.loads(x) for x in (run / "answers.jsonl").read_text().splitlines()]
+    got = {
+        r["question"]["text"].split(" yesterday")[0]: (
+            r["pred"]["goal_form"],
+            r["score"]["correct"],
+            [round(g[0] - r["truth"]["goal_times"][0][0]) for g in r["pred"]["goal_times"]],
+        )
+        for r in rows
+    }
+    assert got == {
+        # RAVEN's prompt: "time": "06:00:00 06:02:10", split on spaces, each goal in its own frames
+        "Revisit all the receptacles you placed objects on": ("time field", True, [0, 130]),
+        # FindingDory's prompt: "frame_indices": [9, 0] (the second receptacle first, as asked)
+        "Revisit all the objects you interacted with": ("frame_indices field", True, [0, -130]),
+        # our line, its second goal at 06:00:30 (frame 2): the first goal right is not enough
+        "Revisit all the receptacles you picked objects from": ("Goal times line", False, [0, 30]),
+        "Navigate to the receptacle that you interacted with at 06:01:00": ("time field", True, [2]),
+    }
+    raven = next(r for r in rows if r["pred"]["goal_form"] == "time field")
+    assert raven["reply"]["time"] == "06:00:00 06:02:10"  # the model's own field, kept in the row

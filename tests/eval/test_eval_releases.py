@@ -13,11 +13,12 @@ import pytest
 
 from ravenmem.agent.schema import Answer
 from ravenmem.errors import InputError
+from ravenmem.eval.answer_forms import parse_goal_times
 from ravenmem.eval.config import Thresholds
 from ravenmem.eval.datasets import load_dataset
 from ravenmem.eval.datasets.findingdory import INSTRUCTIONS, normalise_question
 from ravenmem.eval.datasets.frames import BASE_DAY
-from ravenmem.eval.metrics import bootstrap_ci, parse_goal_times, score_row, seed_accuracy
+from ravenmem.eval.metrics import bootstrap_ci, score_row, seed_accuracy
 from ravenmem.eval.runner import build_row
 from ravenmem.eval.types import Episode, Question, Truth
 from tests.agent.scripted_server import ScriptedModel

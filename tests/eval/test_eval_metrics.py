@@ -5,7 +5,8 @@ from typing import Any
 import pytest
 
 from ravenmem.agent.schema import Answer, Cost, Evidence
-from ravenmem.eval.metrics import Thresholds, parse_frame_lists, parse_yes, score_row, summarize
+from ravenmem.eval.answer_forms import parse_frame_lists
+from ravenmem.eval.metrics import Thresholds, parse_yes, score_row, summarize
 from ravenmem.eval.runner import build_row
 from ravenmem.eval.types import Episode, Question, Truth
 

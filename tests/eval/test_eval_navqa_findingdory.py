@@ -37,9 +37,11 @@ def test_navqa_human_qa_clips(tmp_path: Path) -> None:
 
 def test_navqa_csv_only_uses_local_time_and_poses(tmp_path: Path) -> None:
     root = write_navqa(tmp_path / "navqa", with_human_qa=False)
-    with pytest.raises(InputError, match="does not say which release wrote them: give --tz"):
-        load_dataset(f"navqa:{root}")  # our flat layout names no release, and no text says the zone
+    # our flat layout names no release and no text says the zone: the data does (Chicago in January)
+    (inferred,) = load_dataset(f"navqa:{root}")
+    assert "UTC-6 (inferred from the data: UTC-6 puts" in inferred.meta["zone"]
     (ep,) = load_dataset(f"navqa:{root}", tz="America/Chicago")
+    assert [q.truth for q in inferred.questions] == [q.truth for q in ep.questions]
     q = {x.id: x for x in ep.questions}
     assert len(ep.frame_times) == 20
     # 9:55:11 America/Chicago = T0 + 11 s: the pose there is y = 22

@@ -13,11 +13,12 @@ import pytest
 
 from ravenmem.agent.schema import Answer
 from ravenmem.errors import InputError
+from ravenmem.eval.answer_forms import parse_goal_times
 from ravenmem.eval.config import Thresholds
 from ravenmem.eval.datasets import load_dataset
 from ravenmem.eval.datasets.findingdory import INSTRUCTIONS, normalise_question
 from ravenmem.eval.datasets.frames import BASE_DAY
-from ravenmem.eval.metrics import bootstrap_ci, parse_goal_times, score_row, seed_accuracy
+from ravenmem.eval.metrics import bootstrap_ci, score_row, seed_accuracy
 from ravenmem.eval.runner import build_row
 from ravenmem.eval.types import Episode, Question, Truth
 from tests.agent.scripted_server import ScriptedModel
@@ -84,7 +85,8 @@ def test_navqa_raven_repository_layout(tmp_path: Path) -> None:
     ep, pos = q["SHORT_pos"]
     assert pos.truth.positions == [[28.0, 0.0, 0.0]] and ep.frame_times[0] == NAV_T0 + 5
     assert q["SHORT_no"][1].truth.yes is False and q["MEDIUM_time"][1].horizon == "medium"
-    assert "UTC-5" in ep.meta["zone"] and "RAVEN" in ep.meta["zone"]
+    # the zone is the data's own: 3 of the 4 clock times fit UTC-5 (LONG_late is before its clip)
+    assert "UTC-5 (inferred from the data: UTC-5 puts 3 of 4 data.csv truth times" in ep.meta["zone"]
     assert ep.meta["notes"] == [
         f"sequence(s) 3 have no frames ({repo.parent / 'RAVEN'}/coda_data/<seq>/ or frames/<seq>/poses.csv): "
         "their 2 question(s) are left out"
@@ -119,7 +121,7 @@ def test_navqa_remembr_clips_are_episodes_in_utc_minus_8(tmp_path: Path) -> None
     assert windows == {qid: (float(w[0]), float(w[1])) for qid, _, _, w, *_ in NAV_QUESTIONS}
     q = {x.id: x for e in eps for x in e.questions}
     assert q["SHORT_pos"].truth.positions == [[28.0, 0.0, 0.0]] and q["SHORT_no"].truth.yes is False
-    assert "UTC-8" in eps[0].meta["zone"] and "ReMEmbR" in eps[0].meta["zone"]
+    assert "UTC-8 (inferred from the data: UTC-8 puts 3 of 4" in eps[0].meta["zone"]
     utc5 = {x.id: x for e in load_dataset(f"navqa:{repo}", tz="UTC-5") for x in e.questions}
     assert utc5["SHORT_pos"].meta["truth_error"].endswith("UTC-8 would fit")
 

@@ -245,11 +245,14 @@ def report_cmd(
 ) -> None:
     """Markdown tables (method x embedder x VLM, per category, split, horizon, cost) and PNG plots;
     the threshold options re-score the answers (default: the run's own)."""
-    from ..eval.report import write_report
-    from ..eval.runner import run_thresholds
+    from ..eval.report import paper_lines, write_report
+    from ..eval.runner import read_rows, run_thresholds
 
     thr = thresholds_from(given, run_thresholds(run_dir))
     path = write_report(run_dir, out, thresholds=thr)
+    rows = read_rows(run_dir) if next(Path(run_dir).rglob("answers.jsonl"), None) else []
+    for line in paper_lines(rows):
+        console.print(esc(f"beside the paper: {line}"))
     console.print(esc(f"wrote {path} (figures in {path.parent / (path.stem + '_figs')})"))
 
 

@@ -198,7 +198,7 @@ class DatasetConfig:
     """Which questions: `spec` is NAME:PATH; the other fields are the loaders' options.
 
     rate: RAVEN-QA frames per second where no timestamps are given. tz: NaVQA time zone of
-    data.csv (None: the zone of the release the layout identifies). split: FindingDory split
+    data.csv (None: inferred from the data, see `datasets.navqa_zone`). split: FindingDory split
     name. episodes: a glob over episode ids. limit: the first N questions.
     """
 
@@ -212,7 +212,8 @@ class DatasetConfig:
     )
     rate: float | None = option("--rate", "raven-qa: frames per second where no timestamps are given")
     tz: str | None = option(
-        "--tz", "navqa: time zone of data.csv (default: the release's, UTC-5 RAVEN, UTC-8 ReMEmbR)"
+        "--tz",
+        "navqa: time zone of data.csv (default: inferred, the offset that puts its truths in their clips)",
     )
     split: str | None = option("--split", "findingdory: split name (validation)")
     episodes: str | None = option("--episodes", "only episodes whose id matches this glob")

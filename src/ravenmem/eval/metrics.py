@@ -30,7 +30,6 @@ fixed seed, so the same rows always give the same interval) and the number of qu
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from collections import defaultdict
@@ -40,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from ..agent.schema import Answer
+from .answer_forms import read_goals
 from .config import RAVEN_QA, Thresholds
 from .types import Episode, Question
 
@@ -84,38 +84,6 @@ def truth_row(q: Question, ep: Episode) -> dict[str, Any]:
     return d
 
 
-_LISTS = re.compile(r"\[\s*\[[\d\s,\[\]-]*\]\s*\]")
-
-
-def parse_frame_lists(text: str) -> list[list[int]] | None:
-    """A FindingDory-style answer '[[12, 13], [40]]' in free text (the last one), else None."""
-    found = _LISTS.findall(text or "")
-    for cand in reversed(found):
-        try:
-            val = json.loads(cand)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(val, list) and all(
-            isinstance(g, list) and all(isinstance(i, int) for i in g) for g in val
-        ):
-            return val
-    return None
-
-
-_GOAL_TIMES = re.compile(r"goal\s+times?\s*[:=]\s*((?:\d{1,2}:\d{2}(?::\d{2}(?:\.\d+)?)?[\s,;]*)+)", re.I)
-_HMS = re.compile(r"\b(\d{1,2}):(\d{2})(?::(\d{2}(?:\.\d+)?))?\b")
-
-
-def parse_goal_times(text: str) -> list[float] | None:
-    """The goal times an answer lists ('Goal times: 06:00:43 06:09:36'; H:MM reads as HH:MM:00,
-    FindingDory's normalisation) as seconds after midnight, in order; None when it lists none."""
-    m = _GOAL_TIMES.search(text or "")
-    if not m:
-        return None
-    out = [int(h) * 3600 + int(mi) * 60 + float(sec or 0) for h, mi, sec in _HMS.findall(m.group(1))]
-    return out or None
-
-
 def parse_yes(text: str) -> bool | None:
     w = (text or "").strip().lower()
     if re.match(r"^(yes|yeah|yep|true)\b", w):
@@ -125,27 +93,23 @@ def parse_yes(text: str) -> bool | None:
     return None
 
 
-def prediction(a: Answer, q: Question, ep: Episode) -> dict[str, Any]:
-    """What the answer predicts, in the units ground truth uses (frames as times)."""
+def prediction(a: Answer, q: Question, ep: Episode, fields: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What the answer predicts, in the units ground truth uses (frames as times). `fields` are
+    the answer fields of the model's own reply (`answer_forms.reply_fields`): a multi-goal
+    answer may sit there in the form a release's prompt asks for."""
     yes = a.yes if a.yes is not None else parse_yes(a.text)
     seq: list[float] = [] if a.time is None else [float(a.time)]
     for e in a.evidence:
         if all(abs(e.t - s) > 1e-6 for s in seq):
             seq.append(float(e.t))
     k = max(1, len(q.truth.frames))
-    lists = parse_frame_lists(a.text) if q.type == "frame" else None
-    listed = parse_goal_times(a.text) if q.type == "frame" and ep.frame_times else None
-    if lists is not None and ep.frame_times:
-        goals = [[ep.frame_times[i] if 0 <= i < len(ep.frame_times) else -1.0 for i in g] for g in lists]
-        none = lists == [[-1]]
-    elif listed is not None:  # every goal's time, as the question asked for them
-        day = math.floor(ep.frame_times[0] / 86400.0) * 86400.0
-        goals = [[day + sod] for sod in listed]
-        seq = [g[0] for g in goals] + [x for x in seq if all(abs(x - g[0]) > 1e-6 for g in goals)]
-        none = False
+    read = read_goals(a.text, fields or {}, ep.frame_times) if q.type == "frame" else None
+    if read is not None:  # every goal's time, in the form the answer gave them
+        goals, none, form = read.goals, read.none, read.form
+        firsts = [g[0] for g in goals if g]
+        seq = firsts + [x for x in seq if all(abs(x - f) > 1e-6 for f in firsts)]
     else:
-        goals = [[s] for s in seq[:k]]
-        none = False
+        goals, none, form = [[s] for s in seq[:k]], False, "answer time" if seq else "none"
     frames = [ep.nearest_frame(s) for s in seq[:k]] if ep.frame_times else []
     out: dict[str, Any] = {
         "position": a.position,
@@ -157,6 +121,8 @@ def prediction(a: Answer, q: Question, ep: Episode) -> dict[str, Any]:
         "goal_times": goals,
         "frames": frames,
     }
+    if q.type == "frame":
+        out["goal_form"] = form
     if ep.frame_files and frames:
         out["files"] = [ep.frame_files[i] for i in frames if i is not None]
     return out

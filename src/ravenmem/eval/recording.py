@@ -70,17 +70,20 @@ class ModelLog:
 
 class RecordingClient(VLMClient):
     """A VLMClient that writes every attempt (request, reply or error) to a ModelLog, labelled
-    with `context` (the runner sets it to the row key before each question)."""
+    with `context` (the runner sets it to the row key before each question), and keeps the last
+    reply, whose own answer fields the runner reads (`answer_forms.reply_fields`)."""
 
     def __init__(self, config: VLMConfig, log: ModelLog, context: str = "") -> None:
         super().__init__(config)
         self.log = log
         self.context = context
+        self.last_reply: Any = None  # the last reply received (the runner reads the answer's own fields)
 
     def chat(self, messages: list[dict[str, Any]], *args: Any, **kwargs: Any) -> Any:
         first = len(self.events)
         try:
-            return super().chat(messages, *args, **kwargs)
+            self.last_reply = super().chat(messages, *args, **kwargs)
+            return self.last_reply
         finally:
             for event in self.events[first:]:
                 self.log.write({"context": self.context, "model": self.config.model, **event})
@@ -174,3 +177,11 @@ def manifest(cfg: RunConfig, episodes: list[Episode], preset: dict[str, Any] | N
         "settings": json.loads(json.dumps(asdict(cfg), default=str)),
         "model_io": MODEL_IO,
     }
+
+
+def reply_texts(reply: Any) -> list[str]:
+    """The JSON texts of a chat reply: its content, then each tool call's arguments."""
+    if reply is None:
+        return []
+    texts = [reply.content] if isinstance(getattr(reply, "content", None), str) else []
+    return texts + [c.arguments for c in getattr(reply, "tool_calls", []) if isinstance(c.arguments, str)]

@@ -22,6 +22,7 @@ import numpy as np
 
 from .config import Thresholds
 from .metrics import SWEEP_M, group_key, summarize
+from .paper import beside
 from .runner import read_json, read_rows, run_thresholds
 
 TYPE_COLS = ("position", "time", "duration", "frame", "binary", "text")
@@ -301,6 +302,45 @@ def _notes(groups: list[dict[str, Any]], summary: dict[str, Any]) -> list[str]:
     return ["## Notes", "", *notes, ""] if notes else []
 
 
+def _where(w: dict[str, str]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in w.items()) or "all"
+
+
+def paper_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """One line per our row that has a published figure beside it (for the console)."""
+    return [
+        f"{b['benchmark']} ({_where(b['where'])}) {b['method']} | {b['embedder']} | {b['vlm']}: "
+        f"ours {fmt_pct(b['ours'], n=True)}; the paper's (RAVEN authors): {b['paper'].label}"
+        for b in beside(rows)
+    ]
+
+
+def _paper(rows: list[dict[str, Any]]) -> list[str]:
+    """Our rows beside the RAVEN authors' published figures for the same benchmark, split and
+    method (`ravenmem.eval.paper`)."""
+    found = beside(rows)
+    if not found:
+        return []
+    body = [
+        [b["benchmark"], _where(b["where"]), b["method"], b["embedder"], b["vlm"], fmt_pct(b["ours"], n=True)]
+        + [b["paper"].label, b["paper"].source]
+        for b in found
+    ]
+    head = ["Benchmark", "Questions", "Method", "Embedder", "VLM", "Ours: accuracy %"]
+    head += ["The paper's (RAVEN authors)", "Source"]
+    quotes = sorted({f'"{b["paper"].quote}" ({b["paper"].note})' for b in found if b["paper"].quote})
+    return [
+        "## Beside the paper",
+        "",
+        _table(head, body),
+        "",
+        "The paper's column is the published figure for the same benchmark, questions and method, "
+        "with the model and encoder that produced it as the source names them; ours is the same "
+        "metric over exactly these rows. As published: " + " ".join(quotes),
+        "",
+    ]
+
+
 def _study_value(st: dict[str, Any], p: dict[str, Any]) -> str:
     if st["study"] == "consolidation":
         return str(p["strategy"]) + ("" if p.get("budget") is None else f" {p['budget']}")
@@ -404,7 +444,7 @@ def markdown(
             "",
         ]
         lines += _overall(groups) + _cost(groups) + _breakdowns(groups) + _horizon_types(groups, thr)
-        lines += _sweep(groups) + _notes(groups, summary)
+        lines += _sweep(groups) + _paper(rows) + _notes(groups, summary)
     for st in studies:
         lines += _study(st)
     if figs:

@@ -36,11 +36,21 @@ from ..errors import InputError
 from ..fsio import atomic_open, atomic_write, atomic_write_json
 from ..imageio import read_image
 from ..ingest.keyframes import KeyframeConfig
+from .answer_forms import reply_fields
 from .cache import CachingEmbedder, build_memory
 from .config import IDENTITY, RunConfig, Thresholds
 from .datasets import load_dataset
 from .metrics import prediction, score_row, summarize, truth_row
-from .recording import MANIFEST, MODEL_IO, SETUP, ModelLog, RecordingClient, append_json_line, manifest
+from .recording import (
+    MANIFEST,
+    MODEL_IO,
+    SETUP,
+    ModelLog,
+    RecordingClient,
+    append_json_line,
+    manifest,
+    reply_texts,
+)
 from .types import Episode, Question, horizon_of
 
 # Options of the contract between the evaluator and the VLM agent: checked against the agent's
@@ -438,6 +448,7 @@ class Runner:
         mem_info: dict[str, Any],
     ) -> dict[str, Any]:
         start = time.perf_counter()
+        fields: dict[str, Any] = {}
         try:
             image = read_image(q.image) if q.image is not None else None
             text = q.text
@@ -447,7 +458,10 @@ class Runner:
                 client = getattr(m, "client", None)
                 if isinstance(client, RecordingClient):
                     client.context = row_key(ep, q, method, seed)
+                    client.last_reply = None
                 ans = ask(mem, AskRequest(text, image=image), method=m).answer
+                if isinstance(client, RecordingClient):
+                    fields = reply_fields(reply_texts(client.last_reply))
             if not isinstance(ans, Answer):
                 raise TypeError(f"method {method} returned {type(ans).__name__}, not an Answer")
         except Exception as e:  # noqa: BLE001 - one failing question must not end the run; it is recorded
@@ -474,6 +488,7 @@ class Runner:
             wall_s=wall,
             judge=verdict,
             variant=self.cfg.variant,
+            reply=fields,
         )
 
     def _ran(self, method: str, ans: Answer) -> dict[str, Any]:
@@ -499,11 +514,13 @@ def build_row(
     wall_s: float = 0.0,
     judge: dict[str, Any] | None = None,
     variant: str = "",
+    reply: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One answers.jsonl row: the question, its truth, the full answer, the prediction and its score.
 
     `method` is the method asked for (the row's key); `ran` what actually answered (method,
-    model, embedder), also copied to the row's `embedder` and `vlm` that reports group by."""
+    model, embedder), also copied to the row's `embedder` and `vlm` that reports group by.
+    `reply`: the answer fields of the model's own last reply (kept in the row as `reply`)."""
     ran = ran or {"method": ans.method or method, "model": None, "embedder": ""}
     row: dict[str, Any] = {
         "key": row_key(ep, q, method, seed),
@@ -518,7 +535,7 @@ def build_row(
         "ran": ran,
         "question": q.to_dict(),
         "truth": truth_row(q, ep),
-        "pred": prediction(ans, q, ep),
+        "pred": prediction(ans, q, ep, reply),
         "answer": ans.model_dump(mode="json"),
         "pos_threshold": ep.pos_threshold,
         "frame_tol": ep.frame_tol,
@@ -535,6 +552,8 @@ def build_row(
         row["zone"] = ep.meta["zone"]
     if judge is not None:
         row["judge"] = judge
+    if reply:
+        row["reply"] = reply
     row["score"] = score_row(row, thr)
     return row
 

@@ -15,10 +15,11 @@ name in-game times ("between 08:00 and 10:00") resolve against the memory's own 
 carry no poses: frames are stored at the origin and only frame answers are scored.
 
 Questions get the normalisations the RAVEN release applies before asking: the "The robot's goal
-is: " prefix is dropped and clock times written H:MM become HH:MM:SS. Multi-goal answers are
-several times, one per goal in order (the release's scorer splits its answer's time on spaces):
-the methods that ask a model are told to list every goal's time as "Goal times: HH:MM:SS
-HH:MM:SS" (`INSTRUCTIONS`), and each goal is scored against its own accepted frames, in order
+is: " prefix is dropped and clock times written H:MM become HH:MM:SS. Multi-goal answers name
+one place per goal in order, in any form a release's prompt asks for (`eval.answer_forms`:
+FindingDory's frame_indices, RAVEN's space-separated "time", our "Goal times:" line); the methods
+that ask a model are told to list every goal's time as "Goal times: HH:MM:SS HH:MM:SS"
+(`INSTRUCTIONS`), and each goal is scored against its own accepted frames, in order
 (the scorer's rule: a goal is right when its time, rounded to the nearest frame, is one of them;
 all goals right for the answer to be right; `[[-1]]` right only when nothing is found).
 """

@@ -11,7 +11,9 @@ Layouts (`navqa:PATH`; PATH is the repository root or its data folder):
       remembr/data/navqa/data.csv              the question table (clock times in UTC-8)
       remembr/data/navqa/<seq>/qa_unfilled.json the clips, about 30 per sequence, one per question
       remembr/data/questions/<seq>/human_qa.json  when its form_question_jsons script was run
-      remembr/coda_data/<seq>/<unix time>.pkl  frames
+      remembr/coda_data/<seq>/<unix time>.pkl  frames, beside data/ (its eval.md: --coda_dir ./coda_data)
+    either release's navqa folder itself (data_vlm/navqa, remembr/data/navqa): data.csv and
+      <seq>/qa_unfilled.json there, coda_data/ two levels up (the repository or package root)
     ours: PATH/data.csv, PATH/questions/<seq>/human_qa.json (or PATH/<seq>/human_qa.json),
       frames in PATH/coda_data/<seq>/*.pkl or PATH/frames/<seq>/poses.csv (file,t,x,y,z[,qx,qy,qz,qw])
 
@@ -33,9 +35,10 @@ With data.csv alone a sequence is one episode.
 Clock times: data.csv's timestamps are local clock times, and each release wrote them in its own
 zone: the RAVEN release in UTC-5 (its human_qa.json texts say "You started moving at 10:55:32"
 for start_time 15:55:32 UTC), ReMEmbR's in UTC-8 (the same instant reads 7:59:00 there and
-10:59:00 in RAVEN's). The zone comes from `tz` when given, else from the release the layout
-identifies, else from the offset written in human_qa.json's texts; a layout that says neither
-needs `tz`. Every truth time must fall inside its episode's recording (within `MARGIN_S`): one
+10:59:00 in RAVEN's). The zone comes from `tz` when given, else from the data (`navqa_zone`:
+the one whole-hour offset that puts the truth times inside their clips, which are Unix seconds),
+else (no timed row) from the release the layout identifies or the offset human_qa.json's texts
+are written in. Every truth time must fall inside its episode's recording (within `MARGIN_S`): one
 that does not is a named truth error in the report (with the offsets that would fit), never moved
 to the nearest frame. A data.csv naming sequences whose frames are missing loads those present
 and says which are missing and how many questions that leaves out.
@@ -53,7 +56,6 @@ from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone, tzinfo
 from pathlib import Path
 from typing import Any, cast
-from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import numpy as np
 
@@ -64,9 +66,19 @@ from ...types import Pose
 from ..types import Episode, EvalType, Question, Truth, horizon_of
 from . import DATASETS
 from .frames import FrameRef, RefSource, natural_key
+from .navqa_zone import (
+    MARGIN_S,
+    Inferred,
+    Sample,
+    clock_instant,
+    clock_times,
+    infer_zone,
+    offset_zone,
+    parse_zone,
+    zone_label,
+)
 
 POS_THRESHOLD = 15.0  # metres, NaVQA's position criterion (the paper's accuracy conversion)
-MARGIN_S = 3.0  # a truth this close outside its recording still counts as inside (the releases' 3 s captions)
 TYPES = ("binary", "position", "time", "text", "duration")
 TIMED = ("position", "time", "duration")  # truths that are clock times (checked against the recording)
 _COLS = {
@@ -109,10 +121,15 @@ class Layout:
     data: Path
     frame_roots: list[Path]
     what: str
+    navqa: Path | None = None  # the folder of data.csv and <seq>/qa_unfilled.json (default data/navqa)
+
+    @property
+    def clips_dir(self) -> Path:
+        return self.navqa or self.data / "navqa"
 
     @property
     def csv(self) -> Path | None:
-        for cand in (self.data / "navqa" / "data.csv", self.data / "data.csv"):
+        for cand in (self.clips_dir / "data.csv", self.data / "data.csv"):
             if cand.exists():
                 return cand
         return None
@@ -128,13 +145,13 @@ class Layout:
         return None
 
     def clips(self, seq: str) -> Path | None:
-        cand = self.data / "navqa" / seq / "qa_unfilled.json"
+        cand = self.clips_dir / seq / "qa_unfilled.json"
         return cand if cand.exists() else None
 
     def sequences(self) -> set[str]:
         found = {p.parent.name for p in self.data.glob("questions/*/human_qa.json")}
         found |= {p.parent.name for p in self.data.glob("*/human_qa.json")}
-        found |= {p.parent.name for p in self.data.glob("navqa/*/qa_unfilled.json")}
+        found |= {p.parent.name for p in self.clips_dir.glob("*/qa_unfilled.json")}
         return found
 
 
@@ -161,32 +178,13 @@ def find_layout(root: Path) -> Layout:
     if (root / "navqa").is_dir():
         rel = _release_of(root.parent)
         return Layout(rel, root, [root.parent, root], f"a repository's data folder ({root.name}/)")
+    if (root / "data.csv").exists() and any(root.glob("*/qa_unfilled.json")):
+        # the navqa folder itself (data/navqa or data_vlm/navqa): the data folder is its parent
+        # and the frames sit beside that (coda_data/ at the repository or package root)
+        data, top = root.parent, root.parent.parent
+        rel = "raven" if data.name == "data_vlm" else _release_of(top)
+        return Layout(rel, data, [top, data, root], f"a NaVQA folder ({data.name}/{root.name}/)", navqa=root)
     return Layout("", root, [root], "flat (data.csv, questions/<seq>/human_qa.json)")
-
-
-def parse_zone(text: str) -> tzinfo:
-    """'UTC-5', 'UTC+05:30', '-05:00' or an IANA name such as America/Chicago."""
-    m = re.fullmatch(r"\s*(?:UTC|GMT)?\s*([+-])(\d{1,2})(?::?(\d{2}))?\s*", text, re.I)
-    if m:
-        sign = -1 if m.group(1) == "-" else 1
-        return timezone(sign * timedelta(hours=int(m.group(2)), minutes=int(m.group(3) or 0)))
-    if text.strip().upper() in ("UTC", "GMT", "Z"):
-        return timezone.utc
-    try:
-        return ZoneInfo(text.strip())
-    except (ZoneInfoNotFoundError, ValueError) as e:
-        raise InputError(
-            f"--tz: unknown time zone {text!r} (give e.g. UTC-5 or America/Chicago) ({e})"
-        ) from e
-
-
-def zone_label(zone: tzinfo) -> str:
-    if isinstance(zone, ZoneInfo):
-        return zone.key
-    off = zone.utcoffset(None)
-    assert off is not None
-    hours, rest = divmod(int(off.total_seconds()), 3600)
-    return "UTC" if not off else f"UTC{hours:+d}" + (f":{abs(rest) // 60:02d}" if rest else "")
 
 
 class _NumpyOnly(pickle.Unpickler):
@@ -331,17 +329,9 @@ def read_data_csv(path: Path) -> list[dict[str, str]]:
     return rows
 
 
-def _hms_times(stamp: str, day_of: float, zone: tzinfo, where: str) -> list[float]:
-    """'7:59:00' or '07:56:38,07:59:00' (clock times on the recording's day in `zone`) -> Unix s."""
-    day = datetime.fromtimestamp(day_of, zone).date()
-    out = []
-    for part in (p for p in stamp.split(",") if p.strip()):
-        try:
-            hms = datetime.strptime(part.strip(), "%H:%M:%S").time()
-        except ValueError:
-            raise InputError(f"{where}: timestamp {part.strip()!r} is not H:MM:SS") from None
-        out.append(datetime.combine(day, hms, tzinfo=zone).timestamp())
-    return out
+def _hms_times(stamp: str, near: float, zone: tzinfo, where: str) -> list[float]:
+    """'7:59:00' or '07:56:38,07:59:00' (clock times in `zone`, on the day nearest `near`) -> Unix s."""
+    return [clock_instant(c, zone, near) for c in clock_times(stamp, where)]
 
 
 def _clock(t: float, zone: tzinfo) -> str:
@@ -401,10 +391,13 @@ class _Csv:
     stamps: list[float] = field(default_factory=list)
 
 
-def _truth_from_csv(row: dict[str, str], frames: SeqFrames, zone: tzinfo, where: str) -> _Csv:
+def _truth_from_csv(
+    row: dict[str, str], frames: SeqFrames, window: tuple[float, float], zone: tzinfo, where: str
+) -> _Csv:
     qtype = row["type"].lower()
     truth = Truth()
-    stamps = _hms_times(row["stamp"], frames.span[0], zone, where) if row.get("stamp") else []
+    near = 0.5 * (window[0] + window[1])
+    stamps = _hms_times(row["stamp"], near, zone, where) if row.get("stamp") else []
     out = _Csv(truth, stamps if qtype in TIMED else [])
     if qtype == "position" and stamps:
         poses = [frames.pose_at(t) for t in stamps]
@@ -507,6 +500,7 @@ class _Ctx:
     by_uuid: dict[str, list[dict[str, str]]]
     context: bool
     notes: list[str]
+    refusal: str = ""
 
     @property
     def csv_path(self) -> Path:
@@ -515,8 +509,9 @@ class _Ctx:
     def need_zone(self, what: str) -> tzinfo:
         if self.zone is None:
             raise InputError(
-                f"{what} holds clock times, and this layout ({self.layout.what}) does not say "
-                "which release wrote them: give --tz (UTC-5 for the RAVEN release, UTC-8 for ReMEmbR's)"
+                self.refusal
+                or f"{what} holds clock times, and nothing in this layout ({self.layout.what}) tells "
+                "their time zone: give --tz (UTC-5 for the RAVEN release, UTC-8 for ReMEmbR's)"
             )
         return self.zone
 
@@ -538,20 +533,21 @@ def load(path: str, tz: str | None = None, context: bool = True, **_: Any) -> li
             f"{root}: no data.csv and no questions/<seq>/human_qa.json (NaVQA layouts: the RAVEN or "
             "ReMEmbR repository, its data folder, or data.csv + questions/<seq>/human_qa.json)"
         )
-    zone, why = _zone(tz, layout, seqs)
-    ctx = _Ctx(root, layout, zone, why, by_uuid, context, [])
-    _cross_check(ctx, seqs)
-    episodes: list[Episode] = []
-    missing: list[str] = []
-    dropped = 0
+    frames: dict[str, SeqFrames] = {}
     for seq in seqs:
         folder = frames_folder(layout.frame_roots, seq)
-        if folder is None:
-            missing.append(seq)
-            dropped += _question_count(ctx, seq, csv_rows)
-            continue
-        episodes += _sequence(ctx, seq, load_frames(folder), [r for r in csv_rows if r["seq"] == seq])
+        if folder is not None:
+            frames[seq] = load_frames(folder)
+    zone, why, refusal = _zone(tz, layout, seqs, csv_rows, frames)
+    ctx = _Ctx(root, layout, zone, why, by_uuid, context, [], refusal)
+    _cross_check(ctx, seqs)
+    missing = [s for s in seqs if s not in frames]
+    episodes: list[Episode] = []
+    for seq in seqs:
+        if seq in frames:
+            episodes += _sequence(ctx, seq, frames[seq], [r for r in csv_rows if r["seq"] == seq])
     if missing:
+        dropped = sum(_question_count(ctx, s, csv_rows) for s in missing)
         where = " or ".join(f"{r}/coda_data/<seq>/" for r in layout.frame_roots)
         ctx.notes.append(
             f"sequence(s) {', '.join(missing)} have no frames ({where} or frames/<seq>/poses.csv): "
@@ -570,20 +566,63 @@ def load(path: str, tz: str | None = None, context: bool = True, **_: Any) -> li
     return episodes
 
 
-def _zone(tz: str | None, layout: Layout, seqs: list[str]) -> tuple[tzinfo | None, str]:
-    """The zone data.csv is read in, and why (see the module docstring)."""
+def _windows(layout: Layout, seq: str) -> dict[str, tuple[float, float]]:
+    """Each question id's clip (Unix s) in a sequence's qa_unfilled.json and human_qa.json; items
+    too broken to have one are left to the loader, which names them."""
+    out: dict[str, tuple[float, float]] = {}
+    for path, what in ((layout.clips(seq), "qa_unfilled.json"), (layout.human_qa(seq), "human_qa.json")):
+        for item in _read_items(path, what) if path is not None else []:
+            try:
+                out.setdefault(str(item["id"]), (float(item["start_time"]), float(item["end_time"])))
+            except (KeyError, TypeError, ValueError):
+                continue
+    return out
+
+
+def zone_samples(
+    layout: Layout, seqs: list[str], rows: list[dict[str, str]], frames: dict[str, SeqFrames]
+) -> list[Sample]:
+    """Every timed data.csv row with the window its truth must fall in: its clip, else (data.csv
+    alone) its sequence's recording."""
+    out = []
+    windows = {seq: _windows(layout, seq) for seq in seqs}
+    for r in rows:
+        if r["type"].lower() not in TIMED or not r.get("stamp"):
+            continue
+        win = windows.get(r["seq"], {}).get(r["uuid"])
+        if win is None and r["seq"] in frames and not windows.get(r["seq"]):
+            win = frames[r["seq"]].span
+        if win is not None:
+            where = f"{layout.csv} line {r['line']}"
+            out.append(Sample(tuple(clock_times(r["stamp"], where)), *win))
+    return out
+
+
+def _zone(
+    tz: str | None,
+    layout: Layout,
+    seqs: list[str],
+    rows: list[dict[str, str]],
+    frames: dict[str, SeqFrames],
+) -> tuple[tzinfo | None, str, str]:
+    """The zone data.csv is read in, why, and the refusal to give if none can be told (see the
+    module docstring): --tz, else the data (navqa_zone), else the release or human_qa.json texts."""
     if tz:
-        return parse_zone(tz), "--tz"
+        return parse_zone(tz), "--tz", ""
+    samples = zone_samples(layout, seqs, rows, frames)
+    if samples:
+        inf: Inferred = infer_zone(samples, str(layout.csv))
+        return inf.zone, inf.why, inf.refusal
     if layout.release:
         rel = RELEASES[layout.release]
-        return rel.zone, f"{rel.about}; layout: {layout.what}"
+        return rel.zone, f"{rel.about}; layout: {layout.what}", ""
     for seq in seqs:
         hq = layout.human_qa(seq)
         if hq is not None:
             off = text_offset(_read_items(hq, "human_qa.json"))
             if off is not None:
-                return timezone(timedelta(hours=off)), f"the offset {hq.name}'s question texts are written in"
-    return None, ""
+                return offset_zone(off), f"the offset {hq.name}'s question texts are written in", ""
+    return None, "", ""
 
 
 def _cross_check(ctx: _Ctx, seqs: list[str]) -> None:
@@ -665,7 +704,7 @@ def _clip_from_row(
     _check_type(qtype, where)
     timed = row.get("stamp") and qtype in TIMED
     zone = ctx.need_zone(str(ctx.csv_path)) if timed else (ctx.zone or timezone.utc)
-    got = _truth_from_csv(row, frames, zone, where)
+    got = _truth_from_csv(row, frames, window, zone, where)
     return _Clip(
         row["uuid"],
         *window,

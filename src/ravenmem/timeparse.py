@@ -63,6 +63,10 @@ def fmt_time(t: float) -> str:
     return dt.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
+class TimeRangeError(InputError):
+    """A time that resolves outside what a memory can hold (`parse_time`)."""
+
+
 @dataclass(frozen=True)
 class TimeContext:
     """The recording's span, which relative forms are resolved against."""
@@ -118,7 +122,7 @@ def parse_time(expr: str | float | int, ctx: TimeContext | None) -> float:
     # the door) may still be searched from its own `start` or `end`
     lo, hi = (T_MIN, T_MAX) if ctx is None else (min(T_MIN, ctx.start), max(T_MAX, ctx.end))
     if not lo <= t <= hi:
-        raise InputError(f"time {_shown(expr)} is out of range ({RANGES['t']})")
+        raise TimeRangeError(f"time {_shown(expr)} is out of range ({RANGES['t']})")
     return t
 
 

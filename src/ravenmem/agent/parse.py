@@ -18,7 +18,7 @@ from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
 
 from ..errors import RavenmemError
 from ..memory.protocol import MemoryLike
-from ..timeparse import parse_duration
+from ..timeparse import TimeRangeError, parse_duration
 from ..types import MemoryRecord
 from .questions import classify_question
 from .schema import Answer, Evidence, QuestionType
@@ -353,6 +353,9 @@ def _time(value: float | str | None, mem: MemoryLike, notes: list[str]) -> float
         return None
     try:
         t = float(mem.parse_time(value))
+    except TimeRangeError:
+        notes.append(f"the model's time {str(value)[:60]!r} is not a time of this recording")
+        return None
     except (RavenmemError, ValueError, TypeError, OverflowError) as e:
         notes.append(f"could not read the model's time {str(value)[:60]!r} ({e})")
         return None

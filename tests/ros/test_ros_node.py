@@ -158,9 +158,8 @@ def test_raw_images_odometry_services_goals_sigterm(ros: Path, tmp_path: Path) -
     assert _ingest(mem)["camera_info"]["k"][0] == pytest.approx(517.3)
 
 
-def test_compressed_tf_params_file_sim_time_navigate_to_pose(
-    ros: None, tum_data: Path, tmp_path: Path
-) -> None:
+def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path: Path) -> None:
+    from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
     from ravenmem_msgs.action import Ask as AskAction
     from ravenmem_msgs.srv import Ask
@@ -182,7 +181,13 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(
     node = _node(mem, logs["node"], "--params-file", str(params))
     try:
         goals = client.collect(PoseStamped, "/goal_pose")
+        diag = client.collect(DiagnosticArray, "/diagnostics")
         sent = _publish("--frames", "30", "--mode", "compressed")
+        wait_for(
+            lambda: _diag(diag).get("received") == str(sent["images"])
+            and _diag(diag).get("waiting for a pose") == "0" and _diag(diag).get("queue depth") == "0",
+            120, "the node to settle every frame", show=lambda: (sent, _diag(diag)),
+        )  # fmt: skip
         assert "images: compressed on /camera/image_raw/compressed" in logs["node"].read_text()
         drive = client.call(Ask, "/ravenmem/ask", Ask.Request(question="where is the desk?", navigate=True))
         assert drive.found and drive.reason == "", drive.reason  # type: ignore[attr-defined]

@@ -136,6 +136,12 @@ class RavenmemNode:
         rel = ReliabilityPolicy.RELIABLE if name == "reliable" else ReliabilityPolicy.BEST_EFFORT
         return QoSProfile(depth=depth, reliability=rel)
 
+    def _timer(self, period: float, callback: Any, group: Any) -> Any:
+        """A housekeeping timer on the steady clock: it runs while simulated time is paused."""
+        from rclpy.clock import Clock, ClockType
+
+        return self.node.create_timer(period, callback, group, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
     def _latched(self, depth: int) -> Any:
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
@@ -164,10 +170,10 @@ class RavenmemNode:
         if s.map_topic:
             sub(OccupancyGrid, s.map_topic, self._on_map, self._latched(1), callback_group=self.sensors)
         if s.image_transport == "auto":
-            self._discover = self.node.create_timer(0.2, self._resolve_transport, callback_group=self.sensors)
+            self._discover = self._timer(0.2, self._resolve_transport, self.sensors)
         else:
             self._subscribe_images(s.image_transport, self.node.resolve_topic_name(s.image_topic))
-        self.node.create_timer(TICK_S, self.intake.settle, callback_group=self.sensors)
+        self._timer(TICK_S, self.intake.settle, self.sensors)
 
     def _resolve_transport(self) -> None:
         """`auto`: the image topic's type once a publisher is on the graph (raw on the topic,
@@ -227,9 +233,9 @@ class RavenmemNode:
         self.marker_pub = node.create_publisher(MarkerArray, "~/markers", self._latched(10))
         node.create_service(Ask, "~/ask", self._ask, callback_group=self.answers)
         node.create_service(Search, "~/search", self._search, callback_group=self.answers)
-        node.create_timer(s.diagnostics_period, self._diagnostics, callback_group=self.answers)
+        self._timer(s.diagnostics_period, self._diagnostics, self.answers)
         if s.markers_period > 0:
-            node.create_timer(s.markers_period, self._memory_markers, callback_group=self.answers)
+            self._timer(s.markers_period, self._memory_markers, self.answers)
         from .ask_action import AskAction
 
         self.ask_action = AskAction(self, self.answers)

@@ -117,12 +117,10 @@ def wait_for(cond, timeout: float, what: str, step: float = 0.2, show=None) -> N
     raise AssertionError(f"timed out waiting for {what}" + (f": {show()}" if show else ""))
 
 
-def stop(proc: subprocess.Popen[str], log: Path, timeout: float = 120) -> str:
-    """SIGTERM, wait, the exit code asserted 0 by the caller; the log's text."""
-    import signal
-
+def stop(proc: subprocess.Popen[str], log: Path, timeout: float = 120, sig: int = 15) -> str:
+    """A signal (SIGTERM), wait, the exit code asserted 0 by the caller; the log's text."""
     if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(sig)
         try:
             proc.wait(timeout)
         except subprocess.TimeoutExpired:

@@ -7,6 +7,7 @@ goals go out only for a question that asks to navigate; SIGTERM exits 0 with the
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -212,7 +213,7 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
     finally:
         timer.cancel()
         client.close()
-        text = stop(node, logs["node"])
+        text = stop(node, logs["node"], sig=signal.SIGINT)  # Ctrl-C: the same clean stop
         for p, k in zip(peers, ("map", "nav"), strict=True):
             stop(p, logs[k])
     assert node.returncode == 0, text[-3000:]
@@ -227,3 +228,16 @@ def _time(sec: int, nanosec: int) -> Any:
     from builtin_interfaces.msg import Time
 
     return Time(sec=sec, nanosec=nanosec)
+
+
+def test_a_bad_parameter_is_one_line_and_exit_2(ros: Path, tmp_path: Path) -> None:
+    from tests.cli.helpers import assert_one_line_error, run_cli
+
+    r = run_cli(
+        "ros", "run", "--memory", str(tmp_path / "m.mem"), "--create",
+        "--ros-args", "-p", "image_transport:=jpeg",
+        env=graph_env(DOMAIN), timeout=120,
+    )  # fmt: skip
+    line = assert_one_line_error(r)
+    assert "image_transport" in line and "jpeg" in line
+    assert not (tmp_path / "m.mem").exists()  # nothing created for a run that cannot start

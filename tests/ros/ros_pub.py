@@ -32,7 +32,12 @@ def tum(data: Path, frames: int) -> tuple[list[tuple[float, Path]], np.ndarray]:
             if ln and not ln.startswith("#")
         ]
     )
-    return rgb[:frames], gt
+    # longer than the recording: played again, its stamps shifted past the end each time
+    span = rgb[-1][0] - rgb[0][0] + 1 / 30
+    loops = -(-frames // len(rgb))
+    rgb = [(t + k * span, f) for k in range(loops) for t, f in rgb][:frames]
+    gt = np.concatenate([gt + np.array([k * span] + [0.0] * 7) for k in range(loops)])
+    return rgb, gt
 
 
 def main() -> None:

@@ -251,6 +251,9 @@ class FrameIntake:
             self._bad(image)
             self._skip(image)
             return
+        if self.counts.in_writer >= self.s.writer_depth:  # the embedder is behind: fresh frames
+            self._skip(SKIP_WRITER)  # beat a backlog stored minutes late
+            return
         try:
             pose = Pose.from_quaternion(*xyz, *q)
             fut = self.writer.submit(image, pose, w.t, source=self.s.source)

@@ -40,6 +40,7 @@ class NodeSettings:
     image_depth: int = 30  # images the subscription buffers while a callback runs
     pose_qos: str = "best_effort"  # a best-effort subscription matches reliable and best-effort publishers
     queue_size: int = 32  # images waiting for their pose at once
+    writer_depth: int = 16  # frames handed to the writer and not yet stored; past it a frame is skipped
     pose_wait: float = 1.0  # seconds an image waits for the poses that bracket it
     history: float = 30.0  # seconds of poses kept
     max_gap: float = 0.5  # longest gap between two poses an image may be interpolated in
@@ -76,6 +77,8 @@ class NodeSettings:
             raise InputError("base_frame: must not be empty when poses come from /tf")
         if not 1 <= self.image_depth <= 1000:
             raise InputError(f"image_depth: from 1 to 1000, got {self.image_depth}")
+        if not 1 <= self.writer_depth <= 256:
+            raise InputError(f"writer_depth: from 1 to 256, got {self.writer_depth}")
         if not 1 <= self.queue_size <= 10_000:
             raise InputError(f"queue_size: from 1 to 10000, got {self.queue_size}")
         for name in ("pose_wait", "history", "max_gap", "diagnostics_period", "markers_period"):

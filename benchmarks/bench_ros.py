@@ -1,0 +1,125 @@
+"""The ROS 2 node on a real graph (not a test; prints numbers).
+
+Run: nice python benchmarks/bench_ros.py [--seconds 20] [--keyframes all] [--domain 131]
+(needs the `ros` extra and `ravenmem ros setup`; the TUM recording from $RAVENMEM_TUM_DATA).
+
+Three processes over Fast DDS on this host: `ravenmem ros run` on a new memory (the default
+embedder), the TUM freiburg1_rpy frames (640x480 rgb8) published as sensor_msgs/Image with
+nav_msgs/Odometry at 30 Hz for `--seconds` (the recording played again when longer), and a
+client here that calls /ravenmem/search every 0.5 s and /ravenmem/ask (offline) every 2 s while
+the frames stream. Prints: frames offered, received by the node, stored, skipped by reason, lost
+in transport; keyframes stored per second (until the last was stored); service latencies (p50, p99); the
+node's exit code on SIGTERM. Every received frame must be accounted for (stored + skipped).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from tests.ros.rosgraph import Client, graph_env, start, stop, wait_for  # noqa: E402
+
+
+def pct(xs: list[float], q: float) -> float:
+    if not xs:
+        return float("nan")
+    s = sorted(xs)
+    return s[min(len(s) - 1, int(round(q * (len(s) - 1))))]
+
+
+def calls(client: Client, done: threading.Event, out: dict[str, list[float]]) -> None:
+    from ravenmem_msgs.srv import Ask, Search
+
+    last_ask = 0.0
+    while not done.is_set():
+        t = time.perf_counter()
+        client.call(Search, "/ravenmem/search", Search.Request(tool="text", query="a desk", k=5))
+        out["search"].append(time.perf_counter() - t)
+        if time.monotonic() - last_ask >= 2.0:
+            last_ask = time.monotonic()
+            t = time.perf_counter()
+            client.call(Ask, "/ravenmem/ask", Ask.Request(question="where is the desk?"))
+            out["ask"].append(time.perf_counter() - t)
+        done.wait(0.5)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--rate", type=float, default=30.0)
+    ap.add_argument("--keyframes", default="all", help="the node's keyframe rule ('' for the defaults)")
+    ap.add_argument("--domain", type=int, default=131)
+    args = ap.parse_args()
+    data = Path(os.environ.get("RAVENMEM_TUM_DATA") or REPO.parent / "shared" / "data" / "tum_fr1_rpy")
+    frames = int(args.seconds * args.rate)
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    with tempfile.TemporaryDirectory() as tmp:
+        mem, log = Path(tmp) / "bench.mem", Path(tmp) / "node.log"
+        node = start(
+            ["-m", "ravenmem.cli.main", "ros", "run", "--memory", str(mem), "--create", "--ros-args",
+             "-p", "image_qos:=reliable", "-p", "image_transport:=raw", "-p", f"keyframes:={args.keyframes}"],
+            args.domain, log,
+        )  # fmt: skip
+        wait_for(lambda: "ready" in log.read_text() or node.poll() is not None, 300, "the node")
+        client = Client(args.domain, "bench_client")
+        diag = client.collect(DiagnosticArray, "/diagnostics")
+        lat: dict[str, list[float]] = {"search": [], "ask": []}
+        done = threading.Event()
+        caller = threading.Thread(target=calls, args=(client, done, lat), daemon=True)
+        caller.start()
+        t0 = time.monotonic()
+        pub = subprocess.run(
+            [sys.executable, str(REPO / "tests/ros/ros_pub.py"), "--data", str(data), "--frames", str(frames),
+             "--rate", str(args.rate), "--mode", "raw"],
+            env=graph_env(args.domain), capture_output=True, text=True, check=True,
+        )  # fmt: skip
+        streamed = time.monotonic() - t0
+        done.set()
+        caller.join(60)
+        sent = json.loads(pub.stdout.strip().splitlines()[-1])
+
+        def counts() -> dict[str, str]:
+            return {kv.key: kv.value for kv in diag[-1].status[0].values} if diag else {}
+
+        wait_for(
+            lambda: counts().get("waiting for a pose") == "0" and counts().get("queue depth") == "0",
+            600, "the writer to drain",
+        )  # fmt: skip
+        drained = time.monotonic() - t0
+        c = counts()
+        client.close()
+        text = stop(node, log)
+        report: dict[str, Any] = {
+            "frames_offered": sent["images"],
+            "seconds_streamed": round(streamed, 1),
+            "received": int(c["received"]),
+            "stored": int(c["stored"]),
+            "skipped": {k.removeprefix("skipped: "): int(v) for k, v in c.items() if k.startswith("skipped: ")},
+            "lost_in_transport": int(c["lost in transport"]),
+            "accounted": int(c["stored"]) + int(c["skipped"]) == int(c["received"]),
+            "keyframes_per_s": round(int(c["stored"]) / drained, 2),
+            "seconds_until_stored": round(drained, 1),
+            "search_s": {"n": len(lat["search"]), "p50": round(pct(lat["search"], 0.5), 3), "p99": round(pct(lat["search"], 0.99), 3)},
+            "ask_s": {"n": len(lat["ask"]), "p50": round(pct(lat["ask"], 0.5), 3), "p99": round(pct(lat["ask"], 0.99), 3)},
+            "node_exit": node.returncode,
+            "traceback": "Traceback" in text,
+        }  # fmt: skip
+        print(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    main()

@@ -174,9 +174,12 @@ def missing(prefix: Path) -> list[str]:
     if importlib.util.find_spec("rclpy") is None:
         out.append("rclpy (pip install 'ravenmem[ros]')")
     out += [f"{pip} (pip install 'ravenmem[ros]')" for mod, pip in PYTHON_NEEDS.items() if not _has(mod)]
-    share = prefix / "share"
+    # the environment's own prefix, and a sourced ROS 2 distribution's (/opt/ros/<distro>)
+    prefixes = [prefix, *(Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p)]
     out += [
-        f"{pkg} (pip install 'ravenmem[ros]')" for pkg in CMAKE_NEEDS if not (share / pkg / "cmake").is_dir()
+        f"{pkg} (pip install 'ravenmem[ros]')"
+        for pkg in CMAKE_NEEDS
+        if not any((p / "share" / pkg / "cmake").is_dir() for p in prefixes)
     ]
     return out
 

@@ -8,7 +8,7 @@ embedder), the TUM freiburg1_rpy frames (640x480 rgb8) published as sensor_msgs/
 nav_msgs/Odometry at 30 Hz for `--seconds` (the recording played again when longer), and a
 client here that calls /ravenmem/search every 0.5 s and /ravenmem/ask (offline) every 2 s while
 the frames stream. Prints: frames offered, received by the node, stored, skipped by reason, lost
-in transport; keyframes stored per second (until the last was stored); service latencies (p50, p99); the
+in transport, and what a plain subscriber beside the node received; keyframes stored per second (until the last was stored); service latencies (p50, p99); the
 node's exit code on SIGTERM. Every received frame must be accounted for (stored + skipped).
 """
 
@@ -70,12 +70,20 @@ def main() -> None:
         mem, log = Path(tmp) / "bench.mem", Path(tmp) / "node.log"
         node = start(
             ["-m", "ravenmem.cli.main", "ros", "run", "--memory", str(mem), "--create", "--ros-args",
-             "-p", "image_qos:=reliable", "-p", "image_transport:=raw", "-p", f"keyframes:={args.keyframes}"],
+             "-p", "image_qos:=reliable", "-p", "image_transport:=raw",
+             *(["-p", f"keyframes:={args.keyframes}"] if args.keyframes else [])],
             args.domain, log,
         )  # fmt: skip
         wait_for(lambda: "ready" in log.read_text() or node.poll() is not None, 300, "the node")
         client = Client(args.domain, "bench_client")
         diag = client.collect(DiagnosticArray, "/diagnostics")
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Image
+
+        # a plain subscriber beside the node, with the node's QoS: what any subscriber got
+        plain = client.count(
+            Image, "/camera/image_raw", QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
+        )
         lat: dict[str, list[float]] = {"search": [], "ask": []}
         done = threading.Event()
         caller = threading.Thread(target=calls, args=(client, done, lat), daemon=True)
@@ -105,6 +113,7 @@ def main() -> None:
         report: dict[str, Any] = {
             "frames_offered": sent["images"],
             "seconds_streamed": round(streamed, 1),
+            "plain_subscriber_received": plain[0],
             "received": int(c["received"]),
             "stored": int(c["stored"]),
             "skipped": {k.removeprefix("skipped: "): int(v) for k, v in c.items() if k.startswith("skipped: ")},

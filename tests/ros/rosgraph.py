@@ -85,6 +85,16 @@ class Client:
         self.node.create_subscription(cls, topic, box.append, qos)
         return box
 
+    def count(self, cls: type, topic: str, qos: object = 10) -> list[int]:
+        """A plain subscriber that only counts what it receives ([n])."""
+        box = [0]
+
+        def one(_msg: object) -> None:
+            box[0] += 1
+
+        self.node.create_subscription(cls, topic, one, qos)
+        return box
+
     def call(self, srv: type, name: str, request: object, timeout: float = 120.0) -> object:
         import threading
 

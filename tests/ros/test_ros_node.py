@@ -241,3 +241,9 @@ def test_a_bad_parameter_is_one_line_and_exit_2(ros: Path, tmp_path: Path) -> No
     line = assert_one_line_error(r)
     assert "image_transport" in line and "jpeg" in line
     assert not (tmp_path / "m.mem").exists()  # nothing created for a run that cannot start
+    # an argument rcl itself cannot parse: the same one line
+    r = run_cli(
+        "ros", "run", "--memory", str(tmp_path / "m.mem"), "--create", "--ros-args", "-p", "keyframes:=",
+        env=graph_env(DOMAIN), timeout=120,
+    )  # fmt: skip
+    assert "--ros-args" in assert_one_line_error(r)

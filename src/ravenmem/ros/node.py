@@ -23,15 +23,19 @@ the front ends' comparison test.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import math
+import os
 import signal
 import sys
+import tempfile
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import MissingDependencyError, RavenmemError
+from ..errors import InputError, MissingDependencyError, RavenmemError
 from ..threads import share_cores
 from . import msgs
 from .convert import fill, to_dict
@@ -375,6 +379,26 @@ def _open_service(memory: Path, create: bool, s: NodeSettings) -> Service:
     return Service(mem, cfg).start()
 
 
+@contextlib.contextmanager
+def _stderr_held() -> Iterator[dict[str, bool]]:
+    """Hold what C code writes to fd 2 meanwhile and write it out after, unless the caller set
+    `show` False (it reports the failure in its own one line)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    state = {"show": True}
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield state
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read()
+            if text and state["show"]:
+                os.write(2, text)
+
+
 def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
     """(ravenmem's own arguments, the ROS arguments from `--ros-args` on)."""
     if "--ros-args" in argv:
@@ -395,11 +419,20 @@ def main(argv: list[str] | None = None) -> None:
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=["ravenmem", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
+    with _stderr_held() as said:  # rcl logs a bad argument itself before raising
+        try:  # a malformed --ros-args (rcl parses it) is the user's input: one line, exit 2
+            rclpy.init(args=["ravenmem", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
+        except Exception as e:
+            said["show"] = False
+            raise InputError(f"--ros-args: {' '.join(str(e).split())}") from None
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    node = rclpy.create_node("ravenmem")
+    try:
+        node = rclpy.create_node("ravenmem")
+    except Exception as e:  # an invalid remapped name or namespace
+        rclpy.shutdown()
+        raise InputError(f"--ros-args: {' '.join(str(e).split())}") from None
     service = None
     try:
         settings = NodeSettings.declare(node)

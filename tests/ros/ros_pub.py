@@ -49,6 +49,7 @@ def main() -> None:
     ap.add_argument("--mode", choices=("raw", "compressed"), default="raw")
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--image-topic", default="camera/image_raw")
+    ap.add_argument("--second-camera", default="", help="also publish each frame on this image topic")
     ap.add_argument("--pose-reliability", choices=("reliable", "best_effort"), default="reliable")
     ap.add_argument("--size", default="", help="WxH to resize to (raw mode), e.g. 640x480")
     ap.add_argument("--bad", action="store_true", help="also send one bad message of each kind")
@@ -66,11 +67,12 @@ def main() -> None:
     node = rclpy.create_node("tum_camera")
     rel = ReliabilityPolicy.RELIABLE if args.pose_reliability == "reliable" else ReliabilityPolicy.BEST_EFFORT
     img_qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+    topics = [args.image_topic, *([args.second_camera] if args.second_camera else [])]
     if args.mode == "raw":
-        img_pub = node.create_publisher(Image, args.image_topic, img_qos)
+        img_pubs = [node.create_publisher(Image, t, img_qos) for t in topics]
         pose_pub = node.create_publisher(Odometry, "odom", QoSProfile(depth=200, reliability=rel))
     else:
-        img_pub = node.create_publisher(CompressedImage, args.image_topic + "/compressed", img_qos)
+        img_pubs = [node.create_publisher(CompressedImage, t + "/compressed", img_qos) for t in topics]
         pose_pub = node.create_publisher(TFMessage, "/tf", QoSProfile(depth=200, reliability=rel))
         static = node.create_publisher(
             TFMessage, "/tf_static",
@@ -83,11 +85,14 @@ def main() -> None:
     info_pub = node.create_publisher(CameraInfo, "camera/camera_info", 10)
 
     deadline = time.monotonic() + args.wait
-    while time.monotonic() < deadline and (
-        img_pub.get_subscription_count() == 0 or pose_pub.get_subscription_count() == 0
-    ):
+    img_pub = img_pubs[0]
+
+    def unmatched() -> bool:
+        return any(p.get_subscription_count() == 0 for p in (*img_pubs, pose_pub))
+
+    while time.monotonic() < deadline and unmatched():
         rclpy.spin_once(node, timeout_sec=0.1)
-    if img_pub.get_subscription_count() == 0:
+    if unmatched():
         sys.stderr.write("no subscriber for the images\n")
         sys.exit(3)
     time.sleep(1.0)  # both ends have matched
@@ -138,7 +143,8 @@ def main() -> None:
             msg.data = path.read_bytes()
         stamp(msg, t)
         msg.header.frame_id = "camera_link"
-        img_pub.publish(msg)
+        for p in img_pubs:
+            p.publish(msg)
         if i == 0:
             stamp(info, t)
             info_pub.publish(info)
@@ -148,7 +154,8 @@ def main() -> None:
     if args.bad and args.mode == "raw":
         bad = send_bad(img_pub, pose_pub, info_pub, rgb[-1][0])
     time.sleep(0.5)
-    print(json.dumps({"images": len(rgb) + bad, "bad_images": bad, "poses": sent_poses}), flush=True)
+    images = len(rgb) * len(img_pubs) + bad
+    print(json.dumps({"images": images, "bad_images": bad, "poses": sent_poses}), flush=True)
     node.destroy_node()
     rclpy.shutdown()
 

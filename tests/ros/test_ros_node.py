@@ -172,6 +172,7 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
     params.write_text(
         "ravenmem:\n  ros__parameters:\n    odom_topic: ''\n    image_qos: reliable\n"
         "    navigate_action: navigate_to_pose\n    use_sim_time: true\n    keyframes: all\n"
+        "    image_topics: [camera2/image_raw]\n"
     )
     nav_goals = tmp_path / "nav_goals.jsonl"
     logs = {k: tmp_path / f"{k}.log" for k in ("map", "nav", "node")}
@@ -183,7 +184,7 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
     try:
         goals = client.collect(PoseStamped, "/goal_pose")
         diag = client.collect(DiagnosticArray, "/diagnostics")
-        sent = _publish("--frames", "30", "--mode", "compressed")
+        sent = _publish("--frames", "30", "--mode", "compressed", "--second-camera", "camera2/image_raw")
         wait_for(
             lambda: _diag(diag).get("received") == str(sent["images"])
             and _diag(diag).get("waiting for a pose") == "0" and _diag(diag).get("queue depth") == "0",
@@ -222,6 +223,8 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
     assert run["received"] == sent["images"]
     assert run["stored"] + sum(run["skipped"].values()) == run["received"]
     assert run["stored"] >= 2  # keyframes: all; the frames were posed through /tf
+    with ravenmem.open(mem) as m:  # two cameras, two keyframe streams
+        assert {r.source for r in m.all_records()} == {"ros", "ros:camera2/image_raw"}
 
 
 def _time(sec: int, nanosec: int) -> Any:

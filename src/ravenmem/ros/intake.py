@@ -106,6 +106,7 @@ class _Waiting:
     msg: Any
     kind: str  # RGB (msg is the array) or msgs.COMPRESSED
     since: float
+    source: str
 
 
 Transform = tuple[tuple[float, float, float], tuple[float, float, float, float]]
@@ -136,8 +137,9 @@ class FrameIntake:
         self.stopping = False
 
     # ---------------------------------------------------------------- input
-    def image(self, msg: Any, kind: str, now: float) -> None:
-        """One Image or CompressedImage; `now` is the receive time (ROS clock) for a zero stamp."""
+    def image(self, msg: Any, kind: str, now: float, source: str | None = None) -> None:
+        """One Image or CompressedImage; `now` is the receive time (ROS clock) for a zero stamp;
+        `source` the camera's source name (default: `settings.source`)."""
         c = self.counts
         with c._lock:
             c.received += 1
@@ -153,7 +155,7 @@ class FrameIntake:
                 self._skip(rgb)
                 return
             msg, kind = rgb, RGB
-        self.waiting.append(_Waiting(t, msg, kind, time.monotonic()))
+        self.waiting.append(_Waiting(t, msg, kind, time.monotonic(), source or self.s.source))
         while len(self.waiting) > self.s.queue_size:
             self.waiting.popleft()
             self._skip(SKIP_QUEUE)
@@ -256,7 +258,7 @@ class FrameIntake:
             return
         try:
             pose = Pose.from_quaternion(*xyz, *q)
-            fut = self.writer.submit(image, pose, w.t, source=self.s.source)
+            fut = self.writer.submit(image, pose, w.t, source=w.source)
         except InputError as e:  # BusyError (the writer's queue is full), a closing memory
             self._skip(SKIP_WRITER if type(e).__name__ == "BusyError" else str(e).split(":", 1)[0][:80])
             return

@@ -173,28 +173,33 @@ class RavenmemNode:
                 callback_group=self.sensors)  # fmt: skip
         if s.map_topic:
             sub(OccupancyGrid, s.map_topic, self._on_map, self._latched(1), callback_group=self.sensors)
+        self._unresolved = list(s.cameras)
         if s.image_transport == "auto":
             self._discover = self._timer(0.2, self._resolve_transport, self.sensors)
         else:
-            self._subscribe_images(s.image_transport, self.node.resolve_topic_name(s.image_topic))
+            for cam in s.cameras:
+                self._subscribe_images(s.image_transport, self.node.resolve_topic_name(cam), cam)
         self._timer(TICK_S, self.intake.settle, self.sensors)
 
     def _resolve_transport(self) -> None:
-        """`auto`: the image topic's type once a publisher is on the graph (raw on the topic,
-        or compressed on it or on `<topic>/compressed`)."""
-        base = self.node.resolve_topic_name(self.s.image_topic)
+        """`auto`: each camera's type once a publisher is on the graph (raw on the topic, or
+        compressed on it or on `<topic>/compressed`)."""
         types = dict(self.node.get_topic_names_and_types())
-        if msgs.IMAGE in types.get(base, []):
-            self._subscribe_images("raw", base)
-        elif msgs.COMPRESSED in types.get(base, []):
-            self._subscribe_images("compressed", base)
-        elif msgs.COMPRESSED in types.get(base + "/compressed", []):
-            self._subscribe_images("compressed", base + "/compressed")
-        else:
-            return
-        self._discover.cancel()
+        for cam in list(self._unresolved):
+            base = self.node.resolve_topic_name(cam)
+            if msgs.IMAGE in types.get(base, []):
+                self._subscribe_images("raw", base, cam)
+            elif msgs.COMPRESSED in types.get(base, []):
+                self._subscribe_images("compressed", base, cam)
+            elif msgs.COMPRESSED in types.get(base + "/compressed", []):
+                self._subscribe_images("compressed", base + "/compressed", cam)
+            else:
+                continue
+            self._unresolved.remove(cam)
+        if not self._unresolved:
+            self._discover.cancel()
 
-    def _subscribe_images(self, transport: str, topic_name: str) -> None:
+    def _subscribe_images(self, transport: str, topic_name: str, camera: str) -> None:
         from sensor_msgs.msg import CompressedImage, Image
 
         if (
@@ -204,8 +209,9 @@ class RavenmemNode:
         ):
             topic_name += "/compressed"  # image_transport's naming
         cls, kind = (CompressedImage, msgs.COMPRESSED) if transport == "compressed" else (Image, msgs.IMAGE)
-        self.transport = f"{transport} on {topic_name}"
-        self.node.get_logger().info(f"images: {self.transport}")
+        self.transport = ", ".join(filter(None, (self.transport, f"{transport} on {topic_name}")))
+        self.node.get_logger().info(f"images: {transport} on {topic_name}")
+        source = self.s.source_of(camera)
         from rclpy.event_handler import SubscriptionEventCallbacks
 
         # what DDS itself dropped before the node saw it (a best-effort reader, or a full
@@ -213,7 +219,7 @@ class RavenmemNode:
         events = SubscriptionEventCallbacks(message_lost=self._lost)
         self.image_subs.append(
             self.node.create_subscription(
-                cls, topic_name, lambda m: self.intake.image(m, kind, self.now()),
+                cls, topic_name, lambda m: self.intake.image(m, kind, self.now(), source),
                 self._qos(self.s.image_qos, self.s.image_depth), callback_group=self.sensors,
                 event_callbacks=events,
             )

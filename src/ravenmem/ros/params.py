@@ -8,7 +8,7 @@ are absolute, as ROS tools expect them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from ..errors import InputError
@@ -22,6 +22,9 @@ class NodeSettings:
     """What `ravenmem ros run` subscribes to and how (see each field's ROS parameter)."""
 
     image_topic: str = "camera/image_raw"
+    # more cameras, each its own keyframe stream (source `<source>:<topic>`), posed by the same
+    # odometry or TF; the same transport rule as image_topic
+    image_topics: tuple[str, ...] = field(default=())
     image_transport: str = "auto"  # raw (Image), compressed (CompressedImage on <topic>/compressed), auto
     camera_info_topic: str = "camera/camera_info"
     odom_topic: str = "odom"  # nav_msgs/Odometry; empty: poses from /tf
@@ -53,7 +56,17 @@ class NodeSettings:
         from rcl_interfaces.msg import ParameterDescriptor
 
         values: dict[str, Any] = {}
+        from rclpy.exceptions import ParameterUninitializedException
+        from rclpy.parameter import Parameter
+
         for f in fields(cls):
+            if f.name == "image_topics":  # a string array (an empty default has no type)
+                node.declare_parameter(f.name, Parameter.Type.STRING_ARRAY)
+                try:
+                    values[f.name] = tuple(str(t) for t in node.get_parameter(f.name).value or ())
+                except ParameterUninitializedException:
+                    values[f.name] = ()
+                continue
             # dynamic typing: `-p pose_wait:=2` (an integer) is as good as 2.0
             node.declare_parameter(f.name, f.default, ParameterDescriptor(dynamic_typing=True))
             v = node.get_parameter(f.name).value
@@ -64,6 +77,15 @@ class NodeSettings:
                 raise InputError(f"{f.name}: expected {kind.__name__}, got {v!r}") from None
         return cls(**values).checked()
 
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        return (self.image_topic, *self.image_topics)
+
+    def source_of(self, topic: str) -> str:
+        """The memories' source name of a camera: `source` for the first, `source:topic` else
+        (the writer keeps keyframe state per source, so cameras do not thin each other out)."""
+        return self.source if topic == self.image_topic else f"{self.source}:{topic.strip('/')}"
+
     def checked(self) -> NodeSettings:
         """A one-line `InputError` naming the parameter for a value the node cannot use."""
         if self.image_transport not in TRANSPORTS:
@@ -71,8 +93,10 @@ class NodeSettings:
         for name in ("image_qos", "pose_qos"):
             if getattr(self, name) not in QOS:
                 raise InputError(f"{name}: one of {', '.join(QOS)}, got {getattr(self, name)!r}")
-        if not self.image_topic.strip():
-            raise InputError("image_topic: must not be empty")
+        if not self.image_topic.strip() or not all(t.strip() for t in self.image_topics):
+            raise InputError("image_topic, image_topics: a topic name must not be empty")
+        if len(self.cameras) != len(set(self.cameras)):
+            raise InputError("image_topics: a camera topic is given twice")
         if not self.odom_topic and not self.base_frame:
             raise InputError("base_frame: must not be empty when poses come from /tf")
         if not 1 <= self.image_depth <= 1000:

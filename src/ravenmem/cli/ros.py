@@ -8,8 +8,12 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from pydantic import Field
 
 from ._console import esc, out_console
+from .options import Kind
+
+JOBS = Kind("a whole number from 1 to 64", (Field(ge=1, le=64),))
 
 ros_app = typer.Typer(
     help="ROS 2: build the interfaces (setup), run the node (run).",
@@ -25,7 +29,7 @@ def _say(line: str) -> None:
 @ros_app.command("setup")
 def setup(
     force: Annotated[bool, typer.Option("--force", help="rebuild even when up to date")] = False,
-    jobs: Annotated[int, typer.Option("--jobs", "-j", min=1, max=64, help="compile jobs")] = 2,
+    jobs: Annotated[int, JOBS, typer.Option("--jobs", "-j", help="compile jobs")] = 2,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
 ) -> None:
     """Build ravenmem_msgs (and tf2_msgs, nav2_msgs when they are not installed) into this

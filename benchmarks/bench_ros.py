@@ -1,6 +1,6 @@
 """The ROS 2 node on a real graph (not a test; prints numbers).
 
-Run: nice python benchmarks/bench_ros.py [--seconds 20] [--keyframes all] [--domain 131]
+Run: nice python benchmarks/bench_ros.py [--seconds 20] [--keyframes all] [--domain 131] [--http]
 (needs the `ros` extra and `ravenmem ros setup`; the TUM recording from $RAVENMEM_TUM_DATA).
 
 Three processes over Fast DDS on this host: `ravenmem ros run` on a new memory (the default
@@ -10,6 +10,10 @@ client here that calls /ravenmem/search every 0.5 s and /ravenmem/ask (offline) 
 the frames stream. Prints: frames offered, received by the node, stored, skipped by reason, lost
 in transport, and what a plain subscriber beside the node received; keyframes stored per second (until the last was stored); service latencies (p50, p99); the
 node's exit code on SIGTERM. Every received frame must be accounted for (stored + skipped).
+
+`--http`: the same stream side by side into `ravenmem serve` over HTTP instead: each frame a
+`POST /memories` (the JPEG file, the ground-truth pose) sent at 30 Hz by 8 client threads, the
+searches as `GET /search/text` and `POST /ask`; the same figures.
 """
 
 from __future__ import annotations
@@ -55,15 +59,103 @@ def calls(client: Client, done: threading.Event, out: dict[str, list[float]]) ->
         done.wait(0.5)
 
 
+def run_http(data: Path, frames: int, rate: float, keyframes: str) -> dict[str, Any]:
+    """The stream into `ravenmem serve` over HTTP (see the module docstring)."""
+    import re
+    from concurrent.futures import ThreadPoolExecutor
+
+    import httpx
+    import numpy as np
+
+    from tests.ros.ros_pub import tum
+
+    rgb, gt = tum(data, frames)
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+        env.pop("RAVENMEM_TOKEN", None)
+        cmd = [sys.executable, "-m", "ravenmem.cli.main", "serve", "--memory", f"{tmp}/http.mem", "--create",
+               "--port", "0", "--log-level", "warning", *(["--keyframes", keyframes] if keyframes else [])]  # fmt: skip
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
+        assert proc.stdout is not None
+        m = re.search(r"at (http://127\.0\.0\.1:\d+)/ ", proc.stdout.readline())
+        assert m is not None, "the service did not start"
+        url = m.group(1)
+        outcome: dict[str, int] = {}
+        lock = threading.Lock()
+
+        def post(t: float, path: Path) -> None:
+            row = gt[min(int(np.searchsorted(gt[:, 0], t)), len(gt) - 1)]
+            form = {"x": row[1], "y": row[2], "z": row[3], "qx": row[4], "qy": row[5], "qz": row[6], "qw": row[7],
+                    "t": t, "source": "http"}  # fmt: skip
+            try:
+                r = httpx.post(f"{url}/memories", data={k: str(v) for k, v in form.items()},
+                               files={"image": ("f.jpg", path.read_bytes(), "image/jpeg")}, timeout=120)  # fmt: skip
+                key = "stored" if r.status_code == 201 else (
+                    f"skipped: {r.json().get('skipped')}" if r.status_code == 200 else f"HTTP {r.status_code}")  # fmt: skip
+            except httpx.HTTPError as e:
+                key = f"error: {type(e).__name__}"
+            with lock:
+                outcome[key] = outcome.get(key, 0) + 1
+
+        lat: dict[str, list[float]] = {"search": [], "ask": []}
+        done = threading.Event()
+
+        def calls() -> None:
+            last_ask = 0.0
+            with httpx.Client(base_url=url, timeout=120) as c:
+                while not done.is_set():
+                    t = time.perf_counter()
+                    c.get("/search/text", params={"q": "a desk", "k": 5})
+                    lat["search"].append(time.perf_counter() - t)
+                    if time.monotonic() - last_ask >= 2.0:
+                        last_ask = time.monotonic()
+                        t = time.perf_counter()
+                        c.post("/ask", json={"question": "where is the desk?"})
+                        lat["ask"].append(time.perf_counter() - t)
+                    done.wait(0.5)
+
+        caller = threading.Thread(target=calls, daemon=True)
+        caller.start()
+        t0 = next_t = time.monotonic()
+        with ThreadPoolExecutor(8) as pool:
+            for t, path in rgb:
+                pool.submit(post, t, path)
+                next_t += 1.0 / rate
+                time.sleep(max(0.0, next_t - time.monotonic()))
+            streamed = time.monotonic() - t0
+        drained = time.monotonic() - t0
+        done.set()
+        caller.join(60)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(120)
+    stored = outcome.get("stored", 0)
+    return {
+        "frames_offered": len(rgb),
+        "seconds_streamed": round(streamed, 1),
+        "answered": sum(outcome.values()),
+        "stored": stored,
+        "outcomes": outcome,
+        "keyframes_per_s": round(stored / drained, 2),
+        "seconds_until_stored": round(drained, 1),
+        "search_s": {"n": len(lat["search"]), "p50": round(pct(lat["search"], 0.5), 3), "p99": round(pct(lat["search"], 0.99), 3)},
+        "ask_s": {"n": len(lat["ask"]), "p50": round(pct(lat["ask"], 0.5), 3), "p99": round(pct(lat["ask"], 0.99), 3)},
+        "service_exit": proc.returncode,
+    }  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--keyframes", default="all", help="the node's keyframe rule ('' for the defaults)")
     ap.add_argument("--domain", type=int, default=131)
+    ap.add_argument("--http", action="store_true", help="the same stream into `ravenmem serve` over HTTP")
     args = ap.parse_args()
     data = Path(os.environ.get("RAVENMEM_TUM_DATA") or REPO.parent / "shared" / "data" / "tum_fr1_rpy")
     frames = int(args.seconds * args.rate)
+    if args.http:
+        print(json.dumps(run_http(data, frames, args.rate, args.keyframes), indent=2))
+        return
     from diagnostic_msgs.msg import DiagnosticArray
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -25,6 +25,7 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=120)
     ap.add_argument("--resolution", type=float, default=0.05)
     ap.add_argument("--log", type=Path, default=None)
+    ap.add_argument("--seconds", type=float, default=0.3, help="how long a drive takes")
     args = ap.parse_args(argv[: len(argv) - len(ros_args)])
 
     import rclpy
@@ -32,7 +33,7 @@ def main() -> None:
 
     rclpy.init(args=["peer", *ros_args])
     node = rclpy.create_node("map_server" if args.what == "map" else "bt_navigator")
-    keep = publish_map(node, args) if args.what == "map" else serve_navigate(node, args.log)
+    keep = publish_map(node, args) if args.what == "map" else serve_navigate(node, args.log, args.seconds)
     print("ready", flush=True)
     ex = MultiThreadedExecutor()
     ex.add_node(node)
@@ -65,30 +66,40 @@ def publish_map(node, args):  # type: ignore[no-untyped-def]
     return pub
 
 
-def serve_navigate(node, log: Path | None):  # type: ignore[no-untyped-def]
+def serve_navigate(node, log: Path | None, seconds: float):  # type: ignore[no-untyped-def]
     from nav2_msgs.action import NavigateToPose
-    from rclpy.action import ActionServer
+    from rclpy.action import ActionServer, CancelResponse
+    from rclpy.callback_groups import ReentrantCallbackGroup
 
-    def execute(handle):  # type: ignore[no-untyped-def]
-        g = handle.request.pose
-        rec = {
-            "frame_id": g.header.frame_id,
-            "x": g.pose.position.x,
-            "y": g.pose.position.y,
-            "stamp": g.header.stamp.sec + g.header.stamp.nanosec * 1e-9,
-        }
+    def note(rec: dict) -> None:  # type: ignore[type-arg]
         if log is not None:
             with log.open("a") as f:
                 f.write(json.dumps(rec) + "\n")
-        for left in (3.0, 2.0, 1.0):
-            fb = NavigateToPose.Feedback()
-            fb.distance_remaining = left
-            handle.publish_feedback(fb)
+
+    def execute(handle):  # type: ignore[no-untyped-def]
+        g = handle.request.pose
+        note({
+            "frame_id": g.header.frame_id, "x": g.pose.position.x, "y": g.pose.position.y,
+            "stamp": g.header.stamp.sec + g.header.stamp.nanosec * 1e-9,
+        })  # fmt: skip
+        steps = max(3, round(seconds / 0.1))
+        for i in range(steps):
+            if handle.is_cancel_requested:
+                handle.canceled()
+                note({"canceled": True})
+                return NavigateToPose.Result(error_code=0, error_msg="canceled")
+            if i < 3:  # three feedbacks
+                fb = NavigateToPose.Feedback()
+                fb.distance_remaining = 3.0 - i
+                handle.publish_feedback(fb)
             time.sleep(0.1)
         handle.succeed()
         return NavigateToPose.Result(error_code=0, error_msg="")
 
-    return ActionServer(node, NavigateToPose, "navigate_to_pose", execute)
+    return ActionServer(
+        node, NavigateToPose, "navigate_to_pose", execute,
+        cancel_callback=lambda _r: CancelResponse.ACCEPT, callback_group=ReentrantCallbackGroup(),
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

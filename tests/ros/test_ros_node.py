@@ -160,6 +160,7 @@ def test_raw_images_odometry_services_goals_sigterm(ros: Path, tmp_path: Path) -
 
 
 def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path: Path) -> None:
+    from action_msgs.msg import GoalStatus
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
     from ravenmem_msgs.action import Ask as AskAction
@@ -176,7 +177,7 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
     )
     nav_goals = tmp_path / "nav_goals.jsonl"
     logs = {k: tmp_path / f"{k}.log" for k in ("map", "nav", "node")}
-    peers = [_peer("map", logs["map"]), _peer("nav", logs["nav"], "--log", str(nav_goals))]
+    peers = [_peer("map", logs["map"]), _peer("nav", logs["nav"], "--log", str(nav_goals), "--seconds", "3")]
     client = Client(DOMAIN)
     clock = client.node.create_publisher(Clock, "/clock", 10)
     timer = client.node.create_timer(0.05, lambda: clock.publish(Clock(clock=_time(4242, 5))))
@@ -211,6 +212,19 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
         wait_for(lambda: result.done(), 120, "the action's result")
         assert result.result().result.found and result.result().result.goal.header.frame_id == ""
         assert len(got) == 1  # an action without navigate drives nowhere
+
+        # canceled while the robot drives there: the question ends canceled, and so does the drive
+        started = action.send_goal_async(AskAction.Goal(question="where is the desk?", navigate=True))
+        wait_for(lambda: started.done(), 60, "the action to accept the second goal")
+        wait_for(lambda: len(nav_goals.read_text().splitlines()) >= 2, 60, "the second drive to start")
+        started.result().cancel_goal_async()
+        ended = started.result().get_result_async()
+        wait_for(lambda: ended.done(), 60, "the canceled question's result")
+        assert (
+            ended.result().status == GoalStatus.STATUS_CANCELED and ended.result().result.reason == "canceled"
+        )
+        wait_for(lambda: '"canceled": true' in nav_goals.read_text(), 30, "NavigateToPose to be canceled")
+        assert goals == []
     finally:
         timer.cancel()
         client.close()

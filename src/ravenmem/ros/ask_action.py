@@ -1,8 +1,8 @@
 """`~/ask_action` (`ravenmem_msgs/action/Ask`): a question as a ROS 2 action. A model's answer
 takes seconds, so the client gets feedback (the stage and the time it has taken, every half
 second) and may cancel. The answer runs on a worker thread (`ros.services.ask_reply`, the same
-reply as the service); a canceled goal ends at once, and its answer, when it comes, is dropped:
-no goal is published or driven to for it."""
+reply as the service); a canceled goal ends at once, the NavigateToPose goal it sent (if any) is
+canceled too, and its answer, when it comes, is dropped: no goal is published for it."""
 
 from __future__ import annotations
 
@@ -37,8 +37,10 @@ class AskAction:
         box: dict[str, Any] = {}
         done = threading.Event()
 
+        dropped = threading.Event()  # set once canceled (the handle's own flag clears when it ends)
+
         def work() -> None:
-            self.owner._local.canceled = lambda: handle.is_cancel_requested
+            self.owner._local.canceled = lambda: dropped.is_set() or handle.is_cancel_requested
             try:
                 box["reply"] = ask_reply(self.owner.backend, request)
             finally:
@@ -49,6 +51,10 @@ class AskAction:
         stage = "planning a path" if request.get("navigate") else "searching memory"
         while not done.wait(FEEDBACK_S):
             if handle.is_cancel_requested:
+                navigator = self.owner.navigator
+                dropped.set()
+                if navigator is not None and request.get("navigate"):
+                    navigator.cancel()  # the drive this question started stops too
                 handle.canceled()
                 return fill(self.cls.Result(), {"found": False, "reason": "canceled"})
             handle.publish_feedback(self.cls.Feedback(stage=stage, elapsed=time.monotonic() - started))
@@ -56,6 +62,7 @@ class AskAction:
         if result.goal.header.frame_id:
             result.goal.header.stamp = self.owner.stamp()
         if handle.is_cancel_requested:
+            dropped.set()
             handle.canceled()
             result.reason = "canceled"
         else:

@@ -27,6 +27,7 @@ class Navigator:
         self.cls = NavigateToPose
         self.client: Any = ActionClient(node, NavigateToPose, action, callback_group=group)
         self.last: dict[str, Any] = {}
+        self.active: Any = None  # the goal being driven to (its ClientGoalHandle)
 
     def drive(self, goal: dict[str, Any]) -> dict[str, Any]:
         started = time.monotonic()
@@ -45,7 +46,11 @@ class Navigator:
         handle = _wait(self.client.send_goal_async(msg, feedback_callback=on_feedback), SERVER_WAIT_S)
         if handle is None or not handle.accepted:
             return out | {"accepted": False if handle is not None else None, "status": "rejected"}
-        res = _wait(handle.get_result_async(), RESULT_WAIT_S)
+        self.active = handle
+        try:
+            res = _wait(handle.get_result_async(), RESULT_WAIT_S)
+        finally:
+            self.active = None
         if res is None:
             return out | {"accepted": True, "status": "no result in time"}
         status = int(res.status)
@@ -61,6 +66,15 @@ class Navigator:
         }
         self.node.get_logger().info(f"NavigateToPose: {self.last['status']}")
         return self.last
+
+    def cancel(self) -> bool:
+        """Cancel the goal being driven to (the question that sent it was canceled); False
+        when there is none."""
+        handle = self.active
+        if handle is None:
+            return False
+        handle.cancel_goal_async()
+        return True
 
 
 def _wait(future: Any, timeout: float) -> Any:

@@ -13,7 +13,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+from PIL import Image as PILImage
 
 import ravenmem
 from tests.conftest import TUM, tum_data
@@ -80,6 +82,7 @@ def test_raw_images_odometry_services_goals_sigterm(ros: Path, tmp_path: Path) -
     from geometry_msgs.msg import PoseStamped
     from ravenmem_msgs.srv import Ask, Search
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
     from visualization_msgs.msg import MarkerArray
 
     mem = tmp_path / "robot.mem"
@@ -126,6 +129,14 @@ def test_raw_images_odometry_services_goals_sigterm(ros: Path, tmp_path: Path) -
             Ask, "/bot1/ravenmem/ask", Ask.Request(question="where is the desk?", navigate=False)
         )
         assert plain.found and plain.goal.header.frame_id == ""  # type: ignore[attr-defined]
+        # a query picture in the request (sensor_msgs/Image): one of the recording's frames
+        with PILImage.open(sorted((TUM / "rgb").iterdir())[40]) as im:
+            pic = np.asarray(im.convert("RGB").resize((160, 120)))
+        query = Image(height=120, width=160, encoding="rgb8", step=480, data=pic.tobytes())
+        seen = client.call(
+            Ask, "/bot1/ravenmem/ask", Ask.Request(question="where did I see this?", image=query)
+        )
+        assert seen.found and seen.reason == "", seen.reason  # type: ignore[attr-defined]
         drive = client.call(
             Ask, "/bot1/ravenmem/ask", Ask.Request(question="where is the desk?", navigate=True)
         )

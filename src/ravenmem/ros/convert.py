@@ -20,14 +20,14 @@ def message_class(type_name: str) -> Any:
 
 
 def to_dict(msg: Any) -> Any:
-    """A message as nested dicts; byte arrays as numpy uint8 arrays (no copy)."""
+    """A message as nested dicts (the shape `ros.msgs.to_message` takes); byte arrays as bytes."""
     if not hasattr(msg, "get_fields_and_field_types"):
         if isinstance(msg, (array.array, bytes, bytearray, memoryview)):
-            return np.frombuffer(msg, dtype=np.uint8) if _bytes_like(msg) else list(msg)
+            return bytes(msg) if _bytes_like(msg) else list(msg)
         if isinstance(msg, (list, tuple)):
             return [to_dict(v) for v in msg]
         if isinstance(msg, np.ndarray):
-            return msg
+            return msg.tolist()
         return msg
     return {name: to_dict(getattr(msg, name)) for name in msg.get_fields_and_field_types()}
 

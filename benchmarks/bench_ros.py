@@ -11,6 +11,9 @@ the frames stream. Prints: frames offered, received by the node, stored, skipped
 in transport, and what a plain subscriber beside the node received; keyframes stored per second (until the last was stored); service latencies (p50, p99); the
 node's exit code on SIGTERM. Every received frame must be accounted for (stored + skipped).
 
+`--tf`: the node's cost per /tf message (the intake's bounded TF buffer, 100 Hz odom -> base_link
+for 60 s of stamps with 30 s kept, one image posed per 3 messages), no graph.
+
 `--http`: the same stream side by side into `ravenmem serve` over HTTP instead: each frame a
 `POST /memories` (the JPEG file, the ground-truth pose) sent at 30 Hz by 8 client threads, the
 searches as `GET /search/text` and `POST /ask`; the same figures.
@@ -57,6 +60,48 @@ def calls(client: Client, done: threading.Event, out: dict[str, list[float]]) ->
             client.call(Ask, "/ravenmem/ask", Ask.Request(question="where is the desk?"))
             out["ask"].append(time.perf_counter() - t)
         done.wait(0.5)
+
+
+def run_tf(messages: int = 6000) -> dict[str, Any]:
+    """Seconds per TF message through `FrameIntake.transforms` (see the module docstring)."""
+    import math
+    from types import SimpleNamespace as NS
+
+    from ravenmem.ros.intake import FrameIntake
+    from ravenmem.ros.params import NodeSettings
+
+    class Writer:  # the intake's writer, which only counts: the TF cost alone
+        def submit(self, *a: Any, **k: Any) -> Any:
+            from concurrent.futures import Future
+
+            f: Future[Any] = Future()
+            f.set_result(NS(id=1, skipped=None))
+            return f
+
+    intake = FrameIntake(Writer(), NodeSettings(odom_topic=""))  # type: ignore[arg-type]
+    static = NS(transforms=[_tf("map", "odom", 0.0, 0.0)])
+    intake.transforms(static, 0.0, True)
+    t0 = 1_700_000_000.0
+    per = []
+    for i in range(messages):
+        t = t0 + i * 0.01
+        msg = NS(transforms=[_tf("odom", "base_link", t, math.sin(i / 100))])
+        start = time.perf_counter()
+        intake.transforms(msg, t, False)
+        per.append(time.perf_counter() - start)
+    size = len(intake.tf.moving["base_link"]) if intake.tf is not None else 0  # type: ignore[union-attr]
+    return {"messages": messages, "p50_ms": round(pct(per, 0.5) * 1e3, 4), "p99_ms": round(pct(per, 0.99) * 1e3, 4),
+            "max_ms": round(max(per) * 1e3, 4), "samples_kept": size}  # fmt: skip
+
+
+def _tf(parent: str, child: str, t: float, x: float) -> Any:
+    from types import SimpleNamespace as NS
+
+    sec = int(t)
+    return NS(
+        header=NS(frame_id=parent, stamp=NS(sec=sec, nanosec=int((t - sec) * 1e9))), child_frame_id=child,
+        transform=NS(translation=NS(x=x, y=0.0, z=0.0), rotation=NS(x=0.0, y=0.0, z=0.0, w=1.0)),
+    )  # fmt: skip
 
 
 def run_http(data: Path, frames: int, rate: float, keyframes: str) -> dict[str, Any]:
@@ -150,7 +195,11 @@ def main() -> None:
     ap.add_argument("--keyframes", default="all", help="the node's keyframe rule ('' for the defaults)")
     ap.add_argument("--domain", type=int, default=131)
     ap.add_argument("--http", action="store_true", help="the same stream into `ravenmem serve` over HTTP")
+    ap.add_argument("--tf", action="store_true", help="the cost of one /tf message (no graph)")
     args = ap.parse_args()
+    if args.tf:
+        print(json.dumps(run_tf(), indent=2))
+        return
     data = Path(os.environ.get("RAVENMEM_TUM_DATA") or REPO.parent / "shared" / "data" / "tum_fr1_rpy")
     frames = int(args.seconds * args.rate)
     if args.http:

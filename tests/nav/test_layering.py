@@ -23,7 +23,19 @@ import pytest
 SRC = Path(__file__).resolve().parents[2] / "src" / "ravenmem"
 
 # What each package may import from ravenmem (anything else is a sideways or upward arrow).
-_GROUND = {"types", "errors", "registry", "fsio", "timeparse", "imageio", "progress", "threads"}
+_GROUND = {
+    "types",
+    "errors",
+    "registry",
+    "fsio",
+    "timeparse",
+    "imageio",
+    "progress",
+    "threads",
+    "refusal",
+    "stamps",
+    "spec",
+}
 _DATA = _GROUND | {"memory", "tools", "store", "embed", "ingest"}
 ALLOWED = {
     "sim": _GROUND | {"sim"},

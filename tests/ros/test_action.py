@@ -20,6 +20,7 @@ from ravenmem.ros import msgs
 from ravenmem.ros.link import LinkConfig
 from ravenmem.ros.services import register
 from ravenmem.ros.zenoh import ZenohEndpoints, start_link
+from ravenmem.runtime.ask import AskArgs
 from ravenmem.runtime.service import Service, ServiceConfig
 from tests.agent.test_ask_navigate import with_map
 from tests.conftest import ColorEmbedder
@@ -168,9 +169,11 @@ def test_srv_ask_with_navigate_drives_and_reports_the_result(mem_path: Path) -> 
         )
         assert link.describe()["last_drive"]["status"] == "succeeded"
         # an answer from elsewhere (POST /ask, MCP) with a plan: the link drives in the background
-        data.pop("drive")
         n = len(server.goals)
-        assert link.publish_goal(data)
+        result = service.ask(AskArgs(question="Where did I leave the magenta box?", navigate=True))
+        assert (
+            result.drive is None and result.goal is not None
+        )  # asked without a drive: the link's hook drives
         assert wait_until(
             lambda: link.describe()["last_drive"]["status"] == "succeeded" and len(server.goals) == n + 1, 30
         )

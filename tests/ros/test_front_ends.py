@@ -203,6 +203,7 @@ def test_every_front_end_gives_the_same_goal_in_the_memorys_frame(cli, mem_path:
     # the ROS 2 node's logic (rclpy cannot run here): the same replies and goals
     from ravenmem.ros.link import LinkConfig
     from ravenmem.ros.node import NodeLogic
+    from ravenmem.runtime.ask import AskArgs
     from ravenmem.runtime.service import Service, ServiceConfig
     from tests.conftest import ColorEmbedder
 
@@ -214,9 +215,9 @@ def test_every_front_end_gives_the_same_goal_in_the_memorys_frame(cli, mem_path:
         reply_d = logic.ask({"question": QUESTION, "navigate": True})
         assert reply_d["found"] and reply_d["map_id"] == MAP_ID
         goals["node: srv/Ask"] = xyyaw(reply_d["goal"])
-        answer = json.loads(reply_d["answer_json"])
-        answer.pop("navigation")
-        payload = logic.goal(answer)  # an answer without a plan: the node plans it (goal_for)
+        result = service.ask(AskArgs(question=QUESTION))
+        assert result.plan is None
+        payload = logic.goal(result)  # an answer without a plan: the node plans it (goal_for)
         assert payload is not None
         goals["node: /goal_pose"] = xyyaw(_as_dict(ts, payload))
     finally:

@@ -9,7 +9,8 @@ import pytest
 
 from ravenmem.errors import InputError
 from ravenmem.ingest.poses import SKIP_GAP, SKIP_OUTSIDE
-from ravenmem.nav.goals import pose_stamped, read_pose_stamped
+from ravenmem.nav.base import PlanResult
+from ravenmem.nav.goals import GoalPlan, pose_stamped, read_pose_stamped
 from ravenmem.ros import msgs as rosmsg
 from ravenmem.ros.link import SKIP_NO_POSE, SKIP_TYPE, LinkConfig, RosLink, goal_bytes, goal_of
 from ravenmem.types import Pose
@@ -189,10 +190,9 @@ def test_rmw_zenoh_keys_name_the_type() -> None:
 def test_the_goal_is_the_answers_plan_in_its_frame() -> None:
     """The link publishes the goal of an answer's plan (`nav.goals`), CDR of the very PoseStamped
     the plan's JSON holds (its frame: the memory's); an answer without a path gives no goal."""
-    plan = {"ok": True, "pose_stamped": pose_stamped(1.5, -2.0, math.pi / 2, frame_id="odom")}
-    answer = {"found": True, "position": [1.5, -2.0, 0.25], "yaw": 0.3, "navigation": plan}
-    goal = goal_of(answer)
-    assert goal is not None
+    plan = GoalPlan(PlanResult(ok=True), goal=(1.5, -2.0, math.pi / 2), frame_id="odom")
+    goal = goal_of(plan)
+    assert goal is not None and goal == pose_stamped(1.5, -2.0, math.pi / 2, frame_id="odom")
     msg = rosmsg.deserialize(goal_bytes(goal, 1700000000.25), rosmsg.POSE_STAMPED)
     assert msg.header.frame_id == "odom"
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1700000000, 250000000)
@@ -200,8 +200,8 @@ def test_the_goal_is_the_answers_plan_in_its_frame() -> None:
     assert (p.x, p.y, p.z) == (1.5, -2.0, 0.0)
     assert (q.x, q.y, q.z, q.w) == pytest.approx((0, 0, math.sin(math.pi / 4), math.cos(math.pi / 4)))
     assert read_pose_stamped(rosmsg.to_dict(msg))[:3] == pytest.approx((1.5, -2.0, math.pi / 2))
-    assert goal_of({"position": [1, 2, 3], "found": True}) is None  # never planned: nothing to drive to
-    assert goal_of(answer | {"navigation": {"ok": False, "reason": "unreachable"}}) is None
+    assert goal_of(None) is None  # never planned: nothing to drive to
+    assert goal_of(GoalPlan(PlanResult(ok=False, reason="unreachable"), frame_id="odom")) is None
 
 
 @pytest.mark.parametrize(

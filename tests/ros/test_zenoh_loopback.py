@@ -18,8 +18,11 @@ import numpy as np
 import pytest
 
 import ravenmem
+from ravenmem.agent.ask import AskResult
+from ravenmem.agent.schema import Answer
 from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer
-from ravenmem.nav.goals import pose_stamped
+from ravenmem.nav.base import PlanResult
+from ravenmem.nav.goals import GoalPlan
 from ravenmem.ros import msgs as rosmsg
 from ravenmem.ros.link import SKIP_NO_POSE, LinkConfig
 from ravenmem.ros.zenoh import ZenohEndpoints, ZenohLink
@@ -118,15 +121,15 @@ def test_frames_published_over_zenoh_become_memories(mem: ravenmem.Memory) -> No
             pic = w.picture(round((r.t - 10.0) / 0.1))
             assert np.abs(img.astype(int) - pic).mean() < 12  # the thumbnail is the published picture
         # an answer with a plan goes back to the robot as the plan's PoseStamped (here: odom)
-        goal_json = pose_stamped(recs[2].pose.x, recs[2].pose.y, recs[2].pose.yaw, frame_id="odom")
-        answer = {
-            "found": True,
-            "position": [0.0, 0.0, 0.0],
-            "navigation": {"ok": True, "pose_stamped": goal_json},
-        }
-        assert link.publish_goal(answer)
-        assert not link.publish_goal({"found": False, "position": None})
-        assert not link.publish_goal({"found": True, "position": [1.0, 2.0, 0.0]})  # no plan, no planner
+        plan = GoalPlan(
+            PlanResult(ok=True), goal=(recs[2].pose.x, recs[2].pose.y, recs[2].pose.yaw), frame_id="odom"
+        )
+        answer = Answer(found=True, position=[0.0, 0.0, 0.0])
+        assert link.publish_goal(AskResult(answer, plan=plan))
+        assert not link.publish_goal(AskResult(Answer(found=False)))
+        assert not link.publish_goal(
+            AskResult(Answer(found=True, position=[1.0, 2.0, 0.0]))
+        )  # no plan, no planner
         assert wait_until(lambda: len(goals) == 1)
         goal = rosmsg.deserialize(goals[0], rosmsg.POSE_STAMPED)
         assert goal.header.frame_id == "odom"

@@ -23,12 +23,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
 from ..errors import InputError, RavenmemError
 from ..memory.protocol import MemoryLike
+from ..refusal import refusal_of
 from .base import METHODS, Method, needs_vlm
 from .client import NO_MODEL, VLMClient
 from .config import VLMConfig
@@ -76,11 +77,12 @@ class MethodOptions:
     auto_caption: bool | None = None
     offline_config: Any = None
     trace_path: str | Path | None = None
+    preset_applied: bool = field(default=False, repr=False, compare=False)  # by `with_preset`, once
 
     @classmethod
     def of(cls, method: str | None = None, **options: Any) -> MethodOptions:
         """Options from keywords, an unknown name a one-line `InputError` naming the known ones."""
-        known = {f.name for f in fields(cls)}
+        known = {f.name for f in fields(cls)} - {"preset_applied"}
         unknown = sorted(set(options) - known)
         if unknown:
             raise InputError(
@@ -106,8 +108,8 @@ class MethodOptions:
 
     def with_preset(self) -> MethodOptions:
         """The preset's budget, k per tool, temperature, seed, frame cap and `diverse` filled in
-        where left None."""
-        if self.preset is None:
+        where left None; applied once (the options it returns say so)."""
+        if self.preset is None or self.preset_applied:
             return self
         names = ("top_k", "max_tool_calls", "temperature", "seed", "frames", "diverse")
         m = apply_preset(self.preset, {k: getattr(self, k) for k in names}).get
@@ -119,6 +121,7 @@ class MethodOptions:
             seed=m("seed"),
             frames=m("frames"),
             diverse=m("diverse"),
+            preset_applied=True,
         )
 
 
@@ -140,7 +143,21 @@ class PlanLike(Protocol):
     @property
     def ok(self) -> bool: ...
 
+    def pose_stamped(self, stamp: float | None = None) -> dict[str, Any] | None: ...
+
     def as_dict(self) -> dict[str, Any]: ...
+
+
+# what became of a question, typed: every front end's status comes from it (HTTP code, exit
+# code, a robot's reason), never from the wording of an error
+Outcome = Literal["answered", "out_of_time", "model_failed", "no_answer", "unsupported"]
+HTTP_STATUS: dict[str, int] = {
+    "answered": 200,
+    "out_of_time": 504,
+    "model_failed": 502,
+    "no_answer": 502,
+    "unsupported": 422,
+}
 
 
 @dataclass
@@ -158,31 +175,51 @@ class AskRequest:
 
 @dataclass
 class AskResult:
-    """The answer, its evidence, the navigation plan (`as_dict` form, None when none was asked
-    for), notes from `ask` itself, and `refusal`: the one line that says why the result must not
-    be used (the question failed, or its position is unsupported), None when it may."""
+    """The answer, its evidence, the navigation plan (typed, `nav.goals.GoalPlan`; None when
+    none was asked for), notes from `ask` itself, and `refusal`: the one line that says why the
+    result must not be used (the question failed, or its position is unsupported), None when it
+    may. `drive` is what a robot link did with the goal (its NavigateToPose result), when one
+    drove there. The answer stays typed until a front end writes its wire format."""
 
     answer: Answer
-    navigation: dict[str, Any] | None = None
+    plan: PlanLike | None = None
     notes: list[str] = field(default_factory=list)
     refusal: str | None = None
+    drive: dict[str, Any] | None = None
 
     @property
     def evidence(self) -> list[Any]:
         return list(self.answer.evidence)
 
     @property
-    def status(self) -> int:
-        """The HTTP status of this result: 200, 504 (the question ran out of time), 502 (the
-        model failed or gave nothing usable), 422 (an unsupported position)."""
+    def navigation(self) -> dict[str, Any] | None:
+        """The plan as every front end returns it (`GoalPlan.as_dict`), None without one."""
+        return self.plan.as_dict() if self.plan is not None else None
+
+    @property
+    def goal(self) -> dict[str, Any] | None:
+        """The goal `geometry_msgs/PoseStamped` (JSON) to drive to: only for a result that may
+        be used and whose plan found a path."""
+        if self.refusal or self.plan is None or not self.plan.ok:
+            return None
+        return self.plan.pose_stamped()
+
+    @property
+    def outcome(self) -> Outcome:
         if self.answer.failed:
-            return 504 if "out of time" in (self.answer.error or "") else 502
-        return 422 if self.refusal else 200
+            return self.answer.failure or "model_failed"
+        return "unsupported" if self.refusal else "answered"
+
+    @property
+    def status(self) -> int:
+        """The HTTP status of this result, from its `outcome`: 200, 504 (the question ran out of
+        time), 502 (the model failed or gave nothing usable), 422 (an unsupported position)."""
+        return HTTP_STATUS[self.outcome]
 
     @property
     def exit_code(self) -> int:
         """0: answered (and, when asked, a path planned); 1: refused, or no path."""
-        if self.refusal or (self.navigation is not None and not self.navigation.get("ok")):
+        if self.refusal or (self.plan is not None and not self.plan.ok):
             return 1
         return 0
 
@@ -209,19 +246,5 @@ def ask(memory: MemoryLike, request: AskRequest, method: Method | None = None) -
     if ans.unsupported and request.allow_unsupported:
         result.notes.append("unsupported position allowed by the request")
     if request.plan is not None:
-        result.navigation = request.plan(ans, request.allow_unsupported).as_dict()
+        result.plan = request.plan(ans, request.allow_unsupported)
     return result
-
-
-def refusal_of(ans: Answer, allow_unsupported: bool = False) -> str | None:
-    """Why an answer must not be used or driven to, in one line; None when it may."""
-    if ans.failed:
-        return f"the question failed: {ans.error or 'no answer'}"
-    if ans.unsupported and not allow_unsupported:
-        where = (
-            f"{ans.support_distance:.1f} m from every memory the model was shown"
-            if ans.support_distance is not None
-            else "not near any memory the model was shown"
-        )
-        return f"unsupported answer: its position is {where}; not used (allow unsupported answers to use it)"
-    return None

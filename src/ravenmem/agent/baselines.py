@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import random
 import time
-from typing import Any
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,13 +21,14 @@ from ..errors import InputError
 from ..memory.protocol import MemoryLike
 from ..timeparse import fmt_time
 from ..types import Hit, MemoryRecord
-from .client import VLMClient
-from .config import VLMConfig
 from .loop import Agent, _Run
 from .parse import evidence_of
 from .questions import classify_question
 from .schema import Answer, Cost
 from .tool_calls import Shown, describe, record_image
+
+if TYPE_CHECKING:
+    from .ask import MethodOptions
 
 DEFAULT_FRAMES = 1500  # the RAVEN release's VLM-only cap (non_agent_max_image_len)
 
@@ -139,15 +141,12 @@ class VLMOnly(Agent):
     name = "vlm-only"
     use_tools = False
 
-    def __init__(
-        self,
-        memory: MemoryLike,
-        vlm: VLMConfig | VLMClient | None = None,
-        frames: int = DEFAULT_FRAMES,
-        **kw: Any,
-    ) -> None:
-        kw.pop("max_tool_calls", None)
-        super().__init__(memory, vlm=vlm, max_tool_calls=0, **kw)
+    def __init__(self, memory: MemoryLike, options: MethodOptions | None = None, **keywords: Any) -> None:
+        from .ask import MethodOptions
+
+        o = (options or MethodOptions.of(self.name, **keywords)).with_preset()
+        super().__init__(memory, replace(o, max_tool_calls=0))
+        frames = DEFAULT_FRAMES if o.frames is None else o.frames
         if frames < 1:
             raise InputError(f"frames must be >= 1, got {frames}")
         self.frames = frames

@@ -21,8 +21,9 @@ import sqlite3
 import threading
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,6 +36,9 @@ from .config import VLMConfig
 from .images import data_url, record_jpeg
 from .loop import Agent
 from .tool_calls import ToolRunner
+
+if TYPE_CHECKING:
+    from .ask import MethodOptions
 
 SEGMENT_FRAMES = 3  # consecutive keyframes per caption (ReMEmbR captions a few seconds of video)
 CAPTION_PROMPT = (
@@ -328,19 +332,14 @@ class CaptionAgent(Agent):
     name = "caption"
     attach_images = False
 
-    def __init__(
-        self,
-        memory: MemoryLike,
-        vlm: VLMConfig | VLMClient | None = None,
-        encoder: TextEncoder | str | None = None,
-        captioner: VLMConfig | VLMClient | None = None,
-        auto_caption: bool = True,
-        segment_frames: int | None = None,
-        segment_s: float = SEGMENT_S,
-        show_scores: bool = False,
-        **kw: Any,
-    ) -> None:
-        super().__init__(memory, vlm=vlm, show_scores=show_scores, **kw)
+    def __init__(self, memory: MemoryLike, options: MethodOptions | None = None, **keywords: Any) -> None:
+        from .ask import MethodOptions
+
+        o = options or MethodOptions.of(self.name, **keywords)
+        super().__init__(memory, o if o.show_scores is not None else replace(o, show_scores=False))
+        encoder, captioner, segment_frames = o.encoder, o.captioner, o.segment_frames
+        segment_s = SEGMENT_S if o.segment_s is None else o.segment_s
+        auto_caption = o.auto_caption is not False
         self.index = CaptionIndex(memory, encoder, segment_frames, segment_s)
         if auto_caption and self.index.todo():
             enc = self.index.encoder

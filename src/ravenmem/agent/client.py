@@ -49,6 +49,10 @@ class VLMError(RavenmemError):
     """The VLM could not be reached or kept failing; the message says how and how often."""
 
 
+class OutOfTimeError(VLMError):
+    """The question's deadline (`question_timeout`) passed before the model answered."""
+
+
 class ToolsRejectedError(VLMError):
     """The endpoint refused a request because of its `tools` field (no function calling)."""
 
@@ -324,7 +328,7 @@ class VLMClient:
             if deadline is not None:
                 budget = min(budget, deadline - time.monotonic())
                 if budget <= 0:
-                    raise VLMError(f"{self.where}: out of time for this question{_after(last)}")
+                    raise OutOfTimeError(f"{self.where}: out of time for this question{_after(last)}")
             t0 = time.perf_counter()
             event: dict[str, Any] = {"attempt": attempt, "request": redact_images(kwargs)}
             self.events.append(event)
@@ -370,7 +374,7 @@ class VLMClient:
                 if retry_after is not None:
                     wait = min(cfg.backoff_max, max(wait, retry_after))
                 if deadline is not None and time.monotonic() + wait >= deadline:
-                    raise VLMError(f"{self.where}: out of time for this question{_after(last)}")
+                    raise OutOfTimeError(f"{self.where}: out of time for this question{_after(last)}")
                 self.retries += 1
                 event["retry_in_s"] = wait
                 self._sleep(wait)

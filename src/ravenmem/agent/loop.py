@@ -23,10 +23,10 @@ from __future__ import annotations
 import json
 import re
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from pydantic import ValidationError
@@ -35,16 +35,24 @@ from ..errors import InputError
 from ..fsio import atomic_write
 from ..imageio import read_image
 from ..memory.protocol import MemoryLike
-from .client import NO_MODEL, ChatReply, ImagesRejectedError, ToolsRejectedError, VLMClient, VLMError
+from .client import (
+    NO_MODEL,
+    ChatReply,
+    ImagesRejectedError,
+    OutOfTimeError,
+    ToolsRejectedError,
+    VLMClient,
+    VLMError,
+)
 from .config import VLMConfig
 from .images import data_url, jpeg_of_array
 from .labels import FrameLabels
 from .parse import MAX_REPLY_CHARS, ModelAnswer, build_answer, evidence_of, extract_json
-from .presets import Preset, get_preset, merge_top_k
+from .presets import get_preset
 from .prompts import NO_PICTURES, budget_spent, reask, system_prompt
 from .questions import classify_question
 from .replies import answer_schema, response_format, step_schema, strip_thinking, text_tool_calls
-from .schema import Answer, Cost
+from .schema import Answer, Cost, Failure
 from .tool_calls import (
     DEFAULT_K,
     ToolRunner,
@@ -54,6 +62,9 @@ from .tool_calls import (
     image_parts,
     per_tool_k,
 )
+
+if TYPE_CHECKING:
+    from .ask import MethodOptions
 
 DEFAULT_TOOL_CALLS = 3
 
@@ -94,6 +105,7 @@ class _Run:
     force_tool: bool = False  # the last answer rested on no memory: the next step must be a tool call
     answer: Answer | None = None
     error: str | None = None
+    failure: Failure = "no_answer"  # the kind of `error`
     notes: list[str] = field(default_factory=list)
     call_log: list[dict[str, Any]] = field(default_factory=list)  # every tool call: ran, or why not
 
@@ -115,36 +127,22 @@ class Agent:
     use_tools = True
     attach_images = True
 
-    def __init__(
-        self,
-        memory: MemoryLike,
-        vlm: VLMConfig | VLMClient | None = None,
-        top_k: int | dict[str, int] | None = None,
-        max_tool_calls: int | None = None,
-        trace_path: str | Path | None = None,
-        max_reasks: int = 2,
-        max_position_offset: float = 3.0,
-        image_max_side: int = 0,
-        show_scores: bool = True,
-        time_mode: str = "forward",
-        temperature: float | None = None,
-        seed: int | None = None,
-        preset: str | Preset | None = None,
-        diverse: bool | None = None,
-    ) -> None:
-        p = get_preset(preset)
-        if diverse is None and p is not None:
-            diverse = p.diverse  # the paper's top-k: exactly k, near-duplicates included
-        if p is not None:
-            top_k = merge_top_k(p.top_k, top_k)
-        elif top_k is None:
-            top_k = DEFAULT_K
-        if max_tool_calls is None:
-            max_tool_calls = p.max_tool_calls if p else DEFAULT_TOOL_CALLS
-        if temperature is None and p is not None:
-            temperature = p.temperature
-        if seed is None and p is not None:
-            seed = p.seed
+    def __init__(self, memory: MemoryLike, options: MethodOptions | None = None, **keywords: Any) -> None:
+        """`options` as the method registry builds them (`agent.ask.build_method`), or the same
+        fields as keywords (`Agent(mem, vlm=cfg, max_tool_calls=2)`); the preset is applied
+        once, by `MethodOptions.with_preset`, and the rest read as they are."""
+        from .ask import MethodOptions
+
+        if options is None:
+            options = MethodOptions.of(self.name, **keywords)
+        elif keywords:
+            options = replace(options, **keywords)
+        o = options.with_preset()
+        vlm = o.vlm
+        top_k = DEFAULT_K if o.top_k is None else o.top_k
+        max_tool_calls = DEFAULT_TOOL_CALLS if o.max_tool_calls is None else o.max_tool_calls
+        max_reasks = 2 if o.max_reasks is None else o.max_reasks
+        image_max_side = 0 if o.image_max_side is None else o.image_max_side
         ks = per_tool_k(top_k)  # one k for every tool, or {"time": 200, "text": 30, ...}
         if max_tool_calls < 0 or max_reasks < 0:
             raise InputError(
@@ -152,18 +150,20 @@ class Agent:
             )
         if image_max_side < 0:
             raise InputError(f"image_max_side must be >= 0 (0 = as stored), got {image_max_side}")
+        p = get_preset(o.preset)
+        temperature, seed, trace_path = o.temperature, o.seed, o.trace_path
         self.memory = memory
         self.top_k = top_k
         self.ks = ks
         self.evidence_k = ks["search_text"]
         self.max_tool_calls = max_tool_calls if self.use_tools else 0
         self.max_reasks = max_reasks
-        self.max_position_offset = max_position_offset
+        self.max_position_offset = 3.0 if o.max_position_offset is None else o.max_position_offset
         self.image_max_side = image_max_side
-        self.show_scores = bool(show_scores)
-        self.time_mode = check_time_mode(time_mode)
+        self.show_scores = o.show_scores is not False
+        self.time_mode = check_time_mode(o.time_mode or "forward")
         self.preset = p.name if p else None
-        self.diverse = diverse
+        self.diverse = o.diverse
         self.trace_path = Path(trace_path) if trace_path else None
         self.last_trace: dict[str, Any] | None = None
         if isinstance(vlm, VLMClient):
@@ -194,6 +194,7 @@ class Agent:
             self._loop(run)
         except VLMError as e:
             run.error = str(e)
+            run.failure = "out_of_time" if isinstance(e, OutOfTimeError) else "model_failed"
         answer = run.answer if run.answer is not None else self._failure(run)
         answer.notes = run.notes + answer.notes
         answer.vision = self.attach_images and not self.text_only
@@ -288,6 +289,7 @@ class Agent:
                 if time.monotonic() >= run.deadline:
                     limit = self.client.config.question_timeout
                     run.error = f"out of time: no usable answer within {limit:g} s (question_timeout)"
+                    run.failure = "out_of_time"
                     return
                 step = self._classify(run, self._call(run))
             elif step is Step.RUN_TOOLS:
@@ -509,6 +511,7 @@ class Agent:
             found=False,
             failed=True,
             error=run.error,
+            failure=run.failure,
             evidence=[evidence_of(s) for s in run.wm.ranked()[: self.evidence_k]],
         )
 

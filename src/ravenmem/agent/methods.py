@@ -1,8 +1,9 @@
 """Methods by name, for the CLI, the service and the evaluation, built from one `MethodOptions`.
 
 Each factory takes the memory and the typed options (`ravenmem.agent.ask.MethodOptions`, the
-preset already filled in) and reads the fields it uses; a field left None keeps the method's
-own default. VLM-backed methods (`raven`, `vlm-only`, `caption`) take `options.vlm` (a
+preset already filled in, once); the VLM agents take them as they are (`Agent(memory,
+options)`), the others read the fields they use; a field left None keeps the method's own
+default. VLM-backed methods (`raven`, `vlm-only`, `caption`) take `options.vlm` (a
 `VLMConfig`, a `VLMClient`, or None for the environment and config file) and fail with a
 one-line `InputError` when no model is configured. A plugin registered under
 `ravenmem.methods` is called the same way: `factory(spec, memory=..., options=...)`.
@@ -31,24 +32,6 @@ def _given(**values: Any) -> dict[str, Any]:
     return {k: v for k, v in values.items() if v is not None}
 
 
-def _agent_args(o: MethodOptions) -> dict[str, Any]:
-    """What every VLM agent takes from the options."""
-    return _given(
-        vlm=o.vlm,
-        top_k=o.top_k,
-        trace_path=o.trace_path,
-        max_reasks=o.max_reasks,
-        max_position_offset=o.max_position_offset,
-        image_max_side=o.image_max_side,
-        show_scores=o.show_scores,
-        time_mode=o.time_mode,
-        temperature=o.temperature,
-        seed=o.seed,
-        preset=o.preset,
-        diverse=o.diverse,
-    )
-
-
 def _text_k(top_k: int | dict[str, int] | None) -> int | None:
     """Methods with one k take the text tool's k of a {tool: k} mapping."""
     return per_tool_k(top_k)["search_text"] if isinstance(top_k, dict) else top_k
@@ -59,7 +42,7 @@ def _text_k(top_k: int | dict[str, int] | None) -> int | None:
 def _raven(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .loop import Agent
 
-    return Agent(memory, max_tool_calls=options.max_tool_calls, **_agent_args(options))
+    return Agent(memory, options)
 
 
 @METHODS.register("offline")
@@ -88,7 +71,7 @@ def _random(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
 def _vlm_only(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .baselines import VLMOnly
 
-    return VLMOnly(memory, **_given(frames=options.frames), **_agent_args(options))
+    return VLMOnly(memory, options)
 
 
 @METHODS.register("caption")
@@ -96,14 +79,7 @@ def _vlm_only(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
 def _caption(spec: str, memory: MemoryLike, options: MethodOptions) -> Method:
     from .captions import CaptionAgent
 
-    extra = _given(
-        encoder=options.encoder,
-        captioner=options.captioner,
-        auto_caption=options.auto_caption,
-        segment_frames=options.segment_frames,
-        segment_s=options.segment_s,
-    )
-    return CaptionAgent(memory, max_tool_calls=options.max_tool_calls, **extra, **_agent_args(options))
+    return CaptionAgent(memory, options)
 
 
 def require_model(name: str, vlm: VLMConfig) -> None:

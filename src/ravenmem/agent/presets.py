@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from ..errors import InputError
+from ..spec import pairs
 
 
 def _each(k: int) -> dict[str, int]:
@@ -144,16 +145,9 @@ def parse_top_k(text: str | None) -> int | dict[str, int] | None:
     try:
         if "=" not in text:
             return int(text)
-        out: dict[str, int] = {}
-        for part in text.split(","):
-            if not part.strip():
-                continue
-            key, sep, val = part.partition("=")
-            if not sep or not key.strip():
-                raise ValueError(part)
-            out[key.strip()] = int(val)
+        out = {k: int(v) for k, v in pairs(text, "--top-k", repeat=True).items()}
         if not out:
             raise ValueError(text)
         return out
-    except ValueError:
+    except ValueError:  # (an InputError of `pairs` is one too: the same line for every malformed spec)
         raise InputError(f"--top-k: expected N or tool=N,... with whole numbers, got {text!r}") from None

@@ -8,12 +8,16 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
 from ..types import MemoryRecord
 
 QuestionType = Literal["position", "time", "binary", "text", "duration"]
 Source = Literal["model", "evidence", "none"]
+# why a question failed, typed (the HTTP status and a robot's reason come from it, never from the
+# wording of `error`): its time ran out, the model could not be reached or kept failing, or it
+# answered nothing usable within its turns
+Failure = Literal["out_of_time", "model_failed", "no_answer"]
 
 
 class Evidence(BaseModel):
@@ -104,6 +108,9 @@ class Answer(BaseModel):
     found: bool = True
     failed: bool = False
     error: str | None = None
+    failure: Failure | None = Field(
+        default=None, description="why it failed: out_of_time | model_failed | no_answer (None: it did not)"
+    )
     unsupported: bool = Field(
         default=False,
         description="the position is farther than the support threshold from every memory the "
@@ -129,3 +136,13 @@ class Answer(BaseModel):
         description="for questions about the present: the places the thing was seen at, newest "
         "first, with what later visits showed (still there, not revisited, moved, gone)",
     )
+
+    @model_validator(mode="after")
+    def _failure_kind(self) -> Answer:
+        """A failed answer always says why (a caller that gave no kind: the model failed); an
+        answer that did not fail has none."""
+        if self.failed and self.failure is None:
+            self.failure = "model_failed"
+        elif not self.failed:
+            self.failure = None
+        return self

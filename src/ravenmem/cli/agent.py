@@ -13,12 +13,15 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ..agent.config import PROVIDERS, RESPONSE_FORMATS, TOOL_MODES
 from ..timeparse import fmt_time
 from ._console import esc, out_console
 from .options import (
     CONFIG,
     COUNT,
     IMAGE_SIDE,
+    MEMORY_ID,
+    NAME,
     OFFSET,
     OUTPUT,
     PICTURE,
@@ -31,13 +34,15 @@ from .options import (
     TOOL_CALLS,
     TOP_K,
     Force,
+    MemoryOpt,
+    MemoryOrServerOpt,
+    choice,
 )
 
-MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 BaseUrlOpt = Annotated[
     str | None, typer.Option("--base-url", help="OpenAI-compatible endpoint, e.g. http://localhost:8000/v1")
 ]
-ModelOpt = Annotated[str | None, typer.Option("--model", help="VLM model name")]
+ModelOpt = Annotated[str | None, NAME, typer.Option("--model", help="VLM model name")]
 KeyOpt = Annotated[
     str | None, typer.Option("--api-key", help="API key (default: RAVENMEM_VLM_API_KEY / OPENAI_API_KEY)")
 ]
@@ -57,259 +62,256 @@ SegmentOpt = Annotated[
 ]
 ProviderOpt = Annotated[
     str | None,
+    choice(*PROVIDERS),
     typer.Option(help="openai | vllm | ollama | llama.cpp | gemini: that server's documented settings"),
 ]
 ImageSideOpt = Annotated[
     int | None,
     IMAGE_SIDE,
+    MEMORY_ID,
+    NAME,
     typer.Option("--image-max-side", help="longest side in px of images sent to the model (0 = as stored)"),
 ]
 
 
+# the options of `ravenmem ask`, one alias each (the command reads as its list of options)
+QuestionArg = Annotated[str, typer.Argument(help="the question, e.g. 'Where did I leave the red backpack?'")]
+ImageOpt = Annotated[Path | None, typer.Option(help="a query image ('where did I see this?')")]
+ImageIdOpt = Annotated[
+    int | None, MEMORY_ID, typer.Option(help="use this memory's picture as the query picture")
+]
+OfflineOpt = Annotated[bool, typer.Option("--offline", help="no VLM: the offline reasoner")]
+MethodOpt = Annotated[
+    str | None,
+    typer.Option(help="raven | offline | embedder-only | vlm-only | caption | random (default raven)"),
+]
+PresetOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="raven-qa-human | raven-qa-robot | raven-qa-robot-open | navqa | findingdory: the paper's settings"
+    ),
+]
+ToolModeOpt = Annotated[
+    str | None,
+    choice(*TOOL_MODES),
+    typer.Option(help="auto | native | json (JSON-in-prompt, no function calling)"),
+]
+TopKOpt = Annotated[
+    str | None,
+    TOP_K,
+    typer.Option("--top-k", help="memories per tool call: N, or per tool 'text=30,time=200' (default 5)"),
+]
+CallsOpt = Annotated[
+    int | None, TOOL_CALLS, typer.Option(help="tool calls before the model must answer (default 3)")
+]
+TemperatureOpt = Annotated[
+    float | None, TEMPERATURE, typer.Option(help="sampling temperature sent to the model")
+]
+SeedOpt = Annotated[int | None, SEED, typer.Option(help="seed sent to the model (and the random baseline)")]
+HideScoresOpt = Annotated[
+    bool, typer.Option("--hide-scores", help="do not show similarity scores/distances to the model")
+]
+TimeModeOpt = Annotated[
+    str | None, typer.Option(help="forward | centred | nearest: the time tool's window (default forward)")
+]
+FramesOpt = Annotated[
+    int | None,
+    COUNT,
+    typer.Option(help="vlm-only: most frames in the prompt (all memories if fewer; default 32)"),
+]
+TraceOpt = Annotated[
+    Path | None, OUTPUT, typer.Option(help="save the full request/response trace (JSON) here")
+]
+QuestionTimeoutOpt = Annotated[
+    float | None, TIMEOUT, typer.Option(help="seconds for the whole question, wall clock (default 300)")
+]
+SheetOpt = Annotated[
+    Path | None, PICTURE, typer.Option(help="also draw the evidence as a contact sheet (PNG) here")
+]
+JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
+ServerOpt = Annotated[
+    str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
+]
+NavigateOpt = Annotated[
+    bool,
+    typer.Option(
+        "--navigate",
+        help="also plan (A* on the memory's map) from the robot's last pose to the answer's "
+        "position and heading; prints the path and the goal as a Nav2 PoseStamped",
+    ),
+]
+FromOpt = Annotated[
+    str | None, POINT, typer.Option("--from", help="with --navigate: start 'x,y' in map metres")
+]
+RadiusOpt = Annotated[
+    float | None,
+    ROBOT_RADIUS,
+    typer.Option(help="with --navigate: robot radius in metres (default: the map's)"),
+]
+AllowOpt = Annotated[
+    bool,
+    typer.Option(
+        "--allow-unsupported",
+        help="use (and with --navigate, drive to) a position farther than --max-position-offset "
+        "from every memory the model was shown",
+    ),
+]
+OffsetOpt = Annotated[
+    float | None,
+    OFFSET,
+    typer.Option(
+        help="metres from every memory shown beyond which a model's position is unsupported (default 3)"
+    ),
+]
+VisionOpt = Annotated[
+    bool | None,
+    typer.Option(
+        "--vision/--no-vision",
+        help="the model sees pictures / gets memories as text (default: pictures, text if refused)",
+    ),
+]
+FormatOpt = Annotated[
+    str | None,
+    choice(*RESPONSE_FORMATS),
+    typer.Option(help="none | json_object | json_schema | json_object_schema: constrain the answer"),
+]
+FirstToolOpt = Annotated[
+    str | None, typer.Option(help="a tool the model must call first (tool_choice naming it)")
+]
+
+# the model's connection: {VLMConfig setting: option parameter}; never part of a request
+MODEL_PARAMS = {
+    "base_url": "base_url",
+    "model": "model_name",
+    "api_key": "api_key",
+    "tool_mode": "tool_mode",
+    "timeout": "timeout",
+    "question_timeout": "question_timeout",
+    "max_retries": "max_retries",
+    "provider": "provider",
+    "vision": "vision",
+    "response_format": "response_format",
+    "first_tool": "first_tool",
+}
+
+
 def ask(
-    question: Annotated[str, typer.Argument(help="the question, e.g. 'Where did I leave the red backpack?'")],
-    memory: Annotated[Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)")] = None,
-    image: Annotated[Path | None, typer.Option(help="a query image ('where did I see this?')")] = None,
-    offline: Annotated[bool, typer.Option("--offline", help="no VLM: the offline reasoner")] = False,
-    method: Annotated[
-        str | None,
-        typer.Option(help="raven | offline | embedder-only | vlm-only | caption | random (default raven)"),
-    ] = None,
-    preset: Annotated[
-        str | None,
-        typer.Option(
-            help="raven-qa-human | raven-qa-robot | raven-qa-robot-open | navqa | findingdory: the paper's settings"
-        ),
-    ] = None,
+    question: QuestionArg,
+    memory: MemoryOrServerOpt = None,
+    image: ImageOpt = None,
+    image_memory_id: ImageIdOpt = None,
+    offline: OfflineOpt = False,
+    method: MethodOpt = None,
+    preset: PresetOpt = None,
     base_url: BaseUrlOpt = None,
-    model: ModelOpt = None,
+    model_name: ModelOpt = None,
     api_key: KeyOpt = None,
-    tool_mode: Annotated[
-        str | None, typer.Option(help="auto | native | json (JSON-in-prompt, no function calling)")
-    ] = None,
-    top_k: Annotated[
-        str | None,
-        TOP_K,
-        typer.Option("--top-k", help="memories per tool call: N, or per tool 'text=30,time=200' (default 5)"),
-    ] = None,
-    max_tool_calls: Annotated[
-        int | None, TOOL_CALLS, typer.Option(help="tool calls before the model must answer (default 3)")
-    ] = None,
-    temperature: Annotated[
-        float | None, TEMPERATURE, typer.Option(help="sampling temperature sent to the model")
-    ] = None,
-    seed: Annotated[
-        int | None, SEED, typer.Option(help="seed sent to the model (and the random baseline)")
-    ] = None,
-    hide_scores: Annotated[
-        bool, typer.Option("--hide-scores", help="do not show similarity scores/distances to the model")
-    ] = False,
-    time_mode: Annotated[
-        str | None, typer.Option(help="forward | centred: the time tool's window (default forward)")
-    ] = None,
-    frames: Annotated[
-        int | None,
-        COUNT,
-        typer.Option(help="vlm-only: most frames in the prompt (all memories if fewer; default 32)"),
-    ] = None,
+    tool_mode: ToolModeOpt = None,
+    top_k: TopKOpt = None,
+    max_tool_calls: CallsOpt = None,
+    temperature: TemperatureOpt = None,
+    seed: SeedOpt = None,
+    hide_scores: HideScoresOpt = False,
+    time_mode: TimeModeOpt = None,
+    frames: FramesOpt = None,
     segment_frames: SegmentOpt = None,
     image_max_side: ImageSideOpt = None,
-    trace: Annotated[
-        Path | None, OUTPUT, typer.Option(help="save the full request/response trace (JSON) here")
-    ] = None,
+    trace: TraceOpt = None,
     timeout: TimeoutOpt = None,
-    question_timeout: Annotated[
-        float | None, TIMEOUT, typer.Option(help="seconds for the whole question, wall clock (default 300)")
-    ] = None,
+    question_timeout: QuestionTimeoutOpt = None,
     max_retries: RetriesOpt = None,
     config: ConfigOpt = None,
-    sheet: Annotated[
-        Path | None, PICTURE, typer.Option(help="also draw the evidence as a contact sheet (PNG) here")
-    ] = None,
+    sheet: SheetOpt = None,
     force: Force = False,
-    json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
-    server: Annotated[
-        str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
-    ] = None,
-    navigate: Annotated[
-        bool,
-        typer.Option(
-            "--navigate",
-            help="also plan (A* on the memory's map) from the robot's last pose to the answer's "
-            "position and heading; prints the path and the goal as a Nav2 PoseStamped",
-        ),
-    ] = False,
-    from_: Annotated[
-        str | None, POINT, typer.Option("--from", help="with --navigate: start 'x,y' in map metres")
-    ] = None,
-    robot_radius: Annotated[
-        float | None,
-        ROBOT_RADIUS,
-        typer.Option(help="with --navigate: robot radius in metres (default: the map's)"),
-    ] = None,
-    allow_unsupported: Annotated[
-        bool,
-        typer.Option(
-            "--allow-unsupported",
-            help="use (and with --navigate, drive to) a position farther than --max-position-offset "
-            "from every memory the model was shown",
-        ),
-    ] = False,
-    max_position_offset: Annotated[
-        float | None,
-        OFFSET,
-        typer.Option(
-            help="metres from every memory shown beyond which a model's position is unsupported (default 3)"
-        ),
-    ] = None,
+    json_out: JsonOpt = False,
+    server: ServerOpt = None,
+    navigate: NavigateOpt = False,
+    from_: FromOpt = None,
+    robot_radius: RadiusOpt = None,
+    allow_unsupported: AllowOpt = False,
+    max_position_offset: OffsetOpt = None,
     provider: ProviderOpt = None,
-    vision: Annotated[
-        bool | None,
-        typer.Option(
-            "--vision/--no-vision",
-            help="the model sees pictures / gets memories as text (default: pictures, text if refused)",
-        ),
-    ] = None,
-    response_format: Annotated[
-        str | None,
-        typer.Option(help="none | json_object | json_schema | json_object_schema: constrain the answer"),
-    ] = None,
-    first_tool: Annotated[
-        str | None, typer.Option(help="a tool the model must call first (tool_choice naming it)")
-    ] = None,
+    vision: VisionOpt = None,
+    response_format: FormatOpt = None,
+    first_tool: FirstToolOpt = None,
 ) -> None:
     """Answer a question from a memory: position, time, yes/no, duration or text, with evidence.
     Exit 1 when the question failed or its position is unsupported (see --allow-unsupported);
     with --navigate, exit 0 means a path to the answer was planned (1: answered, no path)."""
-    import ravenmem
-    from ravenmem.agent import AskRequest, MethodOptions, QuestionFailed, VLMConfig, ask, parse_top_k
     from ravenmem.errors import InputError
-    from ravenmem.imageio import read_image
-    from ravenmem.server.client import ServerClient, resolve_server
+    from ravenmem.server.client import resolve_server
+    from ravenmem.viz.sheet import answer_title
 
+    from .source import open_source
+    from .source import sheet as draw_sheet
+
+    given = dict(locals())  # every option by its parameter's name
     if offline and method not in (None, "offline"):
         raise InputError(f"--offline and --method {method} contradict each other")
-    name = "offline" if offline else (method or "raven")
     if (from_ is not None or robot_radius is not None) and not navigate:
         raise InputError("--from and --robot-radius apply with --navigate only")
-    url = resolve_server(server, memory)
-    if url and navigate:
-        raise InputError("--navigate plans on a local memory's map: give --memory, not --server")
-    vlm_flags: dict[str, Any] = dict(
-        base_url=base_url,
-        model=model,
-        api_key=api_key,
-        tool_mode=tool_mode,
-        timeout=timeout,
-        question_timeout=question_timeout,
-        max_retries=max_retries,
-        provider=provider,
-        vision=vision,
-        response_format=response_format,
-        first_tool=first_tool,
-    )
-    if url:  # a running service answers, with its own VLM settings
-        local_only = [*vlm_flags.values(), config, trace, temperature, seed, time_mode, frames]
-        local_only += [segment_frames, image_max_side, max_position_offset]
-        if any(v is not None for v in local_only) or hide_scores:
+    given |= {"method": "offline" if offline else method, "show_scores": False if hide_scores else None}
+    args = _ask_args({field: given[param] for field, param in ASK_PARAMS.items()})
+    model = {key: given[param] for key, param in MODEL_PARAMS.items()}
+    if resolve_server(server, memory):  # a running service answers, with its own model
+        if navigate:
+            raise InputError("--navigate plans on a local memory's map: give --memory, not --server")
+        if any(v is not None for v in [*model.values(), config, trace, segment_frames]):
             raise InputError(
-                "with --server the service's own VLM settings are used: give only --method/--offline, "
-                "--preset, --top-k, --max-tool-calls and --allow-unsupported"
+                "with --server the service's own VLM settings are used: leave out the model's "
+                "connection flags (--base-url, --model, --provider, ...), --config, --trace and --segment-frames"
             )
-        MethodOptions.of(name, preset=preset).check()  # an unknown method or preset: one line, no request
-        with ServerClient(url) as remote:
-            method_asked = None if method is None and not offline else name
-            try:
-                data = remote.ask(
-                    question,
-                    method_asked,
-                    parse_top_k(top_k),
-                    max_tool_calls,
-                    image,
-                    preset,
-                    allow_unsupported,
-                )
-            except QuestionFailed as e:
-                if e.answer is None:
-                    raise
-                data, refusal = e.answer, str(e)
-            else:
-                refusal = ""
-            if sheet is not None:
-                from ravenmem.viz.sheet import answer_title, remote_sheet
-
-                remote_sheet(data["evidence"], remote.picture, sheet, answer_title(data))
-                data["sheet"] = str(sheet)
-        for ev in data["evidence"]:
-            ev["image_file"] = ev.get("image")
-        _output(data, json_out, refusal or None, 1 if refusal else 0)
-        return
-    vlm = None
-    if MethodOptions.of(name).needs_vlm:  # a VLM method reads the VLM settings (a model-free one never does)
-        vlm = VLMConfig.resolve(config_path=config, **vlm_flags)
-    opts = MethodOptions.of(
-        name,
-        vlm=vlm,
-        preset=preset,
-        top_k=parse_top_k(top_k),
-        max_tool_calls=max_tool_calls,
-        trace_path=trace,
-        frames=frames,
-        temperature=temperature,
-        seed=seed,
-        show_scores=False if hide_scores else None,
-        time_mode=time_mode,
-        segment_frames=segment_frames,
-        image_max_side=image_max_side,
-        max_position_offset=max_position_offset,
-    ).check()
-    grid, start = _navigation_inputs(memory, from_, robot_radius) if navigate else (None, None)
-    img = read_image(image) if image is not None else None
-    assert memory is not None  # resolve_server asked for one of the two
-    with ravenmem.open(memory) as mem:
-        plan = None
-        if grid is not None:
-            from ravenmem.nav.goals import goal_for
-
-            def plan(ans: Any, allow: bool) -> Any:
-                return goal_for(
-                    ans, mem, start, robot_radius=robot_radius, grid=grid, allow_unsupported=allow
-                )
-
-        result = ask(mem, AskRequest(question, opts, img, plan, allow_unsupported))
-        ans = result.answer
+    local = {"trace_path": trace, "segment_frames": segment_frames}
+    with open_source(memory, server, model=model, config=config, options=local) as src:
+        data, refusal, code = src.ask_json(args, image)
         if sheet is not None:
-            from ravenmem.viz.sheet import answer_sheet
-
-            answer_sheet(mem, ans.model_dump(mode="json"), sheet)
-        data = ans.model_dump(mode="json")
-        # only pictures inside the memory folder are named (a stored path is never shown as is)
-        files = {r.id: mem.image_file(r) for r in mem.stored([e.id for e in ans.evidence])}
-        for ev in data["evidence"]:
-            f = files.get(ev["id"])
-            ev["image_file"] = str(f) if f else None
-        if result.navigation is not None:
-            data["navigation"] = result.navigation
-    if sheet is not None:
-        data["sheet"] = str(sheet)
-    _output(data, json_out, result.refusal, result.exit_code)
+            draw_sheet(src, data["evidence"], sheet, answer_title(data), src.t0())
+            data["sheet"] = str(sheet)
+    _output(data, json_out, refusal, code)
 
 
-def _navigation_inputs(
-    memory: Path | None, from_: str | None, robot_radius: float | None
-) -> tuple[Any, tuple[float, float] | None]:
-    """The memory's map and the start, checked before the question costs a model call."""
-    from ravenmem.errors import InputError
-    from ravenmem.nav.grid import OccupancyGrid
+# every field of the one ask request (`runtime.ask.AskArgs`) and the option of `ravenmem ask`
+# that sets it (a test ties them): what a question is, the same here as over HTTP, MCP and ROS
+ASK_OPTIONS = {
+    "question": "QUESTION",
+    "image": "--image",
+    "image_memory_id": "--image-memory-id",
+    "method": "--method",
+    "preset": "--preset",
+    "top_k": "--top-k",
+    "max_tool_calls": "--max-tool-calls",
+    "temperature": "--temperature",
+    "seed": "--seed",
+    "show_scores": "--hide-scores",
+    "time_mode": "--time-mode",
+    "frames": "--frames",
+    "image_max_side": "--image-max-side",
+    "max_position_offset": "--max-position-offset",
+    "navigate": "--navigate",
+    "start": "--from",
+    "robot_radius": "--robot-radius",
+    "allow_unsupported": "--allow-unsupported",
+}
+
+
+# {AskArgs field: the parameter of `ask` that holds it} (`image` is read from its file)
+ASK_PARAMS = {f: ("from_" if f == "start" else f) for f in ASK_OPTIONS if f not in ("image",)}
+
+
+def _ask_args(given: dict[str, Any]) -> Any:
+    """The options as the one ask request (`AskArgs`), checked there: a question longer than the
+    bound, an unknown method or preset is one line."""
+    from ravenmem.agent import parse_top_k
+    from ravenmem.agent.base import METHODS
+    from ravenmem.runtime.ask import AskArgs
 
     from .nav import parse_start
 
-    assert memory is not None
-    grid = OccupancyGrid.load(memory)  # no map: one line naming how to build one
-    start = parse_start(from_)
-    if robot_radius is not None and not (math.isfinite(robot_radius) and robot_radius >= 0):
-        raise InputError(f"--robot-radius: expected a finite radius >= 0 in metres, got {robot_radius}")
-    return grid, start
+    if given["method"] is not None:
+        METHODS.get(given["method"])  # an unknown method: one line, before any request
+    given["top_k"] = parse_top_k(given["top_k"])
+    given["start"] = parse_start(given["start"])
+    return AskArgs.check({k: v for k, v in given.items() if v is not None})
 
 
 def _output(data: dict[str, Any], json_out: bool, refusal: str | None, code: int) -> None:

@@ -12,9 +12,8 @@ import typer
 
 from ..fsio import size_text
 from ._console import esc, out_console
-from .options import COUNT, GAP, SIMILARITY, SPAN
+from .options import COUNT, GAP, SIMILARITY, SPAN, MemoryOpt
 
-MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
 DryRun = Annotated[bool, typer.Option("--dry-run", help="only report what would happen")]
 Wait = Annotated[bool, typer.Option("--wait", help="wait while another process writes this memory")]

@@ -30,12 +30,15 @@ from .options import (
     BATCH,
     DEPTH_SCALE,
     MEMORY_ID,
+    NAME,
     PICTURE,
     RATE,
     SECONDS,
     STRIDE,
     THUMB_SIZE,
     Force,
+    MemoryOpt,
+    MemoryOrServerOpt,
     check_commands,
 )
 from .options import DISTANCE as DISTANCE_KIND
@@ -59,9 +62,7 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
 )
 console = out_console()
-MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="machine-readable output")]
-MemoryOrServerOpt = Annotated[Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)")]
 ServerOpt = Annotated[
     str | None, typer.Option("--server", help="URL of a running `ravenmem serve` (or RAVENMEM_SERVER)")
 ]
@@ -79,27 +80,6 @@ def short_path(p: str | None) -> str:
 
 def print_json(obj: Any) -> None:
     sys.stdout.write(json.dumps(obj, indent=2, default=str) + "\n")
-
-
-def parse_options(items: list[str], what: str) -> dict[str, Any]:
-    """`KEY=VALUE` strings -> kwargs; numbers and true/false are converted, the rest stay strings."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"{what}: expected KEY=VALUE, got {item!r}")
-        val: Any = raw
-        if raw.lower() in ("true", "false"):
-            val = raw.lower() == "true"
-        else:
-            for conv in (int, float):
-                try:
-                    val = conv(raw)
-                    break
-                except ValueError:
-                    pass
-        out[key.strip().replace("-", "_")] = val
-    return out
 
 
 def parse_floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
@@ -132,6 +112,21 @@ def _root(
     """ravenmem: a long-term visual memory for robots."""
 
 
+KEYFRAMES_HELP = (
+    "keyframe rules: 'default' (when left out: moved 0.5 m or turned 15 deg or 5 s passed, "
+    "then cosine <= 0.97 to the last keyframe), 'all' (every frame), only the rules named "
+    "('fps=2,min_rotation=10deg'), or 'default,max_similarity=0.9'"
+)
+CAMERA_FRAME_HELP = (
+    "image folders: the poses are of a 'body' (x forward, z up; default) or of the "
+    "camera's 'optical' frame (x right, y down, z forward, as SLAM systems write them)"
+)
+MAP_ID_HELP = (
+    "the map the poses are in (default: one per recording); a memory in another map "
+    "is refused (see `ravenmem align`)"
+)
+
+
 @app.command()
 def ingest(
     source: Annotated[
@@ -153,14 +148,7 @@ def ingest(
         str, typer.Option(help="offline | open_clip:MODEL/TAG | hf:NAME_OR_PATH")
     ] = "offline",
     store: Annotated[str | None, typer.Option(help="store URI for a new memory (default: embedded)")] = None,
-    keyframes: Annotated[
-        str | None,
-        typer.Option(
-            help="keyframe rules: 'default' (when left out: moved 0.5 m or turned 15 deg or 5 s passed, "
-            "then cosine <= 0.97 to the last keyframe), 'all' (every frame), only the rules named "
-            "('fps=2,min_rotation=10deg'), or 'default,max_similarity=0.9'"
-        ),
-    ] = None,
+    keyframes: Annotated[str | None, NAME, typer.Option(help=KEYFRAMES_HELP)] = None,
     stride: Annotated[
         int | None, STRIDE, typer.Option(help="keep every Nth frame (alone: instead of the default rules)")
     ] = None,
@@ -179,24 +167,12 @@ def ingest(
         DEPTH_SCALE,
         typer.Option(help="image folders: 16-bit depth units per metre (default 1000 = mm)"),
     ] = None,
-    camera_frame: Annotated[
-        str | None,
-        typer.Option(
-            help="image folders: the poses are of a 'body' (x forward, z up; default) or of the "
-            "camera's 'optical' frame (x right, y down, z forward, as SLAM systems write them)"
-        ),
-    ] = None,
+    camera_frame: Annotated[str | None, typer.Option(help=CAMERA_FRAME_HELP)] = None,
     intrinsics: Annotated[
         str | None, typer.Option(help="depth camera: fr1 | fr2 | fr3 | kinect | fx,fy,cx,cy")
     ] = None,
     build_map: Annotated[bool, typer.Option("--map/--no-map", help="build the map from depth frames")] = True,
-    map_id: Annotated[
-        str | None,
-        typer.Option(
-            help="the map the poses are in (default: one per recording); a memory in another map "
-            "is refused (see `ravenmem align`)"
-        ),
-    ] = None,
+    map_id: Annotated[str | None, NAME, typer.Option(help=MAP_ID_HELP)] = None,
     tf_parent: Annotated[
         str | None, typer.Option(help="bags with /tf: the poses' parent frame (default map, odom or world)")
     ] = None,
@@ -222,39 +198,15 @@ def ingest(
     where it stopped."""
     import ravenmem
     from ravenmem.ingest.identity import derived_map_id
-    from ravenmem.ingest.keyframes import KeyframeConfig
     from ravenmem.ingest.pipeline import ALREADY
     from ravenmem.ingest.pipeline import ingest as run_ingest
     from ravenmem.ingest.sources import open_source
     from ravenmem.memory.folder import MANIFEST
 
-    if keyframes is not None:
-        cfg = KeyframeConfig.from_spec(keyframes)
-    else:  # `--stride 5` alone means every 5th frame, not the default rules thinned further
-        cfg = KeyframeConfig.only() if stride is not None or fps is not None else KeyframeConfig()
-    # replace() checks the rules again (a stride of 0 or a NaN rate is a one-line error)
-    cfg = dataclasses.replace(
-        cfg, stride=cfg.stride if stride is None else stride, fps=cfg.fps if fps is None else fps
-    )
-    kwargs = {
-        k: v
-        for k, v in dict(
-            poses=poses,
-            image_topic=image_topic,
-            pose_topic=pose_topic,
-            depth=depth,
-            depth_topic=depth_topic,
-            depth_scale=depth_scale,
-            camera_frame=camera_frame,
-            tf_parent=tf_parent,
-            tf_child=tf_child,
-            time_source=time_source,
-            pose_match=pose_match,
-            max_gap=max_gap,
-        ).items()
-        if v is not None
-    }
-    src = open_source(source, format, **kwargs)
+    given = dict(locals())  # (taken here: a comprehension has locals of its own)
+    opened = {k: given[k] for k in SOURCE_OPTIONS if given[k] is not None}
+    cfg = _keyframe_rules(keyframes, stride, fps)
+    src = open_source(source, format, **opened)
     derived, frame_id = derived_map_id(src)
     mapper = _mapper(memory, src, intrinsics) if build_map else None
     existed = (memory / MANIFEST).is_file()
@@ -279,6 +231,37 @@ def ingest(
     with ravenmem.open(memory) as done:  # sizes at rest (WAL checkpointed, caches saved), as `info` gives
         size = done.info()
     _print_ingest(rep, total, size, cfg, mapper, memory, json_out)
+
+
+# the options of `ingest` that go to the recording's source (`ingest.sources.open_source`)
+SOURCE_OPTIONS = (
+    "poses",
+    "image_topic",
+    "pose_topic",
+    "depth",
+    "depth_topic",
+    "depth_scale",
+    "camera_frame",
+    "tf_parent",
+    "tf_child",
+    "time_source",
+    "pose_match",
+    "max_gap",
+)
+
+
+def _keyframe_rules(keyframes: str | None, stride: int | None, fps: float | None) -> Any:
+    """The keyframe rules of `--keyframes`, `--stride` and `--fps`."""
+    from ravenmem.ingest.keyframes import KeyframeConfig
+
+    if keyframes is not None:
+        cfg = KeyframeConfig.from_spec(keyframes)
+    else:  # `--stride 5` alone means every 5th frame, not the default rules thinned further
+        cfg = KeyframeConfig.only() if stride is not None or fps is not None else KeyframeConfig()
+    # replace() checks the rules again (a stride of 0 or a NaN rate is a one-line error)
+    return dataclasses.replace(
+        cfg, stride=cfg.stride if stride is None else stride, fps=cfg.fps if fps is None else fps
+    )
 
 
 def _print_ingest(
@@ -372,84 +355,56 @@ def search(
     json_out: JsonOpt = False,
 ) -> None:
     """Search a memory with one of the four tools: text, --image/--like, --time or --position."""
-    import ravenmem
-    from ravenmem.imageio import read_image
-    from ravenmem.memory.protocol import check_k
-    from ravenmem.server.client import ServerClient, resolve_server
-    from ravenmem.tools import get_tool, hit_json
+    from ravenmem.runtime.service import tool_args
+    from ravenmem.tools import get_tool
+
+    from .source import open_source
+    from .source import sheet as draw_sheet
 
     given = {"text": text, "image": image if image is not None else like, "time": time, "position": position}
     modes = [m for m, v in given.items() if v is not None]
     if len(modes) != 1 or (image is not None and like is not None):
         raise InputError("give exactly one of: a text query, --image, --like, --time or --position")
-    mode, k = modes[0], check_k(k)
-    args: dict[str, Any] = {"after": after, "before": before}
-    if near and mode in ("text", "image"):
-        args["near"] = parse_floats(near, (3,), "--near")
-    elif near:
+    mode = modes[0]  # k: checked by its option kind here, by the tool where it runs
+    if near and mode not in ("text", "image"):
         raise InputError(f"--near applies to text and image searches only, not to --{mode}")
+    near_xyr = parse_floats(near, (3,), "--near") if near else None
     if radius is not None and mode != "position":
         raise InputError("--radius applies to --position only; use --near x,y,r with the other tools")
-    if latest and mode not in ("text", "image"):
-        raise InputError(f"--latest applies to text and image searches only, not to --{mode}")
-    if latest:
-        args["latest"] = True
-    if mode in ("text", "image"):
-        args["diverse"] = diverse
-    elif not diverse:
-        raise InputError(f"--no-diverse applies to text and image searches only, not to --{mode}")
-    query_image = None
-    if mode == "text":
-        args["query"] = text
-    elif mode == "image":
-        if like is not None:
-            args["memory_id"] = like
-        else:
-            query_image = read_image(str(image))
-    elif mode == "time":
-        args["time"] = time
+    if (latest or not diverse) and mode not in ("text", "image"):
+        flag = "--latest" if latest else "--no-diverse"
+        raise InputError(f"{flag} applies to text and image searches only, not to --{mode}")
+    if mode == "image":
+        args: dict[str, Any] = {"after": after, "before": before, "near": near_xyr, "memory_id": like}
     else:
-        xyz = parse_floats(position or "", (2, 3), "--position")
-        args.update(x=xyz[0], y=xyz[1], z=xyz[2] if len(xyz) == 3 else None, radius=radius)
+        query = {"text": text, "time": time, "position": position}[mode]
+        args = tool_args(mode, query, "--position", after, before, near_xyr, radius)
+    if mode in ("text", "image"):
+        args |= {"diverse": diverse} | ({"latest": True} if latest else {})
     tool = get_tool(mode)
     call = tool.validate(args)
     what = f"{mode} search: " + {
         "text": f'"{text}"',
         "image": f"like memory {like}" if like is not None else str(image),
     }.get(mode, str(given[mode]))
-    url = resolve_server(server, memory)
-    if url:
-        with ServerClient(url) as remote:
-            rows = remote.search(tool, call, k, image)["results"]
-            if sheet is not None:
-                from ravenmem.viz.sheet import remote_sheet
-
-                remote_sheet(
-                    rows,
-                    remote.picture,
-                    sheet,
-                    [what, f"{len(rows)} hit(s), {tool.order_for(call)}  |  {url}"],
-                )
-    else:
-        assert memory is not None
-        with ravenmem.open(memory) as mem:
-            hits = tool.run(mem, call, k, image=query_image)
-            t0 = mem.time_span()[0]
-
-            def image_file(rec: Any) -> str | None:
-                p = mem.image_file(rec)
-                return str(p) if p else rec.image_path
-
-            rows = [hit_json(h, i + 1, t0, image_file) for i, h in enumerate(hits)]
-            if sheet is not None:
-                from ravenmem.viz.sheet import search_sheet
-
-                search_sheet(mem, hits, rows, sheet, what, tool.order_for(call))
+    with open_source(memory, server) as src:
+        rows = src.search(tool, call, k, image)
+        if sheet is not None:
+            draw_sheet(
+                src, rows, sheet, [what, f"{len(rows)} hit(s), {tool.order_for(call)}  |  {src.where}"]
+            )
     if json_out:
         print_json(
             {"mode": mode, "tool": tool.name, "results": rows} | ({"sheet": str(sheet)} if sheet else {})
         )
         return
+    _render_hits(rows, tool, call, mode, latest)
+    if sheet is not None:
+        console.print(f"contact sheet: {esc(str(sheet))}", highlight=False)
+
+
+def _render_hits(rows: list[dict[str, Any]], tool: Any, call: Any, mode: str, latest: bool) -> None:
+    """The hits as a table (and, with --latest, where the thing is now)."""
     table = Table(title=f"{mode} search: {len(rows)} result(s), {tool.order_for(call)}")
     metric = "dist m" if tool.metric == "distance" else "score"
     # the id is what --like ID, forget --ids and the --latest notes ("last m19") name
@@ -485,23 +440,15 @@ def search(
             if ch.get("role") == "sighting":
                 console.print(f"  {esc(ch.get('text', ''))}", highlight=False)
     console.print(table)
-    if sheet is not None:
-        console.print(f"contact sheet: {esc(str(sheet))}", highlight=False)
 
 
 @app.command()
 def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: JsonOpt = False) -> None:
     """Counts, time span, extent, embedder, bytes per memory and compression of a memory."""
-    import ravenmem
-    from ravenmem.server.client import ServerClient, resolve_server
+    from .source import open_source
 
-    url = resolve_server(server, memory)
-    if url:
-        with ServerClient(url) as remote:
-            data = remote.info()
-    else:
-        with ravenmem.open(memory) as mem:  # type: ignore[arg-type]
-            data = mem.info()
+    with open_source(memory, server) as src:
+        data = src.info()
     if json_out:
         print_json(data)
         return

@@ -164,6 +164,24 @@ def _top_k(text: str) -> str:
     return text
 
 
+def choice(*values: str) -> Kind:
+    """One of `values` (a name the code knows): anything else is refused, whether or not the
+    command goes on to use it."""
+
+    def check(v: str) -> str:
+        if v not in values:
+            raise ValueError(f"expected one of {', '.join(values)}, got {v!r}")
+        return v
+
+    return Kind("one of " + ", ".join(values), (AfterValidator(check),))
+
+
+def _named(text: str) -> str:
+    if not str(text).strip():
+        raise ValueError("must not be empty")
+    return text
+
+
 # ---------------------------------------------------------------- the table
 SECONDS = _num("seconds from 0 to 86400", ge=0, le=DAY)  # waits
 TIMEOUT = _num("seconds > 0, at most 86400", gt=0, le=DAY)
@@ -199,8 +217,23 @@ TOP_K = Kind(f"N or tool=N,... (N from 1 to {MAX_K})", (AfterValidator(_top_k),)
 CONFIG = Kind("a ravenmem config file", (AfterValidator(_config_file),))
 OUTPUT = Kind("a file to write", (AfterValidator(_output_file),))
 PICTURE = Kind("a picture to write", (AfterValidator(_picture_file),))
+NAME = Kind("a non-empty value", (AfterValidator(_named),))  # a name or spec: '' is refused
 
 Force = Annotated[bool, typer.Option("--force", help="replace an output file that exists")]
+
+
+def memory_path(text: str) -> Path:
+    """A memory folder as given: an empty one ('') is refused (it would mean the current folder)."""
+    if not text.strip():
+        raise typer.BadParameter("must not be empty (give the memory folder; '.' for this one)")
+    return Path(text)
+
+
+# the memory a command reads or writes, declared once for every command
+MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder", parser=memory_path)]
+MemoryOrServerOpt = Annotated[
+    Path | None, typer.Option("--memory", "-m", help="memory folder (or --server)", parser=memory_path)
+]
 
 
 # ---------------------------------------------------------------- the model of a command

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 from typing import Annotated
 
 import typer
 from pydantic import Field
 
 from ._console import esc, out_console
-from .options import Kind
+from .options import Kind, MemoryOpt
 
 JOBS = Kind("a whole number from 1 to 64", (Field(ge=1, le=64),))
 
@@ -51,7 +50,7 @@ def setup(
 )
 def run(
     ctx: typer.Context,
-    memory: Annotated[Path, typer.Option("--memory", "-m", help="memory folder")],
+    memory: MemoryOpt,
     create: Annotated[bool, typer.Option("--create", help="create the memory when missing")] = False,
 ) -> None:
     """Run the ravenmem node until SIGINT/SIGTERM. Every setting is a ROS parameter: give them

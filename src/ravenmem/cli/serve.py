@@ -10,9 +10,8 @@ from typing import Annotated, Any
 import typer
 
 from ..errors import InputError
-from .options import CONFIG, MEGABYTES, PORT, SECONDS, TIMEOUT, TOOL_CALLS, TOP_K
+from .options import CONFIG, MEGABYTES, PORT, SECONDS, TIMEOUT, TOOL_CALLS, TOP_K, MemoryOpt
 
-MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
 MethodOpt = Annotated[
     str | None,
     typer.Option(help="default way to answer questions (default: raven with a VLM configured, else offline)"),

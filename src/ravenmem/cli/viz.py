@@ -10,9 +10,7 @@ from typing import Annotated
 import typer
 
 from ._console import esc, out_console
-from .options import COUNT, OUTPUT, Force, K
-
-MemoryOpt = Annotated[Path, typer.Option("--memory", "-m", help="memory folder")]
+from .options import COUNT, OUTPUT, Force, K, MemoryOpt
 
 
 def default_out(memory: Path) -> Path:

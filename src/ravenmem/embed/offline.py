@@ -46,6 +46,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, require
+from ..spec import parts as spec_parts
+from ..spec import split_pair
 from .base import EMBEDDERS, l2_normalize
 from .tiles import layout, tile_batch
 
@@ -144,12 +146,12 @@ _RUN_KEYS = {"threads": int, "runtime": str}
 def parse_spec(spec: str, **kwargs: Any) -> tuple[OfflineConfig, RunOptions]:
     """Parse `spec` (+ keyword overrides) into a config (the vectors) and run options."""
     items: list[tuple[str, str]] = []
-    for tok in (s.strip() for s in spec.split(":")):
-        if not tok or tok == MODEL_TOKEN:
+    for tok in spec_parts(spec, ":"):
+        kv = split_pair(tok, empty_value=True)
+        if tok == MODEL_TOKEN:
             continue
-        if "=" in tok:
-            k, _, v = tok.partition("=")
-            items.append((k.strip(), v.strip()))
+        if kv is not None:
+            items.append(kv)
         elif tok.split("-")[0] in DESIGNS:
             design, *parts = tok.split("-")
             items.append(("design", design))

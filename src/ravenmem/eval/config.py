@@ -26,6 +26,7 @@ from typing import Any
 from ..agent.presets import PRESETS, RENAMED, parse_top_k
 from ..errors import InputError
 from ..ingest.keyframes import KeyframeConfig
+from ..spec import pairs
 
 TIME_MODES = ("forward", "centred", "nearest")
 SCORING = ("paper", "release")
@@ -96,13 +97,14 @@ def parse_pos_threshold(text: str | float | None) -> float | dict[str, float] | 
         if len(vals) != 1:
             raise InputError(f"--pos-threshold: one number or subset=metres,..., got {text!r}")
         return vals[0]
-    per: dict[str, float] = {}
-    for part in (p for p in text.split(",") if p.strip()):
-        key, sep, val = part.partition("=")
-        if not sep or not key.strip():
-            raise InputError(f"--pos-threshold: expected subset=metres, got {part!r}")
-        per[key.strip()] = _floats(val, "--pos-threshold")[0] if val.strip() else math.nan
-    return per
+    given = pairs(
+        text,
+        "--pos-threshold",
+        bad="{what}: expected subset=metres, got {part!r}",
+        repeat=True,
+        empty_value=True,
+    )
+    return {key: _floats(val, "--pos-threshold")[0] if val else math.nan for key, val in given.items()}
 
 
 def _minutes(value: float | None) -> float | None:

@@ -56,25 +56,21 @@ def method_names() -> list[str]:
 
 
 def agent_takes(option: str) -> bool:
-    """Whether this version's VLM agent takes `option`: its constructor's or `create_method`'s
-    signature names it (a preset is applied by `create_method`, the rest by the agent)."""
-    import inspect
+    """Whether this version's methods take `option`: it is a field of the one options model,
+    `MethodOptions` (a preset is applied there, the rest read by the methods)."""
+    from dataclasses import fields
 
-    from ..agent.loop import Agent
-    from ..agent.methods import create_method
+    from ..agent.ask import MethodOptions
 
-    return any(option in inspect.signature(fn).parameters for fn in (Agent.__init__, create_method))
+    return option in {f.name for f in fields(MethodOptions)}
 
 
 def per_tool_top_k_supported() -> bool:
-    """Whether the agent takes a {tool: k} top_k (its signature says so), so a dict is never
-    handed to a method that would fail on every question with it."""
-    import inspect
+    """Whether `MethodOptions.top_k` takes {tool: k} (it does since per-tool k exist; kept so an
+    evaluation config states the contract it relies on)."""
+    from ..agent.ask import MethodOptions
 
-    from ..agent.loop import Agent
-
-    ann = inspect.signature(Agent.__init__).parameters.get("top_k")
-    return ann is not None and "dict" in str(ann.annotation)
+    return MethodOptions.of(top_k={"text": 1}).check().top_k == {"text": 1}
 
 
 def check_methods(cfg: RunConfig) -> None:

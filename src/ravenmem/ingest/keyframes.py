@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from ..errors import InputError
+from ..spec import pairs, parts
 from ..types import Frame, Pose
 
 DROP_STRIDE = "stride"
@@ -99,21 +100,13 @@ class KeyframeConfig:
         if spec.strip().lower() in ("all", "none"):
             return cls.only()
         known = [f.name for f in fields(cls)]
-        parts = [p.strip() for p in spec.split(",") if p.strip()]
+        given = parts(spec)
         base = cls.only()
-        if parts and parts[0].lower() == "default":
-            base, parts = cls(), parts[1:]
+        if given and given[0].lower() == "default":
+            base, given = cls(), given[1:]
         values: dict[str, float | int] = {}
-        for part in parts:
-            key, eq, raw = (s.strip() for s in part.partition("="))
-            if not eq:
-                raise InputError(
-                    f"keyframes: {part!r} is not key=value (keys: {', '.join(known)}; or 'default', 'all')"
-                )
-            if key not in known:
-                raise InputError(f"keyframes: unknown key {key!r}; choose from {', '.join(known)}")
-            if key in values:
-                raise InputError(f"keyframes: {key} is given twice")
+        rules = pairs(given, "keyframes", known=known, hint="; or 'default', 'all'", empty_value=True)
+        for key, raw in rules.items():
             m = re.fullmatch(_NUM + r"\s*([a-zA-Z]*)", raw)
             unit = m.group(2).lower() if m else ""
             if m is None or unit not in _UNITS[key]:

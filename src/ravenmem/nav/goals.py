@@ -38,6 +38,8 @@ from scipy import ndimage
 from ..errors import InputError
 from ..memory import Memory
 from ..memory.folder import MAP_GRID
+from ..refusal import refusal_of
+from ..stamps import sec_nanosec
 from ..types import Pose, yaw_of
 from .base import PlanResult
 from .grid import OccupancyGrid
@@ -148,11 +150,8 @@ def pose_stamped(
     """A `geometry_msgs/msg/PoseStamped` as JSON (what `ros2 topic pub /goal_pose` takes):
     position on the map plane (z = 0), orientation a rotation of `yaw` about the map's z.
     A stamp of zero (the default) asks tf for its latest transform."""
-    t = 0.0 if stamp is None else float(stamp)
-    sec = int(math.floor(t))
-    nanosec = min(int(round((t - sec) * 1e9)), 999_999_999)
     return {
-        "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+        "header": {"stamp": sec_nanosec(0.0 if stamp is None else float(stamp)), "frame_id": frame_id},
         "pose": {
             "position": {"x": float(x), "y": float(y), "z": 0.0},
             "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)},
@@ -252,18 +251,9 @@ def goal_for(
 
 def _refusal(answer: AnswerLike, map_id: str, allow_unsupported: bool) -> tuple[str, str] | None:
     """(problem, reason) when the answer must not be driven to, else None."""
-    if getattr(answer, "failed", False):
-        return (
-            ANSWER,
-            f"the question failed: {getattr(answer, 'error', None) or 'no answer'}; the robot stays put",
-        )
-    if getattr(answer, "unsupported", False) and not allow_unsupported:
-        d = getattr(answer, "support_distance", None)
-        where = f"{float(d):.1f} m from" if isinstance(d, (int, float)) else "not near"
-        return (
-            ANSWER,
-            f"unsupported answer: its position is {where} every memory the model was shown; the robot stays put",
-        )
+    refused = refusal_of(answer, allow_unsupported, then="the robot stays put")
+    if refused is not None:  # the one rule (`ravenmem.refusal`), with what it means for a robot
+        return ANSWER, refused
     if not answer.found or not answer.position:
         return ANSWER, "the answer has no position to go to" + ("" if answer.found else " (not found)")
     pos = answer.position

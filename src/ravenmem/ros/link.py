@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import bisect
 import logging
-import math
 import threading
 import time
 from collections import deque
@@ -44,11 +43,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from ..errors import InputError
 from ..ingest.poses import PoseTrack, check_match_mode
+from ..spec import pairs
+from ..stamps import sec_nanosec
 from ..types import Pose
 from . import msgs
 from .tf import TIME_SOURCES, TfTree, check_time_source, norm_frame
 
 if TYPE_CHECKING:
+    from ..agent.ask import PlanLike
     from ..runtime.live import LiveWriter
 
 log = logging.getLogger(__name__)
@@ -153,18 +155,7 @@ class LinkConfig(BaseModel):
         """`image=camera/color/image_raw,pose=odom[,key=value...]` (keys: the fields) -> config;
         a one-line `InputError` naming the key for anything wrong."""
         known = list(cls.model_fields)
-        values: dict[str, Any] = {}
-        for part in spec.split(","):
-            if not part.strip():
-                continue
-            key, eq, raw = (s.strip() for s in part.partition("="))
-            if not eq or not raw:
-                raise InputError(f"zenoh: {part.strip()!r} is not key=value (keys: {', '.join(known)})")
-            if key not in known:
-                raise InputError(f"zenoh: unknown key {key!r}; choose from {', '.join(known)}")
-            if key in values:
-                raise InputError(f"zenoh: {key} is given twice")
-            values[key] = raw
+        values: dict[str, Any] = dict(pairs(spec, "zenoh", known=known))
         values.update({k: v for k, v in overrides.items() if v is not None})
         for need in ("image", "pose"):
             if need not in values:
@@ -504,23 +495,19 @@ class RosLink:
             self.stats.stored_as(int(result))
 
 
-def goal_of(answer: dict[str, Any]) -> dict[str, Any] | None:
-    """The goal PoseStamped (JSON) of an answer whose plan (`navigation`, `nav.goals.GoalPlan`
-    JSON) found a path; None for any other answer."""
-    nav = answer.get("navigation")
-    if not isinstance(nav, dict) or not nav.get("ok"):
+def goal_of(plan: PlanLike | None) -> dict[str, Any] | None:
+    """The goal PoseStamped (JSON) of a plan (`nav.goals.GoalPlan`) that found a path; None for
+    no plan, or one that found none."""
+    if plan is None or not plan.ok:
         return None
-    goal = nav.get("pose_stamped")
-    return goal if isinstance(goal, dict) else None
+    return plan.pose_stamped()
 
 
 def goal_bytes(pose_stamped: dict[str, Any], stamp: float | None = None) -> bytes:
     """CDR of a goal PoseStamped (`nav.goals.pose_stamped` JSON), stamped `stamp` when given."""
     data = dict(pose_stamped)
     if stamp is not None:
-        sec = int(math.floor(stamp))
-        nanosec = min(int(round((stamp - sec) * 1e9)), 999_999_999)
-        data["header"] = dict(data["header"], stamp={"sec": sec, "nanosec": nanosec})
+        data["header"] = dict(data["header"], stamp=sec_nanosec(stamp))
     return msgs.serialize(msgs.to_message(data, msgs.POSE_STAMPED), msgs.POSE_STAMPED)
 
 

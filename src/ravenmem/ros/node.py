@@ -46,6 +46,7 @@ from .params import NodeSettings
 from .services import ServiceBackend, ask_reply, search_reply
 
 if TYPE_CHECKING:
+    from ..agent.ask import AskResult
     from ..runtime.service import Service
 
 TICK_S = 0.1  # how often waiting images are settled
@@ -83,13 +84,10 @@ class NodeLogic:
         self.link = RosLink(cfg, writer_sink(service.writer, cfg.source), frame_check=service.frame_check)  # type: ignore[arg-type]
         self.backend = ServiceBackend(service, self.link.poses.latest_xy)
 
-    def goal(self, answer: dict[str, Any], stamp: float | None = None) -> bytes | None:
-        """CDR of the goal PoseStamped to publish for an answer (planned now when the answer has
-        no plan yet, from the robot's latest pose), None when there is none."""
-        if "navigation" not in answer:
-            nav = self.service.plan_json(answer, self.link.poses.latest_xy())
-            answer = answer | ({"navigation": nav} if nav is not None else {})
-        goal = goal_of(answer)
+    def goal(self, result: AskResult, stamp: float | None = None) -> bytes | None:
+        """CDR of the goal PoseStamped to publish for a result (planned now when the question
+        asked for no plan, from the robot's latest pose), None when there is none."""
+        goal = goal_of(self.service.plan_of(result, self.link.poses.latest_xy()))
         return None if goal is None else goal_bytes(goal, stamp)
 
     def ask(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -305,15 +303,16 @@ class RavenmemNode:
     def _search(self, request: Any, response: Any) -> Any:
         return fill(response, search_reply(self.backend, to_dict(request)))
 
-    def on_answer(self, data: dict[str, Any]) -> None:
-        """The service's answer hook (the one goal path): a goal only for an answer whose
-        question asked to navigate and whose plan found a path; markers for every answer."""
+    def on_answer(self, result: AskResult) -> None:
+        """The service's answer hook (the one goal path): a goal only for a result whose
+        question asked to navigate (it carries a plan) and whose plan found a path; markers for
+        every answer the service hands on (the ones that may be used)."""
         canceled = getattr(self._local, "canceled", None)
         if canceled is not None and canceled():
             return
-        goal = goal_of(data)
+        goal = result.goal  # None without a plan (no navigate), or a plan with no path
         frame = self.service.mem.frame_id or self.s.map_frame
-        self.marker_pub.publish(answer_markers(self.stamp(), frame, data, goal))
+        self.marker_pub.publish(answer_markers(self.stamp(), frame, result.answer, goal))
         if goal is None or self.goal_pub is None or self.navigator is not None:
             return
         from geometry_msgs.msg import PoseStamped

@@ -8,7 +8,10 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..agent.schema import Answer
 
 NS_MEMORIES, NS_EVIDENCE, NS_GOAL, NS_TEXT = "memories", "evidence", "goal", "answer"
 
@@ -89,9 +92,10 @@ def memory_markers(stamp: Any, frame: str, points: list[list[float]]) -> Any:
     return MarkerArray(markers=[m])
 
 
-def answer_markers(stamp: Any, frame: str, answer: dict[str, Any], goal: dict[str, Any] | None) -> Any:
-    """An answer: its evidence (spheres), its goal (an arrow) and its text (above the goal, or
-    the first evidence). Markers of an earlier answer are replaced (same ids; DELETE when none)."""
+def answer_markers(stamp: Any, frame: str, answer: Answer, goal: dict[str, Any] | None) -> Any:
+    """An answer (typed: this is where it becomes messages): its evidence (spheres), its goal
+    (an arrow) and its text (above the goal, or the first evidence). Markers of an earlier
+    answer are replaced (same ids; DELETE when none)."""
     from geometry_msgs.msg import Point
     from visualization_msgs.msg import Marker, MarkerArray
 
@@ -100,7 +104,7 @@ def answer_markers(stamp: Any, frame: str, answer: dict[str, Any], goal: dict[st
     ev.pose.orientation.w = 1.0
     ev.scale.x = ev.scale.y = ev.scale.z = 0.2
     ev.color = _color(1.0, 0.8, 0.1)
-    ev.points = [Point(x=float(e["x"]), y=float(e["y"]), z=0.2) for e in answer.get("evidence") or []]
+    ev.points = [Point(x=float(e.x), y=float(e.y), z=0.2) for e in answer.evidence]
     ev.action = Marker.ADD if ev.points else Marker.DELETE
     out.append(ev)
     arrow = Marker(header=_header(stamp, frame), ns=NS_GOAL, id=0, type=Marker.ARROW)
@@ -117,7 +121,7 @@ def answer_markers(stamp: Any, frame: str, answer: dict[str, Any], goal: dict[st
     text = Marker(header=_header(stamp, frame), ns=NS_TEXT, id=0, type=Marker.TEXT_VIEW_FACING)
     text.scale.z = 0.25
     text.color = _color(1.0, 1.0, 1.0)
-    text.text = str(answer.get("text") or "")[:200]
+    text.text = answer.text[:200]
     anchor = arrow.pose.position if goal else (ev.points[0] if ev.points else None)
     text.pose.orientation.w = 1.0
     if anchor is not None:

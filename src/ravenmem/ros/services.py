@@ -34,7 +34,11 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from ..agent.ask import AskResult
 from ..errors import RavenmemError
+from ..refusal import refusal_of
+from ..runtime.ask import AskArgs
+from ..stamps import sec_nanosec
 from . import msgs
 
 if TYPE_CHECKING:
@@ -47,7 +51,6 @@ ASK = f"{PACKAGE}/srv/Ask"
 SEARCH = f"{PACKAGE}/srv/Search"
 MEMORY = f"{PACKAGE}/msg/Memory"
 SERVICES = {"ask": ASK, "search": SEARCH}
-MAX_K = 1000
 
 
 def interface_dir() -> Any:
@@ -78,8 +81,12 @@ def register() -> None:
 class Backend(Protocol):
     """What the services need of a memory: answer (and plan), search, and its map."""
 
-    def ask(self, question: str, image: np.ndarray | None, navigate: bool) -> dict[str, Any]:
-        """The answer as `ravenmem ask --json` gives it; with `navigate`, its `navigation` plan."""
+    def ask(self, args: AskArgs, image: np.ndarray | None) -> AskResult:
+        """The typed result of a question (with `args.navigate`, its plan)."""
+        ...
+
+    def answer_json(self, result: AskResult) -> dict[str, Any]:
+        """The result as `ravenmem ask --json` gives it (for `answer_json`)."""
         ...
 
     def search(
@@ -94,39 +101,47 @@ class Backend(Protocol):
 
 # ------------------------------------------------------------------------- Ask
 
+# the fields of `ravenmem_msgs/srv/Ask`'s request that are `AskArgs` fields, by name (the
+# picture is a `sensor_msgs/Image`, decoded here, not a field of the request model)
+ASK_FIELDS = ("question", "navigate")
+
+
+def ask_args_of(request: dict[str, Any]) -> AskArgs:
+    """The `AskArgs` of an `Ask_Request` (as a dict), checked at the door like every front end's."""
+    return AskArgs.check({k: request[k] for k in ASK_FIELDS if k in request})
+
 
 def ask_reply(backend: Backend, request: dict[str, Any]) -> dict[str, Any]:
     """`Ask_Response` (as a dict) for an `Ask_Request` (as a dict): never raises; a question
     that cannot be answered comes back with `found` false and the reason."""
-    question = str(request.get("question") or "").strip()
-    navigate = bool(request.get("navigate"))
-    if not question:
+    if not str(request.get("question") or "").strip():
         return {"found": False, "reason": "empty question"}
     try:
-        image = _image(request.get("image"))
-        data = backend.ask(question, image, navigate)
+        args = ask_args_of(request)
+        result = backend.ask(args, _image(request.get("image")))
+        data = backend.answer_json(result)
     except RavenmemError as e:
         return {"found": False, "reason": " ".join(str(e).split())}
     except Exception:  # a robot gets a reason, the log the traceback
         log.exception("ravenmem_msgs/srv/Ask failed")
         return {"found": False, "reason": "internal error; the service log has the details"}
-    nav = data.get("navigation") if navigate else None
+    ans, plan = result.answer, result.plan if args.navigate else None
     reason = ""
-    if data.get("failed"):
-        reason = f"the question failed: {data.get('error') or 'no answer'}"
-    elif nav is not None and not nav.get("ok"):
-        reason = str(nav.get("reason") or "no path")
-    elif isinstance(data.get("drive"), dict) and data["drive"].get("status") != "succeeded":
-        reason = f"the robot did not get there: NavigateToPose {data['drive'].get('status')}"
-    goal = nav.get("pose_stamped") if nav is not None and nav.get("ok") else None
+    if ans.failed:
+        reason = refusal_of(ans) or ""
+    elif plan is not None and not plan.ok:
+        reason = str(getattr(plan, "reason", "") or "no path")
+    elif result.drive is not None and result.drive.get("status") != "succeeded":
+        reason = f"the robot did not get there: NavigateToPose {result.drive.get('status')}"
+    goal = plan.pose_stamped() if plan is not None and plan.ok else None
     return {
-        "answer": str(data.get("text") or ""),
-        "found": bool(data.get("found")) and not data.get("failed"),
-        "unsupported": bool(data.get("unsupported", False)),
+        "answer": ans.text,
+        "found": ans.found and not ans.failed,
+        "unsupported": ans.unsupported,
         "reason": reason,
         "goal": goal or {},
-        "time": _stamp(data.get("time")),
-        "map_id": str(data.get("map_id") or (nav or {}).get("map_id") or ""),
+        "time": stamp(ans.time),
+        "map_id": ans.map_id or getattr(plan, "map_id", None) or "",
         "answer_json": json.dumps(data, default=str),
     }
 
@@ -142,11 +157,11 @@ def _image(msg: Any) -> np.ndarray | None:
     return rgb
 
 
-def _stamp(t: Any) -> dict[str, int]:
+def stamp(t: Any) -> dict[str, int]:
+    """`builtin_interfaces/Time` of Unix seconds (zero for none, or for an unusable time)."""
     if not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
         return {"sec": 0, "nanosec": 0}
-    sec = int(math.floor(t))
-    return {"sec": sec, "nanosec": min(int(round((t - sec) * 1e9)), 999_999_999)}
+    return sec_nanosec(float(t))
 
 
 # ------------------------------------------------------------------------- Search
@@ -158,8 +173,6 @@ def search_reply(backend: Backend, request: dict[str, Any]) -> dict[str, Any]:
     tool = str(request.get("tool") or "text")
     k = int(request.get("k") or 5)
     near = [float(v) for v in request.get("near") or []]
-    if not 1 <= k <= MAX_K:
-        return {"memories": [], "error": f"k must be from 1 to {MAX_K}, got {k}"}
     if near and len(near) != 3:
         return {"memories": [], "error": "near must be empty or x, y, radius"}
     try:
@@ -185,7 +198,7 @@ def _memory(row: dict[str, Any], frame: str) -> dict[str, Any]:
     return {
         "id": int(row["id"]),
         "pose": {
-            "header": {"stamp": _stamp(row.get("t")), "frame_id": frame},
+            "header": {"stamp": stamp(row.get("t")), "frame_id": frame},
             "pose": {
                 "position": {"x": float(row["x"]), "y": float(row["y"]), "z": float(row.get("z") or 0.0)},
                 "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)},
@@ -269,34 +282,22 @@ class ServiceBackend:
     def frame_id(self) -> str:
         return self.service.mem.frame_id
 
-    def ask(self, question: str, image: np.ndarray | None, navigate: bool) -> dict[str, Any]:
-        result = self.service.ask(question, image=image, navigate=navigate, start=self.start())
-        data = self.service.result_json(result, lambda rec: None)
-        nav = result.navigation
-        if nav is not None and nav["ok"] and self.drive is not None:  # how the drive went
-            data["drive"] = self.drive(nav["pose_stamped"])
-        self.service.publish_answer(data, drive=result.refusal is None)
-        return data
+    def ask(self, args: AskArgs, image: np.ndarray | None) -> AskResult:
+        """`Service.ask`, from the robot's latest pose, driven there when the link can drive."""
+        return self.service.ask(args, image, start=self.start(), drive=self.drive)
+
+    def answer_json(self, result: AskResult) -> dict[str, Any]:
+        return self.service.result_json(result, lambda rec: None)
 
     def search(
         self, tool: str, query: str, k: int, after: str | None, before: str | None, near: list[float] | None
     ) -> list[dict[str, Any]]:
+        from ..runtime.service import tool_args
         from ..tools import get_tool
 
         t = get_tool(tool)
-        args: dict[str, Any] = {"after": after, "before": before}
-        if t.key == "text":
-            args["query"] = query
-            if near:
-                args["near"] = near
-        elif t.key == "time":
-            args["time"] = query
-        elif t.key == "position":
-            xyz = [float(v) for v in query.replace(" ", "").split(",") if v]
-            if len(xyz) not in (2, 3) or not all(math.isfinite(v) for v in xyz):
-                raise RavenmemError(f"position query: expected 'x,y' or 'x,y,z', got {query!r}")
-            args |= {"x": xyz[0], "y": xyz[1], "z": xyz[2] if len(xyz) == 3 else None}
-        else:
+        if t.key == "image":
             raise RavenmemError(f"tool {t.name} needs a picture: ask with the HTTP API or MCP instead")
+        args = tool_args(t.key, query, "position query", after, before, near if t.key == "text" else None)
         hits = self.service.search(t, t.validate(args), k)
         return self.service.rows(hits, lambda rec: None)

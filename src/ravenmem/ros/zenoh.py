@@ -27,6 +27,8 @@ from .link import SKIP_BUSY, LinkConfig, LinkStats, RosLink, Sink, goal_bytes, g
 from .services import Backend, ServiceBackend, bridge_token, handle, keys, rmw_reply_attachment
 
 if TYPE_CHECKING:
+    from ..agent.ask import AskResult, PlanLike
+    from ..nav.goals import GoalPlan
     from ..runtime.service import Service
     from .action import NavigateClient
 
@@ -81,8 +83,8 @@ def short_error(e: BaseException) -> str:
     return text.split(" at /", 1)[0][:300]
 
 
-# What turns an answer (`ravenmem ask --json` shape) into its plan's JSON when it has none yet.
-Planner = Callable[[dict[str, Any], "tuple[float, float] | None"], "dict[str, Any] | None"]
+# What plans the goal of a result that asked for none (from the robot's latest pose).
+Planner = Callable[["AskResult", "tuple[float, float] | None"], "PlanLike | None"]
 
 
 class ZenohLink:
@@ -255,21 +257,21 @@ class ZenohLink:
         """The robot's latest position from the pose stream (the start of a plan), or None."""
         return self.link.poses.latest_xy()
 
-    def publish_goal(self, answer: dict[str, Any]) -> bool:
-        """Send the goal of an answer's plan (`nav.goals.goal_for`, planned now when the answer
-        has none): on the goal key, and to the NavigateToPose action when configured. False
-        when there is no goal to send."""
+    def publish_goal(self, result: AskResult) -> bool:
+        """Send the goal of an answer's plan (`nav.goals.goal_for`, planned now from the robot's
+        latest pose when the question asked for none): on the goal key, and to the
+        NavigateToPose action when configured. False when there is no goal to send."""
         if self._goal_pub is None and self.action is None:
             return False
-        if "navigation" not in answer and self.planner is not None:
-            nav = self.planner(answer, self.robot_xy())
-            answer = answer | ({"navigation": nav} if nav is not None else {})
-        goal = goal_of(answer)
+        plan = result.plan
+        if plan is None and self.planner is not None:
+            plan = self.planner(result, self.robot_xy())
+        goal = goal_of(plan) if result.refusal is None else None
         if goal is None:
             return False
         if self._goal_pub is not None:
             self._goal_pub.put(goal_bytes(goal, time.time()))
-        if self.action is not None and "drive" not in answer:  # (an answer driven to already)
+        if self.action is not None and result.drive is None:  # (an answer driven to already)
             self.last_drive = {"status": "sent", "goal": goal}
             threading.Thread(target=self.drive, args=(goal,), name="ravenmem-drive", daemon=True).start()
         self.link.stats.add("goals")
@@ -283,9 +285,9 @@ class ZenohLink:
         self.last_drive = result = self.action.drive(goal)
         return result
 
-    def on_answer(self, answer: dict[str, Any]) -> None:
-        """The service's answer hook: an answer with a plan to drive to becomes a goal."""
-        self.publish_goal(answer)
+    def on_answer(self, result: AskResult) -> None:
+        """The service's answer hook (a result that may be used): its plan's goal is sent."""
+        self.publish_goal(result)
 
     def describe(self) -> dict[str, Any]:
         """What `/info` shows under `links`: the keys, the frame and the counts."""
@@ -332,8 +334,8 @@ def start_link(service: Service, cfg: LinkConfig, endpoints: ZenohEndpoints | No
     def start() -> tuple[float, float] | None:
         return holder[0].robot_xy() if holder else None
 
-    def planner(answer: dict[str, Any], xy: tuple[float, float] | None) -> dict[str, Any] | None:
-        return service.plan_json(answer, xy)
+    def planner(result: AskResult, xy: tuple[float, float] | None) -> GoalPlan | None:
+        return service.plan_of(result, xy)
 
     def drive(goal: dict[str, Any]) -> dict[str, Any] | None:
         return holder[0].drive(goal) if holder else None

@@ -19,9 +19,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from PIL import Image
-from pydantic import ValidationError
 
-from ..agent.ask import AskRequest, AskResult, MethodOptions
+from ..agent.ask import AskRequest, AskResult
 from ..agent.ask import ask as agent_ask
 from ..agent.base import METHODS, needs_vlm
 from ..agent.config import VLMConfig
@@ -32,11 +31,11 @@ from ..ingest.keyframes import KeyframeConfig
 from ..memory import Memory
 from ..memory.folder import MAP_GRID, MAP_META
 from ..memory.manifest import confine
-from ..memory.protocol import check_k
-from ..tools import TOOLS, Tool, ToolArgs, hit_json
+from ..tools import Tool, ToolArgs, hit_json
 from ..types import Hit, Intrinsics, MemoryRecord
+from .ask import AskArgs, check_calls, check_top_k
 from .events import EventBus
-from .images import DecodeGate
+from .images import DecodeGate, decode_base64_image
 from .live import AddResult, LiveWriter
 
 if TYPE_CHECKING:
@@ -45,7 +44,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 MAX_TRAJECTORY = 100_000  # points the map may ask for at once
-MAX_CALLS = 20  # tool calls a question may ask for
 ImageUrl = Callable[[MemoryRecord], str | None]
 
 
@@ -103,26 +101,6 @@ class ServiceConfig:
         return "raven" if self.vlm is not None and self.vlm.configured else "offline"
 
 
-def check_top_k(top_k: object) -> int | dict[str, int] | None:
-    """Memories per tool call: None, N, or {tool: N} for at most the four tools (N from 1 to
-    MAX_K); tool names are checked by the agent."""
-    if top_k is None:
-        return None
-    if isinstance(top_k, dict):
-        if not 1 <= len(top_k) <= len(TOOLS):
-            raise InputError(f"top_k: give N or {{tool: N}} for up to {len(TOOLS)} tools")
-        return {str(name): check_k(k) for name, k in top_k.items()}
-    return check_k(top_k)
-
-
-def check_calls(calls: object) -> int | None:
-    if calls is None:
-        return None
-    if isinstance(calls, bool) or not isinstance(calls, int) or not 1 <= calls <= MAX_CALLS:
-        raise InputError(f"max_tool_calls must be a whole number from 1 to {MAX_CALLS}, got {calls!r}")
-    return calls
-
-
 LIVE_MAP_SAVE_EVERY = 30  # live depth frames between saves of the map (the page and /map read it)
 
 
@@ -165,7 +143,7 @@ class Service:
 
     def attach(self, link: Any) -> None:
         """Another front end that lives as long as the service (the robot link): it is told each
-        answer (`on_answer(data)`), shown in `/info` under `links` (`describe()`), and closed
+        answer that may be used, typed (`on_answer(result)`: an `AskResult`), shown in `/info` under `links` (`describe()`), and closed
         before the writer (`close()`), so the frames it handed over are stored."""
         self._links.append(link)
 
@@ -310,46 +288,78 @@ class Service:
     # ---------------------------------------------------------------- asking
     def ask(
         self,
-        question: str,
-        method: str | None = None,
-        top_k: int | dict[str, int] | None = None,
-        max_tool_calls: int | None = None,
-        image: np.ndarray | None = None,
-        preset: str | None = None,
-        navigate: bool = False,
-        allow_unsupported: bool = False,
+        args: AskArgs,
+        picture: np.ndarray | None = None,
         start: tuple[float, float] | None = None,
+        drive: Callable[[dict[str, Any]], dict[str, Any] | None] | None = None,
     ) -> AskResult:
-        """Answer a question as `ravenmem ask` does (`agent.ask`), with the service's own VLM;
-        what the question leaves out comes from the service's defaults, then from the preset or
-        the method. `navigate` plans a path on the memory's map to the answer (from `start`,
-        else the robot's latest pose) with `plan`."""
-        opts = MethodOptions.of(
-            method or self.cfg.default_method,
+        """The one way every front end asks (HTTP, MCP, the robot services): answer `args` as
+        `ravenmem ask` does (`agent.ask`) with the service's own VLM (what the question leaves
+        out comes from the service's defaults, then the preset or the method); with `navigate`,
+        plan a path on the memory's map to the answer (from `args.start`, else `start`, the
+        robot's latest pose a link knows, else the trajectory's last pose); `drive` (a link's
+        NavigateToPose) drives to a goal that may be used. Then publish: every answer to the
+        event stream, the ones that may be used to the robot links. The result stays typed; each
+        front end writes its own wire format from it (`result_json`, an `Ask_Response`)."""
+        image = picture if picture is not None else self.picture_of(args)
+        opts = args.to_options(
+            self.cfg.default_method,
             vlm=self.cfg.vlm or VLMConfig(),  # the service's model or none: never the environment's
-            preset=preset or self.cfg.preset,
-            top_k=check_top_k(top_k if top_k is not None else self.cfg.top_k),
-            max_tool_calls=check_calls(
-                max_tool_calls if max_tool_calls is not None else self.cfg.max_tool_calls
-            ),
-        ).check()
+            preset=self.cfg.preset,
+            top_k=self.cfg.top_k,
+            max_tool_calls=self.cfg.max_tool_calls,
+        )
         plan = None
-        if navigate:
+        if args.navigate:
             from ..nav.grid import OccupancyGrid
 
             grid = OccupancyGrid.load(self.mem.path)  # no map: one line naming how to build one
+            where = args.start or start
 
             def plan(ans: Answer, allow: bool) -> GoalPlan:
-                return self.plan(ans, start, allow_unsupported=allow, grid=grid)
+                return self.plan(
+                    ans, where, allow_unsupported=allow, grid=grid, robot_radius=args.robot_radius
+                )
 
-        return agent_ask(self.mem, AskRequest(question, opts, image, plan, allow_unsupported))
+        result = agent_ask(self.mem, AskRequest(args.question, opts, image, plan, args.allow_unsupported))
+        if drive is not None and result.goal is not None:
+            result.drive = drive(result.goal)  # how the drive went, in the answer
+        self.publish(result)
+        return result
+
+    def picture_of(self, args: AskArgs) -> np.ndarray | None:
+        """The query picture a request names: an upload (decoded under the RAM budget) or a
+        stored memory's picture; None for a question without one."""
+        if args.image is not None:
+            return decode_base64_image(args.image, self.cfg.max_pixels, "image", self.gate)
+        if args.image_memory_id is None:
+            return None
+        img = self.mem.load_image(self.record(args.image_memory_id))
+        if img is None:
+            raise InputError(f"memory {args.image_memory_id} has no stored picture")
+        return img
 
     def result_json(self, result: AskResult, image_url: ImageUrl) -> dict[str, Any]:
-        """`answer_json` of the result's answer, with its navigation plan when one was asked for."""
+        """The result as `ravenmem ask --json` gives it (evidence images as URLs), with its
+        navigation plan and how the drive went when there were any: the one JSON of an answer."""
         data = self.answer_json(result.answer, image_url)
-        if result.navigation is not None:
-            data["navigation"] = result.navigation
+        if result.plan is not None:
+            data["navigation"] = result.plan.as_dict()
+        if result.drive is not None:
+            data["drive"] = result.drive
         return data
+
+    def publish(self, result: AskResult) -> None:
+        """Every answer goes to the event stream; only those that may be used (not failed, not
+        an unsupported place unless allowed) go to the robot links, typed (`on_answer(result)`)."""
+        self.bus.publish("answer", {"answer": self.result_json(result, self._image_url)})
+        if result.refusal is not None:
+            return
+        for link in self._links:
+            try:
+                link.on_answer(result)
+            except Exception:  # a robot link's failure must not fail the question
+                log.exception("%r could not take the answer", link)
 
     # ---------------------------------------------------------------- goals
     def plan(
@@ -358,23 +368,23 @@ class Service:
         start: tuple[float, float] | None = None,
         allow_unsupported: bool = False,
         grid: Any = None,
+        robot_radius: float | None = None,
     ) -> GoalPlan:
         """The goal for an answer on the memory's map, as every front end plans it
         (`nav.goals.goal_for`: `POST /ask` with navigate, MCP `ask`, the robot links); a failed
         or unsupported answer is refused there unless `allow_unsupported`."""
         from ..nav.goals import goal_for
 
-        return goal_for(ans, self.mem, start, grid=grid, allow_unsupported=allow_unsupported)
+        return goal_for(
+            ans, self.mem, start, grid=grid, allow_unsupported=allow_unsupported, robot_radius=robot_radius
+        )
 
-    def plan_json(
-        self, data: dict[str, Any], start: tuple[float, float] | None = None
-    ) -> dict[str, Any] | None:
-        """`plan` for an answer given as its JSON (a robot link's hook); None when it is not one."""
-        try:
-            ans = Answer.model_validate(data)
-        except ValidationError:
+    def plan_of(self, result: AskResult, start: tuple[float, float] | None = None) -> GoalPlan | None:
+        """The plan a robot link drives by: the result's own (asked with navigate), else one made
+        now from `start` (the robot's latest pose); None for a result that must not be used."""
+        if result.refusal is not None:
             return None
-        return self.plan(ans, start).as_dict()
+        return result.plan if result.plan is not None else self.plan(result.answer, start)  # type: ignore[return-value]
 
     def frame_check(self, frame: str) -> str | None:
         """Whether live poses in `frame` (REP 105) may be stored: a memory without a frame yet
@@ -387,26 +397,7 @@ class Service:
 
     def answer_json(self, ans: Answer, image_url: ImageUrl) -> dict[str, Any]:
         """The answer as `ravenmem ask --json` gives it, evidence images as URLs (no paths)."""
-        data = ans.model_dump(mode="json")
-        ids = [ev["id"] for ev in data["evidence"]]
-        recs = {r.id: r for r in self.mem.stored(ids)}  # evidence forgotten since: no picture
-        for ev in data["evidence"]:
-            ev.pop("image_path", None)
-            rec = recs.get(ev["id"])
-            ev["image"] = image_url(rec) if rec is not None else None
-        return data
-
-    def publish_answer(self, data: dict[str, Any], drive: bool = True) -> None:
-        """Every answer goes to the event stream; only those that may be used (`drive`: not
-        failed, not an unsupported place unless allowed) go to the robot links."""
-        self.bus.publish("answer", {"answer": data})
-        if not drive:
-            return
-        for link in self._links:
-            try:
-                link.on_answer(data)
-            except Exception:  # a robot link's failure must not fail the question
-                log.exception("%r could not take the answer", link)
+        return evidence_json(self.mem, ans, lambda rec, f: image_url(rec), key="image")
 
     # ---------------------------------------------------------------- writing
     def _on_result(self, res: AddResult, rec: MemoryRecord | None) -> None:
@@ -414,3 +405,52 @@ class Service:
             self.bus.publish("skipped", res.as_json())
             return
         self.bus.publish("memory", {"memory": self.record_json(rec, self._image_url)})
+
+
+def evidence_json(
+    mem: Memory, ans: Answer, name: Callable[[MemoryRecord, Path | None], str | None], key: str
+) -> dict[str, Any]:
+    """The answer as JSON, each evidence memory's picture named under `key` by `name(record,
+    file)` (`file`: its picture inside the memory folder, or None), never a stored path as it
+    is: the one place the evidence-with-pictures JSON is made (the service names URLs, `ravenmem
+    ask` local files). Evidence forgotten since the answer has no picture."""
+    data: dict[str, Any] = ans.model_dump(mode="json")
+    recs = {r.id: r for r in mem.stored([e.id for e in ans.evidence])}
+    for ev in data["evidence"]:
+        ev.pop("image_path", None)
+        rec = recs.get(ev["id"])
+        ev[key] = name(rec, mem.image_file(rec)) if rec is not None else None
+    return data
+
+
+def tool_args(
+    key: str,
+    query: str | None,
+    what: str,
+    after: str | None = None,
+    before: str | None = None,
+    near: list[float] | None = None,
+    radius: float | None = None,
+) -> dict[str, Any]:
+    """The arguments of tool `key` (text, time, position) for a query given as one string, as
+    the CLI's options and a `ravenmem_msgs/srv/Search` request give it: the text, the time
+    expression, or "x,y[,z]" (`what` names it in a one-line error); `near` (x, y, r) for the
+    text tool, `radius` for the position tool. The image tool takes a picture, not a string."""
+    args: dict[str, Any] = {"after": after, "before": before}
+    if key == "text":
+        args["query"] = query
+        if near:
+            args["near"] = near
+    elif key == "time":
+        args["time"] = query
+    elif key == "position":
+        try:
+            xyz = [float(v) for v in (query or "").replace(" ", "").split(",")]
+        except ValueError:
+            xyz = []
+        if len(xyz) not in (2, 3) or not all(np.isfinite(xyz)):
+            raise InputError(f"{what}: expected 'x,y' or 'x,y,z' in finite metres, got {query!r}")
+        args |= {"x": xyz[0], "y": xyz[1], "z": xyz[2] if len(xyz) == 3 else None, "radius": radius}
+    else:
+        raise InputError(f"{what}: the {key} tool takes a picture, not a query string")
+    return args

@@ -10,29 +10,26 @@ import asyncio
 import json
 import logging
 import math
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
+from dataclasses import dataclass
 from importlib import resources
-from typing import Annotated, Any, TypeVar
+from typing import Any, TypeVar
 
-from fastapi import FastAPI, File, Form, Query, Request, UploadFile
-from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException
 from starlette.routing import Route
 
-from ..agent.ask import AskResult
-from ..errors import InputError, NotFoundError
-from ..fsio import disk_full
-from ..memory.protocol import MAX_K
+from ..runtime.ask import AskArgs
 from ..runtime.events import StreamRefused
-from ..runtime.images import decode_base64_image, decode_depth, decode_image
 from ..runtime.service import Service
-from ..types import Frame, MemoryRecord, Pose, check_id, check_time
-from .http_errors import add_error_handlers
-from .search_routes import add_search_routes
+from ..types import MemoryRecord
+from .http_errors import add_error_handlers, no_space
+from .memory_routes import add_memory_routes
+from .search_routes import Blocking, UrlFor, add_search_routes
 from .security import DOCS_STATIC, Guard
 
 log = logging.getLogger(__name__)
@@ -40,35 +37,6 @@ T = TypeVar("T")
 
 KEEPALIVE_S = 15.0
 STATIC = resources.files("ravenmem.server") / "static"
-
-
-class AskBody(BaseModel):
-    """A question, as `ravenmem ask` takes it. The VLM is the service's own (never the caller's)."""
-
-    model_config = ConfigDict(extra="forbid")
-    question: str = Field(..., min_length=1, max_length=2000, description="the question")
-    method: str | None = Field(
-        None, description="raven | offline | embedder-only | vlm-only | caption | random"
-    )
-    preset: str | None = Field(None, description="raven-qa | navqa | findingdory: the paper's settings")
-    top_k: int | dict[str, int] | None = Field(
-        None, description=f"memories per tool call: N, or per tool {{'text': 30, 'time': 200}} (1 to {MAX_K})"
-    )
-    max_tool_calls: int | None = Field(
-        None, ge=1, le=20, description="tool calls before the model must answer"
-    )
-    image: str | None = Field(None, description="a query picture: base64 JPEG/PNG or a data: URL")
-    image_memory_id: Annotated[int, BeforeValidator(check_id)] | None = Field(
-        None, description="use this memory's picture as the query picture"
-    )
-    navigate: bool = Field(
-        False, description="also plan a path on the memory's map to the answer (its goal: `navigation`)"
-    )
-    allow_unsupported: bool = Field(
-        False,
-        description="use (and drive to) a position farther than the support threshold from every "
-        "memory the model was shown; without it such an answer is refused with 422",
-    )
 
 
 def create_app(service: Service, token: str | None = None, loopback: bool = True) -> FastAPI:
@@ -127,7 +95,34 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         except asyncio.TimeoutError:
             raise HTTPException(504, f"no answer within {cfg.timeout_s:g} s") from None
 
-    # ---------------------------------------------------------------- status
+    # ---------------------------------------------------------------- the routes
+    web = Web(service, blocking, image_url_for)
+    _status_routes(app, web)
+    add_search_routes(app, service, blocking, image_url_for, gate)  # from the tools table
+    _ask_route(app, web)
+    add_memory_routes(app, service, blocking, image_url_for, gate)
+    _event_route(app, web)
+    _page_routes(app)
+    app.router.routes.append(
+        Route("/mcp", endpoint=StreamableHTTPASGIApp(mcp_manager), include_in_schema=False)
+    )
+    service.set_image_url(picture_url(""))
+    return app
+
+
+@dataclass(frozen=True)
+class Web:
+    """What the routes share: the service, how memory work runs off the event loop (bounded in
+    time), and how a memory's picture is named for a request."""
+
+    service: Service
+    blocking: Blocking
+    image_url_for: UrlFor
+
+
+def _status_routes(app: FastAPI, web: Web) -> None:
+    service, blocking = web.service, web.blocking
+
     @app.get("/health", tags=["status"])
     async def health() -> dict[str, Any]:
         """Up and serving; how many memories it holds."""
@@ -138,141 +133,28 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         """What `ravenmem info --json` prints, plus the live counts and how questions are answered."""
         return await blocking(service.info)
 
-    # ---------------------------------------------------------------- searches (from TOOLS)
-    add_search_routes(app, service, blocking, image_url_for, gate)
 
-    # ---------------------------------------------------------------- questions
+def _ask_route(app: FastAPI, web: Web) -> None:
+    """`POST /ask`: the body is the one ask request (`runtime.ask.AskArgs`), asked through the
+    one path (`Service.ask`); the typed result is written as JSON here, its status from its
+    outcome."""
+    service, blocking, image_url_for = web.service, web.blocking, web.image_url_for
+
     @app.post("/ask", tags=["ask"], response_model=None)
-    async def ask(body: AskBody, request: Request) -> dict[str, Any] | JSONResponse:
+    async def ask(body: AskArgs, request: Request) -> dict[str, Any] | JSONResponse:
         """Answer a question as `ravenmem ask --json` does (evidence images as URLs). A question
         that failed gets 502 (504: out of time), an unsupported position 422, each with the
         one-line reason in `error` and the answer in `answer`."""
-        picture = None
-        if body.image is not None and body.image_memory_id is not None:
-            raise InputError("give image or image_memory_id, not both")
-        if body.image is not None:
-            picture = await run_in_threadpool(decode_base64_image, body.image, cfg.max_pixels, "image", gate)
-
-        def run() -> tuple[AskResult, dict[str, Any]]:
-            img = picture
-            if body.image_memory_id is not None:
-                img = service.mem.load_image(service.record(body.image_memory_id))
-                if img is None:
-                    raise InputError(f"memory {body.image_memory_id} has no stored picture")
-            result = service.ask(
-                body.question,
-                body.method,
-                body.top_k,
-                body.max_tool_calls,
-                img,
-                body.preset,
-                body.navigate,
-                body.allow_unsupported,
-            )
-            data = service.result_json(result, image_url_for(request))
-            service.publish_answer(data, drive=result.refusal is None)
-            return result, data
-
-        result, data = await blocking(run)
+        result = await blocking(lambda: service.ask(body))
+        data = service.result_json(result, image_url_for(request))
         if result.refusal:
             reason = " ".join(result.refusal.split())
             return JSONResponse({"error": reason, "answer": data}, status_code=result.status)
         return data
 
-    # ---------------------------------------------------------------- memories
-    @app.post("/memories", tags=["memories"], status_code=201)
-    async def add_memory(
-        request: Request,
-        image: Annotated[UploadFile, File(description="the camera frame, JPEG or PNG")],
-        x: Annotated[float, Form(description="map x, metres")],
-        y: Annotated[float, Form(description="map y, metres")],
-        z: Annotated[float, Form(description="height, metres")] = 0.0,
-        yaw: Annotated[float | None, Form(description="heading, radians (or give qx..qw)")] = None,
-        qx: Annotated[float | None, Form()] = None,
-        qy: Annotated[float | None, Form()] = None,
-        qz: Annotated[float | None, Form()] = None,
-        qw: Annotated[float | None, Form()] = None,
-        t: Annotated[float | None, Form(description="Unix seconds (default: now)")] = None,
-        source: Annotated[
-            str, Form(max_length=200, description="camera name: keyframes are per source")
-        ] = "live",
-        depth: Annotated[
-            UploadFile | None,
-            File(
-                description="depth for the map: a 16-bit PNG (units per metre: depth_scale) or .npy in metres"
-            ),
-        ] = None,
-        depth_scale: Annotated[float, Form(description="16-bit depth units per metre (1000: mm)")] = 1000.0,
-    ) -> Response:
-        """Live add: the frame goes through the online keyframe rule, the embedder and the store.
-        201 with the new memory once it is durable, or 200 with the reason it was skipped."""
-        if service.writer is None:
-            raise InputError("this service is read-only")
-        pose = _pose(x, y, z, yaw, (qx, qy, qz, qw))
-        when = _now() if t is None else check_time(t, "t")
-        data = await image.read()
-        rgb = await run_in_threadpool(decode_image, data, cfg.max_pixels, "image", gate)
-        Frame(
-            image=rgb, t=when, pose=pose, source=source
-        ).check()  # what the memory takes, before it is queued
-        metres = None
-        if depth is not None:
-            raw = await depth.read()
-            metres = await run_in_threadpool(decode_depth, raw, cfg.max_pixels, depth_scale, "depth")
-        # off the event loop: the cheap admission steps (and the map, for depth) run in submit
-        fut = await run_in_threadpool(service.writer.submit, rgb, pose, when, source, metres)
-        try:
-            res = await no_space(asyncio.wait_for(asyncio.wrap_future(fut), cfg.timeout_s))
-        except asyncio.TimeoutError:
-            raise HTTPException(504, f"the frame was not stored within {cfg.timeout_s:g} s") from None
-        body = res.as_json()
-        if not res.stored:
-            return JSONResponse(body, status_code=200)
-        assert res.id is not None
-        rec = await blocking(lambda: service.record(res.id))  # type: ignore[arg-type]
-        body["memory"] = service.record_json(rec, image_url_for(request))
-        return JSONResponse(body, status_code=201)
 
-    @app.get("/memories/{memory_id}", tags=["memories"])
-    async def get_memory(memory_id: int, request: Request) -> dict[str, Any]:
-        """One memory: time, pose, OCR text, image URL."""
-        rec = await blocking(lambda: service.record(memory_id))
-        return service.record_json(rec, image_url_for(request))
-
-    @app.get("/memories/{memory_id}/image", tags=["memories"], response_class=FileResponse)
-    async def memory_image(memory_id: int) -> FileResponse:
-        """The memory's picture (its stored thumbnail); only files inside the memory folder."""
-        rec = await blocking(lambda: service.record(memory_id))
-        path = service.image_file(rec)
-        if path is None:
-            raise NotFoundError(f"memory {memory_id} has no picture stored in the memory folder")
-        return FileResponse(path, headers={"Cache-Control": "private, max-age=3600"})
-
-    @app.get("/trajectory", tags=["memories"])
-    async def trajectory(
-        max_points: Annotated[
-            int, Query(ge=2, le=100_000, description="thin the path to this many")
-        ] = 20_000,
-    ) -> dict[str, Any]:
-        """Every memory's [id, t, x, y, yaw], chronological (the page's map)."""
-        return await blocking(lambda: service.trajectory(max_points))
-
-    @app.get("/map", tags=["memories"])
-    async def occupancy_map(request: Request) -> dict[str, Any]:
-        """Where the memory's occupancy map lies: `extent` [xmin, ymin, xmax, ymax] in metres,
-        `resolution` (m per cell) and the URL of its picture (north up); 404 without a map."""
-        found = await blocking(service.occupancy_map)
-        if found is None:
-            raise NotFoundError("this memory has no occupancy map (exploration writes one)")
-        return {**found[1], "image": f"{str(request.base_url).rstrip('/')}/map.png"}
-
-    @app.get("/map.png", tags=["memories"], response_class=Response)
-    async def occupancy_map_png() -> Response:
-        """The occupancy map: unknown grey, free white, explored light blue, occupied black."""
-        found = await blocking(service.occupancy_map)
-        if found is None:
-            raise NotFoundError("this memory has no occupancy map (exploration writes one)")
-        return Response(found[0], media_type="image/png", headers={"Cache-Control": "no-cache"})
+def _event_route(app: FastAPI, web: Web) -> None:
+    service, blocking = web.service, web.blocking
 
     @app.get("/events", tags=["memories"], response_class=StreamingResponse)
     async def events() -> StreamingResponse:
@@ -303,7 +185,8 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
             headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
         )
 
-    # ---------------------------------------------------------------- the page and MCP
+
+def _page_routes(app: FastAPI) -> None:
     @app.get("/", include_in_schema=False)
     async def page() -> Response:
         html = (STATIC / "index.html").read_text(encoding="utf-8")
@@ -316,11 +199,6 @@ def create_app(service: Service, token: str | None = None, loopback: bool = True
         return Response(svg, media_type="image/svg+xml", headers={"Cache-Control": "public, max-age=86400"})
 
     app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
-    app.router.routes.append(
-        Route("/mcp", endpoint=StreamableHTTPASGIApp(mcp_manager), include_in_schema=False)
-    )
-    service.set_image_url(picture_url(""))
-    return app
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -352,39 +230,6 @@ def _document_bearer(app: FastAPI) -> None:
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
-
-
-async def no_space(work: Awaitable[T]) -> T:
-    """`work`, with a full disk as one `DiskFullError` (HTTP 507) instead of whatever raised it."""
-    try:
-        return await work
-    except Exception as e:
-        full = disk_full(e)
-        if full is None:
-            raise
-        log.warning("%s", full)
-        raise full from None
-
-
-def _pose(x: float, y: float, z: float, yaw: float | None, quat: tuple[float | None, ...]) -> Pose:
-    given = [q is not None for q in quat]
-    try:
-        if any(given):
-            if not all(given):
-                raise InputError("give all of qx, qy, qz, qw, or none")
-            if yaw is not None:
-                raise InputError("give yaw or a quaternion (qx..qw), not both")
-            qx, qy, qz, qw = (float(q) for q in quat)  # type: ignore[arg-type]
-            return Pose.from_quaternion(x, y, z, qx, qy, qz, qw)
-        return Pose(x, y, z, 0.0 if yaw is None else yaw)
-    except ValueError as e:
-        raise InputError(f"pose: {e}") from None
-
-
-def _now() -> float:
-    import time
-
-    return time.time()
 
 
 def _sse(kind: str, data: dict[str, Any]) -> str:

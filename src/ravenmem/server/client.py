@@ -14,6 +14,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..fsio import MAX_IMAGE, read_bounded
+from ..runtime.ask import AskArgs
 from ..tools import Tool, ToolArgs
 
 ENV_SERVER = "RAVENMEM_SERVER"
@@ -37,7 +38,8 @@ def resolve_server(server: str | None, memory: Path | None) -> str | None:
 
 
 class ServerClient:
-    """A running `ravenmem serve`, by URL."""
+    """A running `ravenmem serve`, by URL, with the methods of a memory opened here
+    (`cli.source.LocalSource`): `info`, `search`, `ask_json`, `picture`, `t0`, `where`."""
 
     def __init__(self, url: str, token: str | None = None, timeout: float = 600.0) -> None:
         import httpx
@@ -45,6 +47,7 @@ class ServerClient:
         if not url.startswith(("http://", "https://")):
             raise InputError(f"--server must be an http:// or https:// URL, got {url!r}")
         self.url = url.rstrip("/")
+        self.where = self.url
         token = token if token is not None else os.environ.get(ENV_TOKEN)
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self._http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout)
@@ -81,8 +84,17 @@ class ServerClient:
     def info(self) -> dict[str, Any]:
         return dict(self._call("GET", "/info"))
 
-    def search(self, tool: Tool, args: ToolArgs, k: int, image: Path | None = None) -> dict[str, Any]:
-        """One tool call, as `ravenmem search --json` prints it (`image` uploads a query picture)."""
+    def t0(self) -> float | None:
+        """(Times are shown as the service gives them; no local reference.)"""
+        return None
+
+    def search(self, tool: Tool, args: ToolArgs, k: int, image: Path | None = None) -> list[dict[str, Any]]:
+        """One tool call's hits, as `ravenmem search --json` prints them (`image` uploads a
+        query picture); their pictures as URLs."""
+        return list(self.search_json(tool, args, k, image)["results"])
+
+    def search_json(self, tool: Tool, args: ToolArgs, k: int, image: Path | None = None) -> dict[str, Any]:
+        """One tool call, as the service answers it (`image` uploads a query picture)."""
         params: list[tuple[str, str | int | float]] = [("k", k)]
         for name, value in args.model_dump(exclude_none=True).items():
             for v in value if isinstance(value, list) else [value]:
@@ -93,28 +105,29 @@ class ServerClient:
         files = {"image": (image.name, data, "application/octet-stream")}
         return dict(self._call("POST", f"/search/{tool.key}", params=params, files=files))
 
-    def ask(
-        self,
-        question: str,
-        method: str | None = None,
-        top_k: int | dict[str, int] | None = None,
-        max_tool_calls: int | None = None,
-        image: Path | None = None,
-        preset: str | None = None,
-        allow_unsupported: bool = False,
-    ) -> dict[str, Any]:
-        """A question, answered as `ravenmem ask --json` prints it (evidence images as URLs); a
-        question the service refused (failed, unsupported) raises `QuestionFailed` with the answer."""
-        body: dict[str, Any] = {"question": question}
-        if allow_unsupported:
-            body["allow_unsupported"] = True
-        given = (("method", method), ("preset", preset), ("top_k", top_k), ("max_tool_calls", max_tool_calls))
-        for key, val in given:
-            if val is not None:
-                body[key] = val
+    def ask(self, args: AskArgs, image: Path | None = None) -> dict[str, Any]:
+        """A question (the one request, `AskArgs`), answered as `ravenmem ask --json` prints it
+        (evidence images as URLs); `image` uploads a query picture. A question the service
+        refused (failed, unsupported) raises `QuestionFailed` with the answer."""
+        body = args.given()
         if image is not None:
             body["image"] = base64.b64encode(_read(image)).decode()
         return dict(self._call("POST", "/ask", json=body))
+
+    def ask_json(self, args: AskArgs, image: Path | None = None) -> tuple[dict[str, Any], str | None, int]:
+        """`ask`, with a refused question as its answer, the refusal and exit 1 (evidence
+        pictures named under `image_file` too, as a local answer names them)."""
+        from ..agent.ask import QuestionFailed
+
+        try:
+            data, refusal = self.ask(args, image), None
+        except QuestionFailed as e:
+            if e.answer is None:
+                raise
+            data, refusal = e.answer, str(e)
+        for ev in data["evidence"]:
+            ev["image_file"] = ev.get("image")
+        return data, refusal, 1 if refusal else 0
 
     def picture(self, memory_id: int) -> bytes | None:
         """A memory's stored picture as the service sends it (JPEG/PNG bytes), or None when the

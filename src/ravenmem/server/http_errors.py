@@ -5,7 +5,9 @@ service log, never in the response) for anything else."""
 from __future__ import annotations
 
 import logging
+from collections.abc import Awaitable
 from pathlib import Path
+from typing import TypeVar
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -18,6 +20,7 @@ from ..runtime.images import TooLargeError
 from ..runtime.live import BusyError
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 
 def _one_line(text: str, limit: int = 300) -> str:
@@ -71,7 +74,8 @@ def add_error_handlers(app: FastAPI, folder: Path) -> None:
         if len(loc) > 1 and loc[0] in ("query", "body", "path", "form", "header"):
             loc = loc[1:]
         where = ".".join(loc) or "request"
-        return reply(422, f"{where}: {e.get('msg', 'invalid')}")
+        msg = str(e.get("msg", "invalid")).removeprefix("Value error, ")
+        return reply(422, f"{where}: {msg}")
 
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
@@ -89,3 +93,15 @@ def add_error_handlers(app: FastAPI, folder: Path) -> None:
             return reply(507, private(str(no_space)))
         log.error("%s %s failed", request.method, request.url.path, exc_info=exc)
         return reply(500, "internal error; the service log has the details")
+
+
+async def no_space(work: Awaitable[T]) -> T:
+    """`work`, with a full disk as one `DiskFullError` (HTTP 507) instead of whatever raised it."""
+    try:
+        return await work
+    except Exception as e:
+        full = disk_full(e)
+        if full is None:
+            raise
+        log.warning("%s", full)
+        raise full from None

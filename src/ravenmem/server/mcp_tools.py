@@ -18,12 +18,11 @@ import anyio
 import mcp_types as types
 from mcp.server.lowlevel import Server
 
-from ..agent.base import METHODS
-from ..agent.presets import PRESETS
 from ..errors import RavenmemError
-from ..memory.protocol import MAX_K, check_k
+from ..memory.protocol import MAX_K
+from ..runtime.ask import AskArgs, input_schema
 from ..runtime.images import decode_base64_image
-from ..runtime.service import MAX_CALLS, Service
+from ..runtime.service import Service
 from ..tools import TOOLS, Tool
 from ..types import MemoryRecord
 
@@ -56,53 +55,10 @@ def tool_schema(tool: Tool) -> dict[str, Any]:
 
 
 def ask_schema(service: Service) -> dict[str, Any]:
-    return {
-        "type": "object",
-        "properties": {
-            "question": {"type": "string", "minLength": 1, "maxLength": 2000, "description": "the question"},
-            "method": {
-                "type": "string",
-                "enum": METHODS.names(),
-                "description": f"how to answer (default {service.cfg.default_method})",
-            },
-            "preset": {
-                "type": "string",
-                "enum": sorted(PRESETS),
-                "description": "the paper's settings for a benchmark (budget, k per tool, temperature)",
-            },
-            "top_k": {
-                "anyOf": [
-                    {"type": "integer", "minimum": 1, "maximum": MAX_K},
-                    {
-                        "type": "object",
-                        "properties": {
-                            t: {"type": "integer", "minimum": 1, "maximum": MAX_K}
-                            for t in (*(x.key for x in TOOLS.values()), *TOOLS)
-                        },
-                        "additionalProperties": False,
-                    },
-                ],
-                "description": "memories per tool call: N, or per tool {'text': 30, 'time': 200}",
-            },
-            "max_tool_calls": {
-                "type": "integer",
-                "minimum": 1,
-                "maximum": MAX_CALLS,
-                "description": "tool calls before the model must answer",
-            },
-            "navigate": {
-                "type": "boolean",
-                "description": "also plan a path on the memory's map to the answer (its goal: `navigation`)",
-            },
-            "allow_unsupported": {
-                "type": "boolean",
-                "description": "accept (and send to the robot) a position far from every memory the "
-                "model was shown; without it such an answer is an error",
-            },
-        },
-        "required": ["question"],
-        "additionalProperties": False,
-    }
+    """The `ask` tool's input: `AskArgs` (the one request of every front end) as JSON schema."""
+    schema = input_schema()
+    schema["properties"]["method"]["description"] += f" (default {service.cfg.default_method})"
+    return schema
 
 
 def build_server(service: Service) -> Server[Any]:
@@ -150,7 +106,7 @@ def _base_url(ctx: Any) -> str | None:
 
 
 def _search(service: Service, tool: Tool, args: dict[str, Any], base: str | None) -> types.CallToolResult:
-    k = check_k(args.pop("k", 5))
+    k = args.pop("k", 5)  # checked once, where the tool runs (`Tool.run`)
     picture = args.pop("image", None) if tool.name == "search_image" else None
     image = None
     if picture is not None:
@@ -165,31 +121,11 @@ def _search(service: Service, tool: Tool, args: dict[str, Any], base: str | None
 
 
 def _ask(service: Service, args: dict[str, Any], base: str | None) -> types.CallToolResult:
-    question = args.get("question")
-    if not isinstance(question, str) or not question.strip() or len(question) > 2000:
-        raise RavenmemError("ask: question must be a non-empty string of at most 2000 characters")
-    known = {"question", "method", "preset", "top_k", "max_tool_calls", "navigate", "allow_unsupported"}
-    extra = set(args) - known
-    if extra:
-        raise RavenmemError(f"ask: unknown argument(s) {', '.join(sorted(extra))}")
-    for flag in ("navigate", "allow_unsupported"):
-        if not isinstance(args.get(flag, False), bool):
-            raise RavenmemError(f"ask: {flag} must be true or false")
-    result = service.ask(
-        question,
-        method=args.get("method"),
-        top_k=args.get("top_k"),
-        max_tool_calls=args.get("max_tool_calls"),
-        preset=args.get("preset"),
-        navigate=args.get("navigate", False),
-        allow_unsupported=args.get("allow_unsupported", False),
-    )
+    result = service.ask(AskArgs.check(args))
     data = service.result_json(result, _url(base))
-    service.publish_answer(data, drive=result.refusal is None)
     if result.refusal:
         return _error(result.refusal)
-    recs = service.mem.get([e["id"] for e in data["evidence"]]) if data["evidence"] else []
-    return _result(service, data, recs)
+    return _result(service, data, service.mem.stored([e.id for e in result.evidence]))
 
 
 def _url(base: str | None) -> Any:

@@ -18,6 +18,7 @@ SAMPLE = str(REPO / "examples" / "tum_desk")
         (("ingest", SAMPLE, "-m", "{tmp}/m.mem", "--map-id", " "), "--map-id: must not be empty"),
         (("info", "-m", ""), "--memory' / '-m': must not be empty"),
         (("search", "red", "-m", ""), "--memory' / '-m': must not be empty"),
+        (("ros", "run", "-m", ""), "--memory' / '-m': must not be empty"),
     ],
 )
 def test_empty_values_are_refused(tmp_path, args, words):

@@ -594,7 +594,7 @@ def info_lines(data: dict[str, Any]) -> list[tuple[str, str]]:
 
 def _register_extensions() -> None:
     """Let the agent / nav / eval areas add their commands when their modules are present."""
-    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong", "viz", "bench", "align"):
+    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong", "viz", "bench", "align", "ros"):
         try:
             module = importlib.import_module(f"ravenmem.cli.{mod}")
         except ModuleNotFoundError as e:

@@ -134,3 +134,40 @@ def import_map_server(yaml_path: str | Path) -> OccupancyGrid:
         "from": str(yaml_path),
     }
     return grid
+
+
+MAX_GRID_CELLS = 100_000_000  # a live map larger than this (10 km x 10 km at 1 cm) is refused
+
+
+def grid_from_occupancy(
+    width: int, height: int, resolution: float, origin: tuple[float, float, float], data: Any, source: str
+) -> OccupancyGrid:
+    """A `nav_msgs/OccupancyGrid` (a live map_server's or SLAM's map) as the memory's map, as
+    `import_map_server` reads files: cell values 0-100 are occupancy in percent (-1 unknown),
+    occupied above `OCCUPIED_THRESH`, free below `FREE_THRESH`; row 0 is the row at the origin
+    (the smallest y), as in the grid. A one-line `InputError` for a map that cannot be one."""
+    if width <= 0 or height <= 0:
+        raise InputError(f"{source}: empty map ({width}x{height})")
+    if width * height > MAX_GRID_CELLS:
+        raise InputError(f"{source}: {width}x{height} cells is more than {MAX_GRID_CELLS}")
+    if not (isinstance(resolution, float | int) and 1e-3 <= resolution <= 10):
+        raise InputError(f"{source}: resolution must be from 0.001 to 10 m, got {resolution}")
+    ox, oy, oyaw = origin
+    for corner in (ox, oy):
+        check_coord(corner, f"{source}: origin")
+    if abs(oyaw) > 1e-6:
+        raise InputError(f"{source}: origin yaw {oyaw:g} is not supported (only 0)")
+    cells = np.frombuffer(memoryview(data).cast("B") if not isinstance(data, np.ndarray) else data, np.int8)
+    if cells.size != width * height:
+        raise InputError(f"{source}: {cells.size} cells for a {width}x{height} map")
+    v = cells.reshape(height, width).astype(np.int16)
+    occ = v > OCCUPIED_THRESH * 100
+    free = (v >= 0) & (v < FREE_THRESH * 100)
+    cfg = MapConfig(resolution=float(resolution), require_floor=False)
+    grid = OccupancyGrid(cfg, (float(ox), float(oy)), occ.shape)
+    grid.logodds[occ] = cfg.l_clamp
+    grid.logodds[free] = -cfg.l_clamp
+    grid.known = occ | free
+    grid.explored = grid.known.copy()
+    grid.meta = {"kind": "imported", "frame": MapFrame(method="Nav2 map frame").as_dict(), "from": source}
+    return grid

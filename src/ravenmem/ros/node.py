@@ -1,30 +1,48 @@
-"""A ROS 2 node (rclpy) for robots that run ROS 2 natively: the robot link without Zenoh.
+"""`ravenmem ros run` (also `python -m ravenmem.ros.node`): ravenmem as a ROS 2 node (rclpy).
 
-NOT RUN HERE: rclpy comes with a ROS 2 installation (it is not on PyPI), and the machine this
-was built on has none. What the node does is in `NodeLogic`, which needs no rclpy and is
-tested: frames through the link's logic (`ros.link.RosLink`) with the very CDR bytes rclpy
-hands over (`raw=True` subscriptions), goals as the CDR of the answers' `nav.goals` plans
-(rclpy publishers take serialized bytes), and `ravenmem_msgs/srv/Ask` / `Search` answered by
-`ros.services` (the same replies the Zenoh link gives). `LinkNode` only wires rclpy to it.
-The services need `ravenmem_msgs` built in the workspace (`colcon build`, see docs/serve.md).
+    ravenmem ros setup                      # once: builds ravenmem_msgs into this environment
+    ravenmem ros run --memory robot.mem --create --ros-args \\
+        -p image_topic:=/camera/color/image_raw -p odom_topic:=/odom -r __ns:=/bot1
 
-    source /opt/ros/jazzy/setup.bash && source ~/ws/install/setup.bash
-    python -m ravenmem.ros.node --memory robot.mem \\
-        --link image=/camera/color/image_raw,pose=/odom,goal=/goal_pose --keyframes fps=1
+Node `ravenmem`; every setting a declared ROS parameter (`ros.params.NodeSettings`), so `-p`,
+`--params-file`, remaps and `use_sim_time` work as for any ROS 2 node. Inputs: images (raw or
+compressed, `auto`: chosen once a publisher is discovered), odometry or /tf + /tf_static, the
+CameraInfo (kept in the memory's manifest), the OccupancyGrid on `map_topic` (the memory's map
+for goal planning). Callbacks never wait on the embedder or the disk: images go through
+`ros.intake.FrameIntake` into the runtime's one `LiveWriter`, and every image is accounted for
+(published on /diagnostics). Outputs: services `~/ask` and `~/search` (`ravenmem_msgs`, the
+replies of `ros.services`), the action `~/ask_action` (feedback while it works, cancellable), a
+goal on `goal_topic` (or through Nav2's NavigateToPose when `navigate_action` is set) only for a
+question that asks to navigate, MarkerArrays on `~/markers`. SIGINT and SIGTERM stop the intake,
+store what was queued and exit 0.
+
+`NodeLogic` is the older transport-free form over `ros.link.RosLink` (CDR in, CDR out), kept for
+the front ends' comparison test.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import math
+import os
+import signal
 import sys
+import tempfile
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import MissingDependencyError, RavenmemError
+from ..errors import InputError, MissingDependencyError, RavenmemError
 from ..threads import share_cores
 from . import msgs
+from .convert import fill, to_dict
+from .intake import FrameIntake
 from .link import LinkConfig, RosLink, goal_bytes, goal_of, writer_sink
+from .outputs import RateLimitedLog, answer_markers, diagnostics, memory_markers
+from .params import NodeSettings
 from .services import ServiceBackend, ask_reply, search_reply
 
 if TYPE_CHECKING:
@@ -34,17 +52,21 @@ if TYPE_CHECKING:
 TICK_S = 0.1  # how often waiting images are settled
 
 
-def _ros() -> tuple[Any, Any, Any]:
-    """rclpy, rclpy.qos and rosidl's type lookup, or a clear error."""
+def _ros() -> Any:
+    """rclpy and the interface packages, or a one-line error saying how to get them."""
     try:
         rclpy = importlib.import_module("rclpy")
-        qos = importlib.import_module("rclpy.qos")
-        utils = importlib.import_module("rosidl_runtime_py.utilities")
     except ImportError as e:
         raise MissingDependencyError(
-            f"rclpy is not importable ({e}): it comes with ROS 2; source /opt/ros/<distro>/setup.bash first"
+            f"rclpy is not importable ({e}): pip install 'ravenmem[ros]', or source /opt/ros/<distro>/setup.bash"
         ) from e
-    return rclpy, qos, utils
+    try:
+        importlib.import_module("ravenmem_msgs.srv")
+    except ImportError as e:
+        raise MissingDependencyError(
+            f"ravenmem_msgs is not built ({e}): run `ravenmem ros setup` in this environment"
+        ) from e
+    return rclpy
 
 
 def topic(key: str) -> str:
@@ -77,109 +99,370 @@ class NodeLogic:
         return search_reply(self.backend, request)
 
 
-class LinkNode:
-    """Subscribes to the link's topics with raw (CDR) callbacks that feed `NodeLogic`, publishes
-    goals and serves Ask and Search. rclpy's default executor runs callbacks one at a time, so
-    the RosLink has one caller, as in the Zenoh link."""
+class RavenmemNode:
+    """The rclpy node around a running `Service` (see the module docstring). Sensor callbacks run
+    one at a time (one mutually exclusive group: the intake has one caller); services, the
+    action and NavigateToPose waits run in a reentrant group on the executor's other threads."""
 
-    def __init__(self, cfg: LinkConfig, service: Service, name: str = "ravenmem") -> None:
-        rclpy, qos, utils = _ros()
-        from rclpy.node import Node
-        from rosidl_runtime_py.convert import message_to_ordereddict
-        from rosidl_runtime_py.set_message import set_message_fields
+    def __init__(self, node: Any, settings: NodeSettings, service: Service) -> None:
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 
-        self.logic = NodeLogic(cfg, service)
-        self.node: Any = Node(name)
+        assert service.writer is not None
+        self.node, self.s, self.service = node, settings, service
+        self.log = RateLimitedLog(node.get_logger().warning)
+        self.intake = FrameIntake(service.writer, settings, service.frame_check, self.log)
+        self.sensors = MutuallyExclusiveCallbackGroup()
+        self.answers = ReentrantCallbackGroup()
+        self.camera_info: dict[str, Any] | None = None
+        self.image_subs: list[Any] = []
+        self.transport: str | None = None
+        self._local = threading.local()
+        self._markers_count = -1
+        self.goals = 0
+        self.navigator = None
+        if settings.navigate_action:
+            from .navigate import Navigator
+
+            self.navigator = Navigator(node, settings.navigate_action, self.answers)
+        drive = self.navigator.drive if self.navigator is not None else None
+        self.backend = ServiceBackend(service, self.intake.latest_xy, drive)
+        self._subscribe()
+        self._publish_and_serve()
+
+    # ---------------------------------------------------------------- wiring
+    def _qos(self, name: str, depth: int = 10) -> Any:
+        from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+        if name == "sensor_data":
+            return qos_profile_sensor_data
+        rel = ReliabilityPolicy.RELIABLE if name == "reliable" else ReliabilityPolicy.BEST_EFFORT
+        return QoSProfile(depth=depth, reliability=rel)
+
+    def _timer(self, period: float, callback: Any, group: Any) -> Any:
+        """A housekeeping timer on the steady clock: it runs while simulated time is paused."""
+        from rclpy.clock import Clock, ClockType
+
+        return self.node.create_timer(period, callback, group, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _latched(self, depth: int) -> Any:
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+        return QoSProfile(
+            depth=depth, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+        )
+
+    def _subscribe(self) -> None:
+        from nav_msgs.msg import OccupancyGrid, Odometry
+        from sensor_msgs.msg import CameraInfo
+
+        s, sub = self.s, self.node.create_subscription
+        if s.odom_topic:
+            sub(Odometry, s.odom_topic, lambda m: self.intake.odometry(m, self.now()),
+                self._qos(s.pose_qos, 100), callback_group=self.sensors)  # fmt: skip
+        else:
+            from tf2_msgs.msg import TFMessage
+
+            sub(TFMessage, "/tf", lambda m: self.intake.transforms(m, self.now(), False),
+                self._qos(s.pose_qos, 100), callback_group=self.sensors)  # fmt: skip
+            sub(TFMessage, "/tf_static", lambda m: self.intake.transforms(m, self.now(), True),
+                self._latched(100), callback_group=self.sensors)  # fmt: skip
+        if s.camera_info_topic:
+            sub(CameraInfo, s.camera_info_topic, self._on_camera_info, self._qos("sensor_data"),
+                callback_group=self.sensors)  # fmt: skip
+        if s.map_topic:
+            sub(OccupancyGrid, s.map_topic, self._on_map, self._latched(1), callback_group=self.sensors)
+        self._unresolved = list(s.cameras)
+        if s.image_transport == "auto":
+            self._discover = self._timer(0.2, self._resolve_transport, self.sensors)
+        else:
+            for cam in s.cameras:
+                self._subscribe_images(s.image_transport, self.node.resolve_topic_name(cam), cam)
+        self._timer(TICK_S, self.intake.settle, self.sensors)
+
+    def _resolve_transport(self) -> None:
+        """`auto`: each camera's type once a publisher is on the graph (raw on the topic, or
+        compressed on it or on `<topic>/compressed`)."""
         types = dict(self.node.get_topic_names_and_types())
+        for cam in list(self._unresolved):
+            base = self.node.resolve_topic_name(cam)
+            if msgs.IMAGE in types.get(base, []):
+                self._subscribe_images("raw", base, cam)
+            elif msgs.COMPRESSED in types.get(base, []):
+                self._subscribe_images("compressed", base, cam)
+            elif msgs.COMPRESSED in types.get(base + "/compressed", []):
+                self._subscribe_images("compressed", base + "/compressed", cam)
+            else:
+                continue
+            self._unresolved.remove(cam)
+        if not self._unresolved:
+            self._discover.cancel()
 
-        def msg_class(key: str, given: str | None, default: str) -> Any:
-            found = types.get(topic(key), [])
-            return utils.get_message(given or (found[0] if found else default))
+    def _subscribe_images(self, transport: str, topic_name: str, camera: str) -> None:
+        from sensor_msgs.msg import CompressedImage, Image
 
-        link = self.logic.link
-        img_cls = msg_class(cfg.image, cfg.image_type, msgs.IMAGE)
-        pose_cls = msg_class(cfg.pose, cfg.pose_type, msgs.TF if cfg.tf else msgs.ODOMETRY)
-        sensor = qos.qos_profile_sensor_data
-        self.node.create_subscription(
-            img_cls, topic(cfg.image), lambda raw: link.image(cfg.image, raw), sensor, raw=True
-        )
-        self.node.create_subscription(
-            pose_cls, topic(cfg.pose), lambda raw: link.pose(cfg.pose, raw), 100, raw=True
-        )
-        if cfg.tf_static_key:
-            latched = qos.QoSProfile(depth=100, durability=qos.DurabilityPolicy.TRANSIENT_LOCAL)
-            key = cfg.tf_static_key
-            tf_cls = utils.get_message(msgs.TF)
+        if (
+            transport == "compressed"
+            and not topic_name.endswith("/compressed")
+            and self.s.image_transport != "auto"
+        ):
+            topic_name += "/compressed"  # image_transport's naming
+        cls, kind = (CompressedImage, msgs.COMPRESSED) if transport == "compressed" else (Image, msgs.IMAGE)
+        self.transport = ", ".join(filter(None, (self.transport, f"{transport} on {topic_name}")))
+        self.node.get_logger().info(f"images: {transport} on {topic_name}")
+        source = self.s.source_of(camera)
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        # what DDS itself dropped before the node saw it (a best-effort reader, or a full
+        # history): counted too, so a lost frame is never silent
+        events = SubscriptionEventCallbacks(message_lost=self._lost)
+        self.image_subs.append(
             self.node.create_subscription(
-                tf_cls, topic(key), lambda raw: link.pose(key, raw), latched, raw=True
+                cls, topic_name, lambda m: self.intake.image(m, kind, self.now(), source),
+                self._qos(self.s.image_qos, self.s.image_depth), callback_group=self.sensors,
+                event_callbacks=events,
             )
-        self.goal_pub = None
-        if cfg.goal:
-            self.goal_pub = self.node.create_publisher(
-                utils.get_message(msgs.POSE_STAMPED), topic(cfg.goal), 10
-            )
-        if cfg.services:
-            for service_name, answer in (("ask", self.logic.ask), ("search", self.logic.search)):
+        )  # fmt: skip
 
-                def callback(request: Any, response: Any, answer: Any = answer) -> Any:
-                    set_message_fields(response, answer(dict(message_to_ordereddict(request))))
-                    return response
+    def _lost(self, info: Any) -> None:
+        n = int(info.total_count_change)
+        with self.intake.counts._lock:
+            self.intake.counts.lost += n
+        self.log(f"{n} image(s) lost in transport (DDS)")
 
-                srv = utils.get_service(f"ravenmem_msgs/srv/{service_name.title()}")
-                self.node.create_service(srv, f"/{cfg.services}/{service_name}", callback)
-        self.node.create_timer(TICK_S, link.tick)
+    def _publish_and_serve(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseStamped
+        from ravenmem_msgs.srv import Ask, Search
+        from visualization_msgs.msg import MarkerArray
+
+        s, node = self.s, self.node
+        self.goal_pub = node.create_publisher(PoseStamped, s.goal_topic, 10) if s.goal_topic else None
+        self.diag_pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.marker_pub = node.create_publisher(MarkerArray, "~/markers", self._latched(10))
+        node.create_service(Ask, "~/ask", self._ask, callback_group=self.answers)
+        node.create_service(Search, "~/search", self._search, callback_group=self.answers)
+        self._timer(s.diagnostics_period, self._diagnostics, self.answers)
+        if s.markers_period > 0:
+            self._timer(s.markers_period, self._memory_markers, self.answers)
+        from .ask_action import AskAction
+
+        self.ask_action = AskAction(self, self.answers)
+
+    # ---------------------------------------------------------------- callbacks
+    def now(self) -> float:
+        """The node's clock (ROS time: simulated time with use_sim_time) in seconds."""
+        return float(self.node.get_clock().now().nanoseconds) * 1e-9
+
+    def stamp(self) -> Any:
+        return self.node.get_clock().now().to_msg()
+
+    def _on_camera_info(self, msg: Any) -> None:
+        why = self.intake.camera_info_ok(msg)
+        if why is not None:
+            self.intake._bad(why)
+            return
+        self.camera_info = {
+            "frame_id": msg.header.frame_id,
+            "width": int(msg.width),
+            "height": int(msg.height),
+            "distortion_model": msg.distortion_model,
+            "k": [float(v) for v in msg.k],
+            "d": [float(v) for v in msg.d],
+        }
+
+    def _on_map(self, msg: Any) -> None:
+        """The live map (map_server, SLAM) becomes the memory's map, as `map --import-nav2` does."""
+        from ..errors import InputError
+        from .nav2 import grid_from_occupancy
+
+        info, o = msg.info, msg.info.origin
+        yaw = (
+            2 * math.atan2(float(o.orientation.z), float(o.orientation.w))
+            if o.orientation.w or o.orientation.z
+            else 0.0
+        )
+        try:
+            grid = grid_from_occupancy(
+                int(info.width), int(info.height), float(info.resolution),
+                (float(o.position.x), float(o.position.y), yaw), msg.data,
+                f"{self.node.resolve_topic_name(self.s.map_topic)} (nav_msgs/OccupancyGrid)",
+            )  # fmt: skip
+            grid.save(self.service.mem.path)
+        except InputError as e:
+            self.intake._bad(str(e))
+            return
+        self.node.get_logger().info(f"map: {info.width}x{info.height} cells at {info.resolution} m")
+
+    def _ask(self, request: Any, response: Any) -> Any:
+        reply = ask_reply(self.backend, to_dict(request))
+        fill(response, reply)
+        if response.goal.header.frame_id:
+            response.goal.header.stamp = self.stamp()
+        return response
+
+    def _search(self, request: Any, response: Any) -> Any:
+        return fill(response, search_reply(self.backend, to_dict(request)))
 
     def on_answer(self, result: AskResult) -> None:
-        """The service's answer hook: publish the result's goal (when there is a goal topic)."""
-        payload = self.logic.goal(result) if self.goal_pub is not None else None
-        if payload is not None and self.goal_pub is not None:
-            self.goal_pub.publish(payload)
-            self.logic.link.stats.add("goals")
+        """The service's answer hook (the one goal path): a goal only for a result whose
+        question asked to navigate (it carries a plan) and whose plan found a path; markers for
+        every answer the service hands on (the ones that may be used)."""
+        canceled = getattr(self._local, "canceled", None)
+        if canceled is not None and canceled():
+            return
+        goal = result.goal  # None without a plan (no navigate), or a plan with no path
+        frame = self.service.mem.frame_id or self.s.map_frame
+        self.marker_pub.publish(answer_markers(self.stamp(), frame, result.answer, goal))
+        if goal is None or self.goal_pub is None or self.navigator is not None:
+            return
+        from geometry_msgs.msg import PoseStamped
 
+        msg = fill(PoseStamped(), goal)
+        msg.header.stamp = self.stamp()
+        self.goal_pub.publish(msg)
+        self.goals += 1
+
+    def _diagnostics(self) -> None:
+        self.diag_pub.publish(diagnostics(self.stamp(), self.counts()))
+
+    def _memory_markers(self) -> None:
+        traj = self.service.trajectory(20_000)
+        if traj["count"] == self._markers_count:
+            return
+        self._markers_count = traj["count"]
+        frame = self.service.mem.frame_id or self.s.map_frame
+        self.marker_pub.publish(memory_markers(self.stamp(), frame, traj["points"]))
+
+    def counts(self) -> dict[str, Any]:
+        return self.intake.counts.as_dict(len(self.intake.waiting)) | {"goals": self.goals}
+
+    # ---------------------------------------------------------------- the service's link protocol
     def describe(self) -> dict[str, Any]:
-        return {"kind": "rclpy", "frame_id": self.logic.link.poses.frame} | self.logic.link.stats.as_dict()
+        return {
+            "kind": "rclpy",
+            "node": self.node.get_fully_qualified_name(),
+            "transport": self.transport,
+        } | self.counts()
+
+    def stop_intake(self) -> None:
+        """Stop taking frames and hand the waiting ones to the writer (SIGINT/SIGTERM)."""
+        self.intake.stopping = True  # images still delivered are counted as SKIP_STOPPING
+        self.intake.settle(flush=True)
 
     def close(self) -> None:
-        self.logic.link.flush()
+        """Called by `Service.close` before the writer closes: flush, note the run in the
+        manifest (the counts, the CameraInfo)."""
+        self.stop_intake()
+
+    def record(self) -> None:
+        """After the writer stored everything: the run's counts and camera into the manifest."""
+        report = {"source": "ros", "node": self.node.get_fully_qualified_name(), "counts": self.counts()}
+        if self.camera_info is not None:
+            report["camera_info"] = self.camera_info
+        try:
+            self.service.mem.record_ingest(report)
+        except OSError:
+            self.node.get_logger().error("could not note the run in the memory's manifest")
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Run the node on a memory until Ctrl-C: frames through the service's one live writer."""
-    ap = argparse.ArgumentParser(prog="python -m ravenmem.ros.node", description=__doc__)
-    ap.add_argument("--memory", required=True, help="memory folder (created when missing)")
-    ap.add_argument(
-        "--link", required=True, help="image=TOPIC,pose=TOPIC[,key=value...] as for serve --zenoh"
-    )
-    ap.add_argument(
-        "--keyframes", default=None, help="keyframe rules as for ingest (default: the default rules; 'all')"
-    )
-    ap.add_argument("--map-id", default=None, help="the map the poses are in (see ravenmem align)")
-    args = ap.parse_args(argv)
-    share_cores()  # before torch or FAISS loads (ravenmem.threads)
-    cfg = LinkConfig.from_spec(args.link)
-    rclpy, _, _ = _ros()
+def _open_service(memory: Path, create: bool, s: NodeSettings) -> Service:
     import ravenmem
 
+    from ..agent.config import VLMConfig
+    from ..errors import InputError
     from ..ingest.keyframes import KeyframeConfig
     from ..memory.folder import is_memory
     from ..runtime.service import Service, ServiceConfig
 
-    path = Path(args.memory)
-    mem = ravenmem.open(path) if is_memory(path) else ravenmem.create(path)
-    if args.map_id:
-        mem.claim_map(args.map_id, what="--map-id")
-    service = Service(mem, ServiceConfig(keyframes=KeyframeConfig.from_spec(args.keyframes))).start()
-    rclpy.init()
-    node = LinkNode(cfg, service)
-    service.attach(node)
+    if not is_memory(memory) and not create:
+        raise InputError(f"no memory at {memory} (give --create to start one)")
+    mem = ravenmem.open(memory) if is_memory(memory) else ravenmem.create(memory)
+    vlm = VLMConfig.resolve(base_url=s.base_url or None, model=s.model or None)
+    cfg = ServiceConfig(
+        keyframes=KeyframeConfig.from_spec(s.keyframes or None), method=s.method or None, vlm=vlm
+    )
+    return Service(mem, cfg).start()
+
+
+@contextlib.contextmanager
+def _stderr_held() -> Iterator[dict[str, bool]]:
+    """Hold what C code writes to fd 2 meanwhile and write it out after, unless the caller set
+    `show` False (it reports the failure in its own one line)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    state = {"show": True}
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield state
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read()
+            if text and state["show"]:
+                os.write(2, text)
+
+
+def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(ravenmem's own arguments, the ROS arguments from `--ros-args` on)."""
+    if "--ros-args" in argv:
+        i = argv.index("--ros-args")
+        return argv[:i], argv[i:]
+    return argv, []
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run the node until SIGINT/SIGTERM, then store what was queued and return (exit 0)."""
+    own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
+    ap = argparse.ArgumentParser(prog="ravenmem ros run", description="ravenmem as a ROS 2 node")
+    ap.add_argument("--memory", "-m", required=True, type=Path, help="memory folder")
+    ap.add_argument("--create", action="store_true", help="create the memory when missing")
+    args = ap.parse_args(own)
+    share_cores()  # before torch or FAISS loads (ravenmem.threads)
+    rclpy = _ros()
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    with _stderr_held() as said:  # rcl logs a bad argument itself before raising
+        try:  # a malformed --ros-args (rcl parses it) is the user's input: one line, exit 2
+            rclpy.init(args=["ravenmem", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
+        except Exception as e:
+            said["show"] = False
+            raise InputError(f"--ros-args: {' '.join(str(e).split())}") from None
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
     try:
-        rclpy.spin(node.node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.node.destroy_node()
+        node = rclpy.create_node("ravenmem")
+    except Exception as e:  # an invalid remapped name or namespace
         rclpy.shutdown()
+        raise InputError(f"--ros-args: {' '.join(str(e).split())}") from None
+    service = None
+    try:
+        settings = NodeSettings.declare(node)
+        service = _open_service(args.memory, args.create, settings)
+        ros_node = RavenmemNode(node, settings, service)
+        service.attach(ros_node)
+        executor = MultiThreadedExecutor(num_threads=4)
+        executor.add_node(node)
+        node.get_logger().info(f"ravenmem: {args.memory} ({service.mem.count()} memories), ready")
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+        node.get_logger().info("stopping: storing the frames already taken")
+        ros_node.stop_intake()
+        executor.shutdown(timeout_sec=1.0)
+        assert service.writer is not None
+        service.writer.close()  # stores what was queued
+        ros_node.record()
         service.close()
+        service = None
+    finally:
+        if service is not None:
+            service.close()
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
 
 
 if __name__ == "__main__":

@@ -8,6 +8,8 @@ union of the moving edges' sample times (within the span they all cover).
 
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -146,3 +148,176 @@ class TfTree:
             p = p + r.apply(p_e)
             r = r * r_e
         return p, r
+
+
+# ----------------------------------------------------------------------------- live buffers
+# A live stream asks one question per image: the pose at its stamp. The buffers below answer it
+# by bisection over a bounded window of samples, so a message costs O(1) to add (amortized, in
+# time order) and a lookup O(log n), whatever the stream's length; `TfTree` above rebuilds a
+# whole track and is for recordings.
+
+NO_POSE = "no pose yet"
+TOO_OLD = "older than the pose history"
+TOO_NEW = "newer than the newest pose"
+GAP = "pose gap too long"
+
+
+class PoseBuffer:
+    """The recent samples of one moving transform, at most `size` and `history` seconds back.
+    Samples come mostly in time order; a late one is inserted in place."""
+
+    def __init__(self, history: float = 30.0, size: int = 10_000, max_gap: float = 1.0) -> None:
+        self.history = history
+        self.size = size
+        self.max_gap = max_gap
+        self.t: list[float] = []
+        self.v: list[tuple[tuple[float, float, float], tuple[float, float, float, float]]] = []
+
+    def add(self, t: float, xyz: tuple[float, float, float], quat: tuple[float, float, float, float]) -> None:
+        if self.t and t < self.t[-1]:
+            i = bisect.bisect_left(self.t, t)
+            if i < len(self.t) and self.t[i] == t:
+                self.v[i] = (xyz, quat)
+                return
+            self.t.insert(i, t)
+            self.v.insert(i, (xyz, quat))
+        elif self.t and t == self.t[-1]:
+            self.v[-1] = (xyz, quat)
+        else:
+            self.t.append(t)
+            self.v.append((xyz, quat))
+        over = max(len(self.t) - self.size, 0)
+        cut = bisect.bisect_left(self.t, self.t[-1] - self.history) - 1
+        drop = max(over, cut)
+        if drop >= 64 or over:  # in chunks: deleting a list's head is O(n)
+            del self.t[:drop], self.v[:drop]
+
+    @property
+    def newest(self) -> float | None:
+        return self.t[-1] if self.t else None
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def at(self, t: float) -> tuple[tuple[float, float, float], tuple[float, float, float, float]] | str:
+        """The transform at t (linear position, spherical rotation), or why there is none."""
+        if not self.t:
+            return NO_POSE
+        if t > self.t[-1]:
+            return TOO_NEW
+        if t < self.t[0]:
+            return TOO_OLD
+        i = bisect.bisect_left(self.t, t)
+        if self.t[i] == t:
+            return self.v[i]
+        t0, t1 = self.t[i - 1], self.t[i]
+        if t1 - t0 > self.max_gap:
+            return GAP
+        a = (t - t0) / (t1 - t0)
+        (p0, q0), (p1, q1) = self.v[i - 1], self.v[i]
+        xyz = (p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1]), p0[2] + a * (p1[2] - p0[2]))
+        return xyz, _slerp(q0, q1, a)
+
+
+def _slerp(
+    q0: tuple[float, float, float, float], q1: tuple[float, float, float, float], a: float
+) -> tuple[float, float, float, float]:
+    dot = sum(x * y for x, y in zip(q0, q1, strict=True))
+    if dot < 0:
+        q1, dot = (-q1[0], -q1[1], -q1[2], -q1[3]), -dot
+    if dot > 0.9995:  # nearly the same rotation: normalized lerp
+        q = tuple(x + a * (y - x) for x, y in zip(q0, q1, strict=True))
+    else:
+        th = math.acos(dot)
+        s0, s1 = math.sin((1 - a) * th) / math.sin(th), math.sin(a * th) / math.sin(th)
+        q = tuple(s0 * x + s1 * y for x, y in zip(q0, q1, strict=True))
+    n = math.sqrt(sum(c * c for c in q))
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def _compose(
+    a: tuple[tuple[float, float, float], tuple[float, float, float, float]],
+    b: tuple[tuple[float, float, float], tuple[float, float, float, float]],
+) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    """T_a * T_b (a's frame -> b's child)."""
+    (pa, qa), (pb, qb) = a, b
+    ra = Rotation.from_quat(qa)
+    p = ra.apply(pb) + np.asarray(pa)
+    q = (ra * Rotation.from_quat(qb)).as_quat()
+    return (float(p[0]), float(p[1]), float(p[2])), (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+
+
+class TfBuffer:
+    """/tf and /tf_static, bounded: each child frame has one parent and either one static
+    transform or a `PoseBuffer`. `lookup(parent, child, t)` walks up from child to parent."""
+
+    def __init__(self, history: float = 30.0, size: int = 10_000, max_frames: int = 1000) -> None:
+        self.history, self.size, self.max_frames = history, size, max_frames
+        self.parent_of: dict[str, str] = {}
+        self.static: dict[str, tuple[tuple[float, float, float], tuple[float, float, float, float]]] = {}
+        self.moving: dict[str, PoseBuffer] = {}
+
+    def add(
+        self,
+        parent: str,
+        child: str,
+        t: float,
+        xyz: tuple[float, float, float],
+        quat: tuple[float, float, float, float],
+        static: bool,
+    ) -> bool:
+        """Add one transform; False when refused (too many frames, or a second parent)."""
+        parent, child = norm_frame(parent), norm_frame(child)
+        known = self.parent_of.get(child)
+        if known is None:
+            if len(self.parent_of) >= self.max_frames or parent == child:
+                return False
+            self.parent_of[child] = parent
+        elif known != parent:
+            return False
+        if static:
+            self.static[child] = (xyz, quat)
+        else:
+            self.moving.setdefault(child, PoseBuffer(self.history, self.size)).add(t, xyz, quat)
+        return True
+
+    def chain(self, parent: str, child: str) -> list[str] | None:
+        """Frames from child up to parent (child first, parent excluded), None when not connected."""
+        out, f = [], norm_frame(child)
+        parent = norm_frame(parent)
+        while f != parent:
+            out.append(f)
+            nxt = self.parent_of.get(f)
+            if nxt is None or len(out) > len(self.parent_of):
+                return None
+            f = nxt
+        return out
+
+    def newest(self, parent: str, child: str) -> float | None:
+        """The latest time the whole chain is known at (None: not connected, or static only)."""
+        chain = self.chain(parent, child)
+        if chain is None:
+            return None
+        times = [self.moving[f].newest for f in chain if f in self.moving]
+        known = [t for t in times if t is not None]
+        return min(known) if known else None
+
+    def lookup(
+        self, parent: str, child: str, t: float
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]] | str:
+        chain = self.chain(parent, child)
+        if chain is None:
+            return f"no transform from {parent!r} to {child!r} in tf yet"
+        out: tuple[tuple[float, float, float], tuple[float, float, float, float]] = (
+            (0.0, 0.0, 0.0),
+            (0.0, 0.0, 0.0, 1.0),
+        )
+        for f in reversed(chain):  # from the parent's side down to the child
+            if f in self.moving:
+                step = self.moving[f].at(t)
+                if isinstance(step, str):
+                    return step
+            else:
+                step = self.static[f]
+            out = _compose(out, step)
+        return out

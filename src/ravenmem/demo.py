@@ -294,25 +294,36 @@ def _summary_row(
     return f"{name:<26}" + "".join(f"{fmt([a for a in attempts if a.method == m]):>{w}}" for m in methods)
 
 
-def _prepare_out(cfg: DemoConfig) -> Path:
+def _prepare_out(cfg: DemoConfig, say: Callable[[str], None]) -> Path:
+    """The folder this run writes: `cfg.out`; when that exists, `--overwrite` replaces it (only a
+    demo's own folder, one with `demo.json`), otherwise the run goes to the first free
+    `<out>-2`, `<out>-3`, ... so that running the demo again never fails nor touches the last
+    run's results."""
     out = Path(cfg.out)
-    if out.exists():
-        if not cfg.overwrite:
-            raise InputError(f"{out} already exists; pass --overwrite or choose another --out")
+    if out.exists() and cfg.overwrite:
         if not (out / "demo.json").exists() and any(out.iterdir()):
             raise InputError(f"{out} was not written by the demo (no demo.json); refusing to delete it")
         shutil.rmtree(out)
+    elif out.exists():
+        n = 2
+        while out.with_name(f"{out.name}-{n}").exists():
+            n += 1
+        new = out.with_name(f"{out.name}-{n}")
+        say(
+            f"{out} already exists (an earlier run's results stay there); this run writes {new} (--overwrite replaces {out})"
+        )
+        out = new
     out.mkdir(parents=True)
     return out
 
 
 def run_demo(cfg: DemoConfig | None = None, progress: Callable[[str], None] | None = None) -> DemoReport:
     """Run both phases on every map; write the memories, maps, query pictures and `demo.json`
-    into `cfg.out` (and nothing else anywhere)."""
+    into `cfg.out`, or `<out>-2`, ... when that exists (and nothing else anywhere)."""
     cfg = cfg or DemoConfig()
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
-    out = _prepare_out(cfg)
+    out = _prepare_out(cfg, say)
     report = DemoReport([], tuple(cfg.methods), cfg.success_radius, str(out))
     for i, spec in enumerate(cfg.maps):
         say(f"map {i + 1}/{len(cfg.maps)}: {spec}")

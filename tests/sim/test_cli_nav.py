@@ -1,5 +1,6 @@
 import json
 import math
+from dataclasses import replace
 
 import pytest
 import typer
@@ -133,6 +134,19 @@ def test_demo_on_the_synthetic_world(tmp_path, box_embedder) -> None:
     assert saved["sr"]["oracle"] == 1.0 and saved["labels"]["oracle"] == "oracle perception"
     assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == ["demo.json", "rooms"]
     assert (tmp_path / "demo" / "rooms" / "map.png").stat().st_size > 20_000
-    # an existing folder is never silently replaced
-    with pytest.raises(InputError, match="already exists"):
-        run_demo(cfg)
+    # a second run leaves the first one's results alone and writes the next free folder
+    again: list[str] = []
+    rep2 = run_demo(cfg, progress=again.append)
+    assert rep2.out == str(tmp_path / "demo-2") and (tmp_path / "demo-2" / "demo.json").is_file()
+    assert (
+        again[0]
+        == f"{tmp_path / 'demo'} already exists (an earlier run's results stay there); this run writes {tmp_path / 'demo-2'} (--overwrite replaces {tmp_path / 'demo'})"
+    )
+    assert json.loads((tmp_path / "demo" / "demo.json").read_text()) == saved
+    assert f"outputs in {tmp_path / 'demo-2'}/" in rep2.table()
+    # --overwrite replaces a demo's own folder only
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    with pytest.raises(InputError, match="was not written by the demo"):
+        run_demo(replace(cfg, out=str(tmp_path / "mine"), overwrite=True))
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep"

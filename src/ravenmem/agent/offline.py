@@ -81,7 +81,14 @@ SYNONYMS: dict[str, str] = {
     "gamepad": "game controller",
     "controller": "game controller",
     "bottle": "water bottle",
-    "people": "person",
+    # ImageNet has no person class: the plural reaches the bank's classes that show people
+    # (ballplayer, groom, scuba diver, clothes) best (benchmarks/bench_person.py, docs/embedders.md)
+    "person": "people",
+    "someone": "people",
+    "somebody": "people",
+    "man": "people",
+    "woman": "people",
+    "human": "people",
 }
 # Things a robot's memory rarely holds all at once; their scores calibrate "not found".
 DECOYS = (
@@ -367,7 +374,7 @@ class OfflineReasoner:
             margin = s.temporal_margin if temporal else s.rel_margin
             cut = max(thr, best.support - margin * (best.support - thr))
             good = [c for c in ranked if c.support >= cut and c.score >= thr][: s.max_good] or [best]
-            self._answer(ans, qtype, order, subject or "it", good, thr, notes)
+            self._answer(ans, qtype, order, subject or "it", good, cut, notes)
             present = qtype == "position" and order == "best" and bool(_PRESENT.search(question))
             if now or present:
                 w = self._whereabouts(self._vector(groups, best.group, image), thr, notes)
@@ -402,8 +409,13 @@ class OfflineReasoner:
                 eps[-1].append(c)
         return eps
 
-    def _consensus(self, good: list[Cand], thr: float) -> list[Cand]:
-        """The winning place: clusters of nearby good hits vote with their summed evidence."""
+    def _consensus(self, good: list[Cand], bar: float) -> list[Cand]:
+        """The winning place: clusters of nearby good hits vote with their summed evidence, each
+        hit's evidence being its support above `bar`, the support a hit needs to be good. Measured
+        from the "found" threshold instead, every good hit would weigh at least (1 - rel_margin)
+        of the best one, so any two marginal hits taken from one spot (a doorway the robot turned
+        in, say) would outvote the strongest match: the count of memories, not their strength,
+        would choose the place."""
         clusters: list[list[Cand]] = []
         r2 = self.s.cluster_radius**2
         for c in sorted(good, key=lambda c: -c.support):
@@ -420,7 +432,7 @@ class OfflineReasoner:
                 clusters.append([c])
             else:
                 home.append(c)
-        return max(clusters, key=lambda cl: sum(max(c.support - thr, 0.0) + 1e-6 for c in cl))
+        return max(clusters, key=lambda cl: sum(max(c.support - bar, 0.0) + 1e-6 for c in cl))
 
     def _answer(
         self,
@@ -429,7 +441,7 @@ class OfflineReasoner:
         order: Order,
         subject: str,
         good: list[Cand],
-        thr: float,
+        bar: float,
         notes: list[str],
     ) -> None:
         eps = self._episodes(good)
@@ -444,7 +456,7 @@ class OfflineReasoner:
             # for: where, when or whether. The strongest hit of that episode would be an older
             # one; the latest hit of all could be a lone glimpse elsewhere, so the place is the
             # episode's spatial vote and the answer that place's latest (earliest) sighting
-            place = self._consensus(scope, thr)
+            place = self._consensus(scope, bar)
             chrono = sorted(place, key=lambda c: (c.rec.t, c.rec.id))
             chosen = chrono[-1] if order == "last" else chrono[0]
             notes.append(
@@ -453,9 +465,9 @@ class OfflineReasoner:
             )
             evidence = [chosen] + [c for c in by_support if c is not chosen]
         elif qtype == "position":
-            place = self._consensus(scope, thr)
+            place = self._consensus(scope, bar)
             notes.append(f"spatial vote: {len(place)} of {len(scope)} hits agree")
-            chosen = max(place, key=lambda c: c.support)
+            chosen = max(place, key=lambda c: (c.support, c.score))  # a tie: the stronger own match
             evidence = [chosen] + [c for c in sorted(place, key=lambda c: -c.support) if c is not chosen]
         else:
             chosen = by_support[0]

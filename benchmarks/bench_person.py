@@ -14,12 +14,13 @@ ImageNet, the offline embedder's vocabulary, has no person class. Printed:
   it, e.g. `pip install --target /tmp/cv4 --no-deps opencv-python-headless==4.14.0.94` and run
   with `PYTHONPATH=/tmp/cv4`.
 
-    python benchmarks/bench_person.py [--words "a person,people,someone"] [--memory DIR]
+    python benchmarks/bench_person.py [--words "a person,people,someone"] [--memory DIR] [--tum DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 import tempfile
@@ -69,8 +70,26 @@ def text_tool(ims: list[np.ndarray], truth: np.ndarray, words: list[str]) -> Non
         )
 
 
-def ask(memory: Path | None) -> None:
-    """`ravenmem ask --offline` as a user runs it, on a memory of the sample."""
+def held_out(words: list[str], data: Path) -> None:
+    """The same ranking on frames that are NOT the sample's: the other 60 hand-labelled frames of
+    the recording (`benchmarks/data/tum_labels.json`, every 8th frame; the sample is every 24th),
+    where the words person questions are asked with were chosen."""
+    labels = json.loads((ROOT / "benchmarks" / "data" / "tum_labels.json").read_text())["frames"]
+    sample = {ln.split()[0] for ln in (SAMPLE / "rgb.txt").read_text().splitlines() if ln and ln[0] != "#"}
+    names = [n for n in labels if n.rsplit(".", 1)[0] not in sample and (data / "rgb" / n).exists()]
+    if not names:
+        print(f"\nheld-out frames: TUM fr1_rpy not found at {data} (--tum DIR): not measured")
+        return
+    truth = np.array(["person" in labels[n] for n in names])
+    ims = [np.asarray(Image.open(data / "rgb" / n).convert("RGB")) for n in names]
+    print(f"\nheld out: {len(names)} other labelled frames of fr1_rpy")
+    text_tool(ims, truth, words)
+
+
+def ask(memory: Path | None, stamps: list[str], truth: np.ndarray) -> None:
+    """`ravenmem ask --offline` as a user runs it, on a memory of the sample: its answer, and the
+    precision / recall of the frames it gives as evidence (every good hit of the place it chose:
+    `--top-k` as many as there are frames) against the labels."""
     cli = [sys.executable, "-m", "ravenmem.cli.main"]
     with tempfile.TemporaryDirectory() as tmp:
         mem = memory or Path(tmp) / "desk.mem"
@@ -78,14 +97,24 @@ def ask(memory: Path | None) -> None:
             subprocess.run(
                 [*cli, "ingest", str(SAMPLE), "--memory", str(mem)], check=True, capture_output=True
             )
-        r = subprocess.run(
-            [*cli, "ask", "where did I see a person?", "--memory", str(mem), "--offline"],
-            capture_output=True,
-            text=True,
-        )
+        base = [*cli, "ask", "where did I see a person?", "--memory", str(mem), "--offline"]
+        r = subprocess.run(base, capture_output=True, text=True)
         lines = [ln for ln in r.stdout.splitlines() if ln.startswith(("answer:", "note:", "reasoning:"))]
         print('\nravenmem ask "where did I see a person?" --offline:')
         print("\n".join(f"  {ln}" for ln in lines) or r.stderr.strip())
+        r = subprocess.run([*base, "--json", "--top-k", str(len(stamps))], capture_output=True, text=True)
+        ans = json.loads(r.stdout)
+        person = {round(float(t), 3) for t, yes in zip(stamps, truth, strict=True) if yes}
+        shown = [round(float(e["t"]), 3) in person for e in ans["evidence"]]
+        if not ans["found"] or not shown:
+            print("  declined: precision -, recall 0")
+            return
+        right = sum(shown)
+        print(
+            f"  its {len(shown)} evidence frames: {right} show a person: precision {right / len(shown):.2f}, "
+            f"recall {right / len(person):.2f} (of {len(person)}); first 5 (what it prints): "
+            f"{sum(shown[:5])}/{len(shown[:5])}"
+        )
 
 
 def opencv(ims: list[np.ndarray], truth: np.ndarray) -> None:
@@ -131,10 +160,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--words", default="person,a person,people,someone,a man,a woman")
     ap.add_argument("--memory", type=Path, default=None, help="a memory of the sample (default: ingest one)")
+    ap.add_argument("--tum", type=Path, default=ROOT.parent / "shared" / "data" / "tum_fr1_rpy")
     args = ap.parse_args()
-    _, ims, truth = frames()
+    stamps, ims, truth = frames()
     text_tool(ims, truth, [w.strip() for w in args.words.split(",") if w.strip()])
-    ask(args.memory)
+    held_out([w.strip() for w in args.words.split(",") if w.strip()], args.tum)
+    ask(args.memory, stamps, truth)
     opencv(ims, truth)
 
 

@@ -66,6 +66,29 @@ def test_the_vote_weighs_strength_not_the_number_of_memories_taken_from_a_spot(t
         m.close()
 
 
+def test_an_approach_is_one_place_even_when_a_turn_in_place_left_more_memories(tmp_path):
+    """Keyframes come every 1.2 m of travel but every few degrees of turning: the vote's radius
+    follows the keyframe step, so two strong sightings on one approach (1.2 m apart) form one
+    place and outvote four weaker ones stacked at a spot where the robot turned."""
+    frames = []
+    for i in range(30):
+        rgb, x, y, yaw = COLORS["green" if i % 2 else "blue"], 1.2 * i, 0.0, 0.0
+        if i in (8, 9):
+            rgb = COLORS["red"]  # cosine 1.0 with "red", on the approach
+        elif i in (20, 21, 22, 23):
+            rgb, x, y, yaw = (255, 170, 0), 30.0, 5.0, 0.5 * (i - 20)  # cosine 0.835, turning in place
+        frames.append(Frame(image=img(rgb), t=T0 + i, pose=Pose(x, y, 0.0, yaw), source="w", index=i))
+    m = ravenmem.create(tmp_path / "a.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    m.add_frames(frames)
+    try:
+        cfg = OfflineReasonerConfig(support_n=1, min_score=0.5)
+        ans = OfflineReasoner(m, config=cfg).ask("Where did I see the red ball?")
+        assert ans.found and ans.position[1] == pytest.approx(0.0) and 9.0 < ans.position[0] < 11.5
+        assert "spatial vote: 2 of 6" in ans.reasoning
+    finally:
+        m.close()
+
+
 def test_person_words_are_asked_as_people():
     """ImageNet has no person class; the plural reaches the bank's people-showing classes best."""
     for q, subject in [("Where did I see a person?", "person"), ("Did I see someone?", "someone")]:

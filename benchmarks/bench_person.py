@@ -6,8 +6,12 @@ ImageNet, the offline embedder's vocabulary, has no person class. Printed:
 - the offline embedder's text tool on the frames: how it ranks "a person" (and other person
   words) over the frames: ROC AUC, precision at 5 and 10, and precision / recall of its top 18
   (as many as there are frames with a person);
+- the same on the recording's other 60 hand-labelled frames (`benchmarks/data/tum_labels.json`),
+  which are not the sample's: where the words the reasoner asks person questions with were chosen
+  ("people": `SYNONYMS` in `ravenmem/agent/offline.py`);
 - `ask "where did I see a person?" --offline` on a memory ingested from the sample: found or
-  declined, and why (the reasoner's calibrated threshold);
+  declined, and why (the reasoner's calibrated threshold), and the precision / recall of the
+  frames it gives as evidence;
 - OpenCV's classical people detectors (the HOG people detector, Haar cascades for faces, profiles
   and upper bodies) where the installed OpenCV has them: precision and recall of "a detection in
   the frame". OpenCV 5 dropped both from its main package; to measure them install OpenCV 4 beside

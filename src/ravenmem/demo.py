@@ -1,6 +1,12 @@
-"""`ravenmem demo`: a simulated robot explores Freedoom maps while building its memory
-(Phase I), then is asked "where did you see this?" about objects it passed, answers from the
-memory and drives to each answer with A* on the map it built (Phase II). Offline, on CPU.
+"""`ravenmem demo`: a simulated robot explores worlds while building its memory (Phase I), then
+is asked "where did you see this?" about objects it passed, answers from the memory and drives
+to each answer with A* on the map it built (Phase II). Offline, on CPU.
+
+The first world (`synthetic:gallery`, `sim/gallery.py`) is one the offline embedder can
+perceive: pillars showing real photographs (a keyboard, a monitor, a person, an office chair, a
+book, a game controller) in four rooms, asked about with questions written before the demo was
+first run on it and kept fixed. The Freedoom maps follow as the harder worlds: the offline
+embedder knows nothing of Doom's sprites.
 
 Four ways to answer the same questions, so that what works and what does not is visible:
 
@@ -9,13 +15,17 @@ Four ways to answer the same questions, so that what works and what does not is 
 - `oracle`: oracle perception, the simulator's ground-truth labels in place of the image
   embedder (`ravenmem.robot.oracle`): the upper bound of memory + agent + planner;
 - `text`: the question as text, answered by the offline reasoner over the offline embedder
-  (which does not know Doom's sprites: expect little);
+  (which knows the gallery's photographs, not Doom's sprites);
 - `random`: a random memory's pose, the floor.
 
 Queries ask about object kinds the robot saw at least once, with an instance within 2 m of
-floor a robot can reach (simulator ground truth). Every query starts from the map's start;
-success is the robot ending within `success_radius` metres of the nearest true instance after
-driving. Maps, seeds and start times are fixed, so results reproduce.
+floor a robot can reach (simulator ground truth; in the gallery every kind, in a fixed order).
+An answer that is a memory (image, text, random) is driven to that memory's pose (where the
+robot stood when it saw the thing); the oracle's to where its label box and depth put the
+object. Every query starts from the map's start; success is the
+robot ending within `success_radius` metres of the nearest true instance after driving. SR is
+printed with its 95 % Wilson interval (a handful of questions per world: the intervals are
+wide). Maps, seeds and start times are fixed, so results reproduce.
 
     from ravenmem.demo import DemoConfig, run_demo
     report = run_demo(DemoConfig(out="ravenmem-demo"))
@@ -52,7 +62,11 @@ from .sim.groundtruth import reachable_floor
 from .sim.queries import DemoQuery, make_queries
 from .tools import TOOLS
 
-DEFAULT_MAPS = ("vizdoom:freedoom2/MAP02", "vizdoom:freedoom1/E1M2")
+DEFAULT_MAPS = ("synthetic:gallery", "vizdoom:freedoom2/MAP02", "vizdoom:freedoom1/E1M2")
+GALLERY = "synthetic:gallery"
+# keyframe spacing (metres, radians) per world where it differs from the config's: the gallery's
+# photographs are recognised from a few metres, so its robot keeps a memory every metre / 30 degrees
+KEYFRAMES: dict[str, tuple[float, float]] = {GALLERY: (1.0, math.radians(30.0))}
 METHODS = ("image", "oracle", "text", "random")
 LABELS = {
     "image": "image query",
@@ -66,8 +80,9 @@ EXPLAIN = {
     "oracle": "the simulator's ground-truth labels as the perception (an upper bound: the real "
     "memory, agent and planner with perfect perception)",
     "text": "the question as text, offline reasoner over the offline embedder",
-    "random": "a random memory's pose (the floor)",
+    "random": "a random memory (the floor)",
 }
+LOOKED_AT = "an answer that is a memory is driven to its pose, where the robot stood when it saw the thing"
 Answer = tuple[bool, tuple[float, float] | None, str]  # found, position, note
 
 
@@ -184,7 +199,7 @@ class DemoReport:
                     a = next((x for x in run.of(m) if x.query == q), None)
                     cells.append(_cell(a))
                 lines.append(f"{q[:26]:<26}" + "".join(f"{c:>{w}}" for c in cells))
-            lines.append(_summary_row("SR (robot within r)", run.attempts, self.methods, w, _sr_cell))
+            lines.append(_summary_row("SR [95% interval]", run.attempts, self.methods, w, _sr_cell))
             lines.append(_summary_row("median answer error m", run.attempts, self.methods, w, _err_cell))
             lines.append(_summary_row("mean A* path m", run.attempts, self.methods, w, _path_cell))
             lines.append(
@@ -196,12 +211,12 @@ class DemoReport:
                     "that things not there reach (ravenmem ask --offline explains one)"
                 )
         lines.append("")
-        tot = ", ".join(
-            f"{LABELS[m]} {sum(a.success for a in self.attempts(m))}/{len(self.attempts(m))} = "
-            f"{100 * self.sr(m):.0f}%"
-            for m in self.methods
-        )
+        for run in self.maps:
+            row = ", ".join(f"{LABELS[m]} {sr_text(run.of(m))}" for m in self.methods)
+            lines.append(f"SR on {run.env}: {row}")
+        tot = ", ".join(f"{LABELS[m]} {sr_text(self.attempts(m))}" for m in self.methods)
         lines.append(f"SR over {len(self.maps)} maps: {tot}")
+        lines.append(f"(SR in %, [95% Wilson interval]; {LOOKED_AT})")
         lines.append(
             f"wall time {self.wall_seconds:.0f} s; outputs in {self.out}/ (memories, maps, query pictures, demo.json)"
         )
@@ -225,8 +240,26 @@ def _cell(a: Attempt | None) -> str:
     return f"{a.answer_err:5.1f} {'yes' if a.success else ' no'} {path}"
 
 
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval of a rate k/n (95 % for z = 1.96): unlike the normal
+    approximation it stays inside [0, 1] and means something at 0/n, n/n and small n."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    mid = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, mid - half), min(1.0, mid + half))
+
+
+def sr_text(a: list[Attempt]) -> str:
+    """'4/6 67% [30-90]': successes, rate and its 95 % Wilson interval in %."""
+    k, n = sum(x.success for x in a), len(a)
+    lo, hi = wilson(k, n)
+    return f"{k}/{n} {100 * k / max(1, n):.0f}% [{100 * lo:.0f}-{100 * hi:.0f}]"
+
+
 def _sr_cell(a: list[Attempt]) -> str:
-    return f"{sum(x.success for x in a)}/{len(a)} {100 * sum(x.success for x in a) / max(1, len(a)):.0f}%"
+    return sr_text(a)
 
 
 def _err_cell(a: list[Attempt]) -> str:
@@ -261,25 +294,36 @@ def _summary_row(
     return f"{name:<26}" + "".join(f"{fmt([a for a in attempts if a.method == m]):>{w}}" for m in methods)
 
 
-def _prepare_out(cfg: DemoConfig) -> Path:
+def _prepare_out(cfg: DemoConfig, say: Callable[[str], None]) -> Path:
+    """The folder this run writes: `cfg.out`; when that exists, `--overwrite` replaces it (only a
+    demo's own folder, one with `demo.json`), otherwise the run goes to the first free
+    `<out>-2`, `<out>-3`, ... so that running the demo again never fails nor touches the last
+    run's results."""
     out = Path(cfg.out)
-    if out.exists():
-        if not cfg.overwrite:
-            raise InputError(f"{out} already exists; pass --overwrite or choose another --out")
+    if out.exists() and cfg.overwrite:
         if not (out / "demo.json").exists() and any(out.iterdir()):
             raise InputError(f"{out} was not written by the demo (no demo.json); refusing to delete it")
         shutil.rmtree(out)
+    elif out.exists():
+        n = 2
+        while out.with_name(f"{out.name}-{n}").exists():
+            n += 1
+        new = out.with_name(f"{out.name}-{n}")
+        say(
+            f"{out} already exists (an earlier run's results stay there); this run writes {new} (--overwrite replaces {out})"
+        )
+        out = new
     out.mkdir(parents=True)
     return out
 
 
 def run_demo(cfg: DemoConfig | None = None, progress: Callable[[str], None] | None = None) -> DemoReport:
     """Run both phases on every map; write the memories, maps, query pictures and `demo.json`
-    into `cfg.out` (and nothing else anywhere)."""
+    into `cfg.out`, or `<out>-2`, ... when that exists (and nothing else anywhere)."""
     cfg = cfg or DemoConfig()
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
-    out = _prepare_out(cfg)
+    out = _prepare_out(cfg, say)
     report = DemoReport([], tuple(cfg.methods), cfg.success_radius, str(out))
     for i, spec in enumerate(cfg.maps):
         say(f"map {i + 1}/{len(cfg.maps)}: {spec}")
@@ -299,16 +343,15 @@ def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) 
         mem = ravenmem.create(folder / "memory", embedder=cfg.embedder, ocr=False)
         mem.set_name(f"demo: {env.name.split(':', 1)[-1]}")  # every demo memory's folder is 'memory'
         say(f"{env.name}, phase I: exploring for up to {cfg.steps} steps")
-        ecfg = ExploreConfig(
-            steps=cfg.steps, keyframe_dist=cfg.keyframe_dist, keyframe_turn=cfg.keyframe_turn
-        )
+        kf_dist, kf_turn = KEYFRAMES.get(env.name, (cfg.keyframe_dist, cfg.keyframe_turn))
+        ecfg = ExploreConfig(steps=cfg.steps, keyframe_dist=kf_dist, keyframe_turn=kf_turn)
         grid, rep = explore_into(env, mem, ecfg, progress=say)
         objects = env.objects()
         kind_of = {o.id: o.kind for o in objects}
         seen = {i for vis in rep.keyframes.values() for i in vis} & _reachable(
             env, objects, cfg.success_radius
         )
-        queries = make_queries(objects, seen, cfg.queries)
+        queries = make_queries(objects, seen, cfg.queries, kinds=_fixed_kinds(env.name, objects, seen))
         cov = rep.coverage[-1] if rep.coverage else (0, 0.0, 0.0, None)
         run = MapRun(
             env=env.name,
@@ -322,9 +365,9 @@ def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) 
         )
         recs = mem.all_records()
         if queries and recs:
+            spots = [(r.pose.x, r.pose.y) for r in recs]
             run.random_expected = sum(
-                sum(q.nearest(r.pose.x, r.pose.y) <= cfg.success_radius for r in recs) / len(recs)
-                for q in queries
+                sum(q.nearest(x, y) <= cfg.success_radius for x, y in spots) / len(spots) for q in queries
             ) / len(queries)
         say(f"{env.name}, phase II: preparing {len(cfg.methods)} ways to answer {len(queries)} queries")
         answerers = _answerers(cfg, env, grid, mem, rep, objects, kind_of, queries, folder, say)
@@ -354,6 +397,17 @@ def _run_map(cfg: DemoConfig, spec: str, out: Path, say: Callable[[str], None]) 
         return run
     finally:
         env.close()
+
+
+def _fixed_kinds(name: str, objects: list[SceneObject], seen: set[int]) -> list[str] | None:
+    """The gallery's questions: every kind it holds, in its fixed order, those the robot saw
+    (None elsewhere: `make_queries` picks them)."""
+    if name != GALLERY:
+        return None
+    from .sim.gallery import PHOTOS
+
+    saw = {o.kind for o in objects if o.id in seen}
+    return [k for k in PHOTOS if k in saw]
 
 
 def _reachable(env: Any, objects: list[SceneObject], radius: float) -> set[int]:
@@ -392,8 +446,9 @@ def _answerers(
     def via(method: Any) -> Callable[[DemoQuery], Answer]:
         def ask(q: DemoQuery) -> Answer:
             a = method.ask(q.question)
-            pos = (float(a.position[0]), float(a.position[1])) if a.found and a.position else None
-            return (pos is not None, pos, "" if pos is not None else _declined(a.notes))
+            if not (a.found and a.position):
+                return (False, None, _declined(a.notes))
+            return (True, (float(a.position[0]), float(a.position[1])), "")
 
         return ask
 

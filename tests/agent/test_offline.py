@@ -43,6 +43,59 @@ def world(tmp_path):
     m.close()
 
 
+def test_the_vote_weighs_strength_not_the_number_of_memories_taken_from_a_spot(tmp_path):
+    """One strong sighting against two marginal ones taken from one spot (a robot turning in a
+    doorway): each hit votes with its support above the bar a good hit needs, so two hits that
+    barely made it do not outvote the best one (measured from the "found" threshold they did)."""
+    frames = []
+    for i in range(20):
+        rgb, x = COLORS["green" if i % 2 else "blue"], float(i)
+        if i == 4:
+            rgb, x = COLORS["red"], 0.0  # cosine 1.0 with "red"
+        elif i in (12, 13):
+            rgb, x = (255, 170, 0), 10.0 + 0.3 * (i - 12)  # orange: cosine 0.835, just above the bar
+        frames.append(Frame(image=img(rgb), t=T0 + i, pose=Pose(x, 0.0, 0.0, 0.0), source="w", index=i))
+    m = ravenmem.create(tmp_path / "v.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    m.add_frames(frames)
+    try:
+        cfg = OfflineReasonerConfig(support_n=1, min_score=0.5)  # the bar: 1 - 0.5 * (1 - 0.5) = 0.75
+        ans = OfflineReasoner(m, config=cfg).ask("Where did I see the red ball?")
+        assert ans.found and ans.position == pytest.approx([0.0, 0.0, 0.0])
+        assert "spatial vote: 1 of 3" in ans.reasoning
+    finally:
+        m.close()
+
+
+def test_an_approach_is_one_place_even_when_a_turn_in_place_left_more_memories(tmp_path):
+    """Keyframes come every 1.2 m of travel but every few degrees of turning: the vote's radius
+    follows the keyframe step, so two strong sightings on one approach (1.2 m apart) form one
+    place and outvote four weaker ones stacked at a spot where the robot turned."""
+    frames = []
+    for i in range(30):
+        rgb, x, y, yaw = COLORS["green" if i % 2 else "blue"], 1.2 * i, 0.0, 0.0
+        if i in (8, 9):
+            rgb = COLORS["red"]  # cosine 1.0 with "red", on the approach
+        elif i in (20, 21, 22, 23):
+            rgb, x, y, yaw = (255, 170, 0), 30.0, 5.0, 0.5 * (i - 20)  # cosine 0.835, turning in place
+        frames.append(Frame(image=img(rgb), t=T0 + i, pose=Pose(x, y, 0.0, yaw), source="w", index=i))
+    m = ravenmem.create(tmp_path / "a.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    m.add_frames(frames)
+    try:
+        cfg = OfflineReasonerConfig(support_n=1, min_score=0.5)
+        ans = OfflineReasoner(m, config=cfg).ask("Where did I see the red ball?")
+        assert ans.found and ans.position[1] == pytest.approx(0.0) and 9.0 < ans.position[0] < 11.5
+        assert "spatial vote: 2 of 6" in ans.reasoning
+    finally:
+        m.close()
+
+
+def test_person_words_are_asked_as_people():
+    """ImageNet has no person class; the plural reaches the bank's people-showing classes best."""
+    for q, subject in [("Where did I see a person?", "person"), ("Did I see someone?", "someone")]:
+        heads = [g[0] for g in rewrite(q, subject)]
+        assert heads[0] == subject and "people" in heads
+
+
 def test_question_rules():
     assert classify_question("Where did I leave the red backpack?") == "position"
     assert classify_question("When did I last pass the water fountain?") == "time"

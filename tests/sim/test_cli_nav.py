@@ -1,5 +1,6 @@
 import json
 import math
+from dataclasses import replace
 
 import pytest
 import typer
@@ -118,8 +119,14 @@ def test_demo_on_the_synthetic_world(tmp_path, box_embedder) -> None:
     # the colour embedder reads the boxes' colours: text finds them; oracle perception too
     assert rep.sr("text") == 1.0 and rep.sr("oracle") == 1.0
     assert all(a.final_dist <= 3.0 and a.path_m > 0 for a in run.of("oracle"))
-    # the synthetic world cannot render pictures from elsewhere: said, not guessed
-    assert {a.note for a in run.of("image")} == {"no picture"} and rep.sr("image") == 0.0
+    # the synthetic world renders a picture of each box from a place no keyframe was taken at;
+    # the colour embedder finds each box by its picture (a memory that saw it, within 4 m of it)
+    assert sorted(p.name for p in (tmp_path / "demo" / "rooms" / "queries").iterdir()) == [
+        "BlueBox.png",
+        "GreenBox.png",
+        "RedBox.png",
+    ]
+    assert all(a.found and a.answer_err < 4.0 for a in run.of("image")), run.of("image")
     assert run.random_expected < 0.5 and len(run.of("random")) == 3
     table = rep.table()
     assert "oracle perception" in table and "SR over 1 maps" in table and "red box" in table
@@ -127,6 +134,19 @@ def test_demo_on_the_synthetic_world(tmp_path, box_embedder) -> None:
     assert saved["sr"]["oracle"] == 1.0 and saved["labels"]["oracle"] == "oracle perception"
     assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == ["demo.json", "rooms"]
     assert (tmp_path / "demo" / "rooms" / "map.png").stat().st_size > 20_000
-    # an existing folder is never silently replaced
-    with pytest.raises(InputError, match="already exists"):
-        run_demo(cfg)
+    # a second run leaves the first one's results alone and writes the next free folder
+    again: list[str] = []
+    rep2 = run_demo(cfg, progress=again.append)
+    assert rep2.out == str(tmp_path / "demo-2") and (tmp_path / "demo-2" / "demo.json").is_file()
+    assert (
+        again[0]
+        == f"{tmp_path / 'demo'} already exists (an earlier run's results stay there); this run writes {tmp_path / 'demo-2'} (--overwrite replaces {tmp_path / 'demo'})"
+    )
+    assert json.loads((tmp_path / "demo" / "demo.json").read_text()) == saved
+    assert f"outputs in {tmp_path / 'demo-2'}/" in rep2.table()
+    # --overwrite replaces a demo's own folder only
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    with pytest.raises(InputError, match="was not written by the demo"):
+        run_demo(replace(cfg, out=str(tmp_path / "mine"), overwrite=True))
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep"

@@ -81,7 +81,14 @@ SYNONYMS: dict[str, str] = {
     "gamepad": "game controller",
     "controller": "game controller",
     "bottle": "water bottle",
-    "people": "person",
+    # ImageNet has no person class: the plural reaches the bank's classes that show people
+    # (ballplayer, groom, scuba diver, clothes) best (benchmarks/bench_person.py, docs/embedders.md)
+    "person": "people",
+    "someone": "people",
+    "somebody": "people",
+    "man": "people",
+    "woman": "people",
+    "human": "people",
 }
 # Things a robot's memory rarely holds all at once; their scores calibrate "not found".
 DECOYS = (
@@ -148,7 +155,8 @@ class OfflineReasonerConfig:
     min_score: float | None = None  # ... or this fixed score when given (skips the decoys)
     rel_margin: float = 0.5  # good hits: support >= best - rel_margin * (best - threshold) ...
     temporal_margin: float = 0.75  # ... and this looser margin for first / last / how long
-    cluster_radius: float = 1.0  # metres: good hits this close vote for the same place
+    cluster_radius: float = 1.0  # metres: good hits this close vote for the same place (at least
+    # 1.5 x the memory's keyframe step, `_vote_radius`)
     max_good: int = 200  # at most this many good hits (best first) take part in votes and episodes
 
 
@@ -367,7 +375,8 @@ class OfflineReasoner:
             margin = s.temporal_margin if temporal else s.rel_margin
             cut = max(thr, best.support - margin * (best.support - thr))
             good = [c for c in ranked if c.support >= cut and c.score >= thr][: s.max_good] or [best]
-            self._answer(ans, qtype, order, subject or "it", good, thr, notes)
+            radius = self._vote_radius(cands)
+            self._answer(ans, qtype, order, subject or "it", good, (cut, radius), notes)
             present = qtype == "position" and order == "best" and bool(_PRESENT.search(question))
             if now or present:
                 w = self._whereabouts(self._vector(groups, best.group, image), thr, notes)
@@ -402,10 +411,33 @@ class OfflineReasoner:
                 eps[-1].append(c)
         return eps
 
-    def _consensus(self, good: list[Cand], thr: float) -> list[Cand]:
-        """The winning place: clusters of nearby good hits vote with their summed evidence."""
+    def _vote_radius(self, cands: dict[int, Cand]) -> float:
+        """How close two good hits must be to vote for one place: `cluster_radius`, widened to
+        1.5 x the median step between consecutive memories (ids i and i + 1 among the
+        candidates) taken while moving. Keyframes come every so many metres of travel but every
+        few degrees of turning, so with a radius under the step an approach to a thing is split
+        into single memories while a turn in place (a doorway) stacks them: the vote would count
+        the keyframe rule's turns, not the evidence."""
+        poses = {i: (c.rec.pose.x, c.rec.pose.y) for i, c in cands.items()}
+        steps = [
+            float(np.hypot(poses[i][0] - poses[i + 1][0], poses[i][1] - poses[i + 1][1]))
+            for i in poses
+            if i + 1 in poses
+        ]
+        moving = [d for d in steps if d > 0.1]
+        if len(moving) < 5:
+            return self.s.cluster_radius
+        return max(self.s.cluster_radius, 1.5 * float(np.median(moving)))
+
+    def _consensus(self, good: list[Cand], bar: float, radius: float) -> list[Cand]:
+        """The winning place: clusters of nearby good hits vote with their summed evidence, each
+        hit's evidence being its support above `bar`, the support a hit needs to be good. Measured
+        from the "found" threshold instead, every good hit would weigh at least (1 - rel_margin)
+        of the best one, so any two marginal hits taken from one spot (a doorway the robot turned
+        in, say) would outvote the strongest match: the count of memories, not their strength,
+        would choose the place."""
         clusters: list[list[Cand]] = []
-        r2 = self.s.cluster_radius**2
+        r2 = radius**2
         for c in sorted(good, key=lambda c: -c.support):
             p = c.rec.pose
             home = next(
@@ -420,7 +452,7 @@ class OfflineReasoner:
                 clusters.append([c])
             else:
                 home.append(c)
-        return max(clusters, key=lambda cl: sum(max(c.support - thr, 0.0) + 1e-6 for c in cl))
+        return max(clusters, key=lambda cl: sum(max(c.support - bar, 0.0) + 1e-6 for c in cl))
 
     def _answer(
         self,
@@ -429,9 +461,10 @@ class OfflineReasoner:
         order: Order,
         subject: str,
         good: list[Cand],
-        thr: float,
+        vote: tuple[float, float],
         notes: list[str],
     ) -> None:
+        """`vote`: the good-hit bar and the radius of the spatial vote (`_consensus`)."""
         eps = self._episodes(good)
         scope = {"last": eps[-1], "first": eps[0]}.get(order) or good
         notes.append(
@@ -444,7 +477,7 @@ class OfflineReasoner:
             # for: where, when or whether. The strongest hit of that episode would be an older
             # one; the latest hit of all could be a lone glimpse elsewhere, so the place is the
             # episode's spatial vote and the answer that place's latest (earliest) sighting
-            place = self._consensus(scope, thr)
+            place = self._consensus(scope, *vote)
             chrono = sorted(place, key=lambda c: (c.rec.t, c.rec.id))
             chosen = chrono[-1] if order == "last" else chrono[0]
             notes.append(
@@ -453,9 +486,9 @@ class OfflineReasoner:
             )
             evidence = [chosen] + [c for c in by_support if c is not chosen]
         elif qtype == "position":
-            place = self._consensus(scope, thr)
+            place = self._consensus(scope, *vote)
             notes.append(f"spatial vote: {len(place)} of {len(scope)} hits agree")
-            chosen = max(place, key=lambda c: c.support)
+            chosen = max(place, key=lambda c: (c.support, c.score))  # a tie: the stronger own match
             evidence = [chosen] + [c for c in sorted(place, key=lambda c: -c.support) if c is not chosen]
         else:
             chosen = by_support[0]

@@ -398,7 +398,8 @@ def demo(
         "ravenmem-demo"
     ),
     maps: Annotated[
-        str | None, typer.Option(help="comma-separated environments (default: the two demo maps)")
+        str | None,
+        typer.Option(help="comma-separated environments (default: synthetic:gallery and two Freedoom maps)"),
     ] = None,
     steps: Annotated[
         int | None, STEPS, typer.Option(help="exploration budget in control steps per map")
@@ -410,11 +411,14 @@ def demo(
     pictures: Annotated[
         str, typer.Option(help="image queries: view (rendered elsewhere) | sprite (from the WAD)")
     ] = "view",
-    overwrite: Annotated[bool, typer.Option(help="replace an existing --out folder")] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="replace an existing --out folder (default: write <out>-2, ... beside it)")
+    ] = False,
     json_out: JsonOpt = False,
 ) -> None:
-    """Explore Freedoom maps into memories, then find objects by picture, by oracle perception,
-    by text and at random, and drive to each answer (offline, CPU)."""
+    """Explore a gallery of real photographs, then Freedoom maps, into memories; find objects by
+    picture, by oracle perception, by text and at random, and drive to each answer (offline,
+    CPU). An existing --out is kept: the run then writes <out>-2, <out>-3, ..."""
     from ravenmem.demo import DemoConfig, run_demo
 
     cfg = DemoConfig(

@@ -67,6 +67,13 @@ PHRASES: dict[str, str] = {
     "Allmap": "computer map",
     "Infrared": "light amplification visor",
     "DeadMarine": "dead soldier",
+    # the gallery world (`sim/gallery.py`): written before the demo ran on it, fixed
+    "Keyboard": "computer keyboard",
+    "Monitor": "computer monitor",
+    "Person": "person",
+    "OfficeChair": "office chair",
+    "Book": "book",
+    "GameController": "game controller",
     "RedBox": "red box",
     "BlueBox": "blue box",
     "GreenBox": "green box",

@@ -1,8 +1,9 @@
 """A tiny built-in world: walls and boxes on a plane, rendered by ray casting in numpy.
 
 It needs no simulator package, so the whole explore -> remember -> navigate loop can be tested
-anywhere; its pictures are flat-shaded, so do not expect an image embedder to recognise much.
-Walls are vertical segments `wall_height` tall, objects are square boxes with a class name.
+anywhere. Walls are vertical segments `wall_height` tall, objects are square boxes with a class
+name, flat-shaded (an image embedder recognises little there) or with a photograph printed on
+each side (`Box.photo`: the `gallery` world, real pictures an ImageNet embedder knows).
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
+from functools import cache
+from pathlib import Path
 
 import numpy as np
 
@@ -26,6 +29,8 @@ class Box:
     half: float = 0.3
     height: float = 0.8
     color: tuple[int, int, int] = (200, 40, 40)
+    photo: str | None = None  # a picture printed on every side: a name in `sim/photos/`
+    half_y: float | None = None  # half its depth along y when not `half` (a thin panel)
 
 
 @dataclass
@@ -34,6 +39,7 @@ class World:
     boxes: list[Box] = field(default_factory=list)
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)  # x, y, yaw
     wall_height: float = 2.5
+    camera: tuple[int, int] = (160, 120)  # width, height of the pictures (pixels)
 
 
 def _rect(x0: float, y0: float, x1: float, y1: float) -> list[tuple[float, float, float, float]]:
@@ -51,7 +57,13 @@ def rooms_world() -> World:
     return World(np.asarray(walls, np.float64), boxes, start=(2.0, 1.5, 0.5))
 
 
-WORLDS = {"rooms": rooms_world}
+def _gallery() -> World:
+    from .gallery import gallery_world
+
+    return gallery_world()
+
+
+WORLDS = {"rooms": rooms_world, "gallery": _gallery}
 
 
 class SyntheticEnv:
@@ -63,8 +75,8 @@ class SyntheticEnv:
         self,
         world: World | None = None,
         name: str = "synthetic:rooms",
-        width: int = 160,
-        height: int = 120,
+        width: int | None = None,
+        height: int | None = None,
         hfov_deg: float = 90.0,
         dt: float = 0.2,
         max_speed: float = 1.0,
@@ -73,7 +85,9 @@ class SyntheticEnv:
     ) -> None:
         self.world = world or rooms_world()
         self.name = name
-        self.intrinsics = Intrinsics.from_fov(width, height, hfov_deg)
+        self.intrinsics = Intrinsics.from_fov(
+            width or self.world.camera[0], height or self.world.camera[1], hfov_deg
+        )
         self.robot = RobotSpec(
             radius=0.25, height=1.2, step_height=0.1, camera_height=0.8, max_speed=max_speed
         )
@@ -87,19 +101,28 @@ class SyntheticEnv:
         self._t0 = 0.0
 
     def _build(self) -> None:
-        segs, tops, cols, owner = [], [], [], []
+        segs, tops, cols, owner, tex = [], [], [], [], []
         for i, w in enumerate(self.world.walls):
             segs.append(w)
             tops.append(self.world.wall_height)
             shade = 150 + (i * 37) % 90
             cols.append((shade, shade - 20, shade - 50))
             owner.append(-1)
+            tex.append(-1)
+        self._photos: list[np.ndarray] = []
         for j, b in self._boxes.items():
-            for s in _rect(b.x - b.half, b.y - b.half, b.x + b.half, b.y + b.half):
+            t = -1
+            if b.photo is not None:
+                self._photos.append(photo(b.photo))
+                t = len(self._photos) - 1
+            hy = b.half if b.half_y is None else b.half_y
+            for s in _rect(b.x - b.half, b.y - hy, b.x + b.half, b.y + hy):
                 segs.append(s)
                 tops.append(b.height)
                 cols.append(b.color)
                 owner.append(j)
+                tex.append(t)
+        self._tex = np.asarray(tex, np.int64)
         self._segs = np.asarray(segs, np.float64).reshape(-1, 4)
         self._tops = np.asarray(tops, np.float64)
         self._cols = np.asarray(cols, np.float64)
@@ -145,6 +168,21 @@ class SyntheticEnv:
             pose=pose,
             t=self._t0 + self._steps * self.dt,
             step=self._steps,
+            visible=tuple(sorted(boxes)),
+            visible_boxes=boxes,
+        )
+
+    def view_from(self, x: float, y: float, yaw: float) -> Observation:
+        """What the camera sees from (x, y) facing `yaw`, without moving the robot (query
+        pictures and tests)."""
+        rgb, depth, boxes = self.render(x, y, yaw)
+        pose = Pose(x, y, self.robot.camera_height, yaw)
+        return Observation(
+            rgb=rgb,
+            depth=depth,
+            pose=pose,
+            t=self._t0,
+            floor_z=0.0,
             visible=tuple(sorted(boxes)),
             visible_boxes=boxes,
         )
@@ -201,6 +239,7 @@ class SyntheticEnv:
         k = min(k_hits, s.shape[0])
         order = np.argsort(sd, axis=1)[:, :k]  # (W, k) nearest segments per column
         hs = np.take_along_axis(sd, order, axis=1)
+        along = np.take_along_axis(np.where(ok, td, 0.0), order, axis=1)  # where on the segment
         v = np.arange(intr.height) + 0.5
         down = (v - intr.cy) / intr.fy
         with np.errstate(divide="ignore"):
@@ -209,6 +248,8 @@ class SyntheticEnv:
         depth = np.zeros((intr.height, intr.width))
         seg = np.full((intr.height, intr.width), -1, np.int64)
         done = np.zeros((intr.height, intr.width), bool)
+        tex_u = np.zeros((intr.height, intr.width))
+        tex_h = np.zeros((intr.height, intr.width))
         for j in range(k):
             sj = hs[:, j][None, :]
             hj = h_cam - sj * down[:, None]
@@ -216,6 +257,8 @@ class SyntheticEnv:
             hit = ~done & np.isfinite(sj) & (sj < s_floor[:, None]) & (hj >= 0.0) & (hj <= top)
             depth = np.where(hit, sj, depth)
             seg = np.where(hit, order[:, j][None, :], seg)
+            tex_u = np.where(hit, along[:, j][None, :], tex_u)
+            tex_h = np.where(hit, hj / top, tex_h)
             done |= hit
         floor = ~done & np.isfinite(s_floor)[:, None]
         depth = np.where(floor, s_floor[:, None], depth)
@@ -224,6 +267,7 @@ class SyntheticEnv:
         shade = 1.0 / (1.0 + 0.08 * depth)
         wall_px = seg >= 0
         rgb[wall_px] = self._cols[seg[wall_px]] * (0.4 + 0.6 * shade[wall_px, None])
+        self._print_photos(rgb, seg, tex_u, tex_h, shade)
         if floor.any():
             sf = np.broadcast_to(s_floor[:, None], floor.shape)[floor]
             uu = np.broadcast_to(ru[None, :], floor.shape)[floor]
@@ -241,6 +285,43 @@ class SyntheticEnv:
                 r, c = rows[m], cols[m]
                 boxes[int(i)] = (int(c.min()), int(r.min()), int(np.ptp(c)) + 1, int(np.ptp(r)) + 1)
         return np.clip(rgb, 0, 255).astype(np.uint8), depth.astype(np.float32), boxes
+
+    def _print_photos(
+        self, rgb: np.ndarray, seg: np.ndarray, u: np.ndarray, h: np.ndarray, shade: np.ndarray
+    ) -> None:
+        """Paint each photo box's picture onto the pixels of its sides, as large as fits with its
+        shape kept, centred (nearest texel; a side runs left to right as seen from outside, its
+        top is the picture's top row)."""
+        tid = np.where(seg >= 0, self._tex[np.maximum(seg, 0)], -1)
+        for t, pic in enumerate(self._photos):
+            m = tid == t
+            if not m.any():
+                continue
+            s = self._segs[seg[m]]
+            side = np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1]) / self._tops[seg[m]]  # width / height
+            ph, pw = pic.shape[:2]
+            fw = np.minimum(1.0, (pw / ph) / side)  # share of the side's width the picture covers
+            fh = np.minimum(1.0, side / (pw / ph))
+            pu = (u[m] - 0.5) / fw + 0.5
+            pv = (0.5 - h[m]) / fh + 0.5
+            inside = (pu >= 0) & (pu < 1) & (pv >= 0) & (pv < 1)
+            cu = np.clip((pu * pw).astype(np.int64), 0, pw - 1)
+            cv = np.clip((pv * ph).astype(np.int64), 0, ph - 1)
+            px = rgb[m]
+            px[inside] = pic[cv[inside], cu[inside]] * (0.75 + 0.25 * shade[m][inside, None])
+            rgb[m] = px
+
+
+@cache
+def photo(name: str) -> np.ndarray:
+    """A picture from `sim/photos/` (RGB uint8; see its README for sources and licence)."""
+    from PIL import Image
+
+    path = Path(__file__).with_name("photos") / f"{name}.jpg"
+    if not path.is_file():
+        raise InputError(f"synthetic world: no photo {name!r} in {path.parent}")
+    with Image.open(path) as im:
+        return np.asarray(im.convert("RGB"), dtype=np.float64)
 
 
 @ENVIRONMENTS.register("synthetic")

@@ -434,6 +434,10 @@ def search(
         assert memory is not None
         with ravenmem.open(memory) as mem:
             hits = tool.run(mem, call, k, image=query_image)
+            if mode == "text":
+                from ravenmem.agent.support import judged
+
+                hits = judged(mem, str(text), hits)
             t0 = mem.time_span()[0]
 
             def image_file(rec: Any) -> str | None:
@@ -474,7 +478,7 @@ def search(
             ch = r.get("change", {})
             verdict = ch.get("verdict", "") if ch.get("role") == "sighting" else "view without it"
             cells.append(f"place {ch.get('place')}: {esc(verdict)}")
-        table.add_row(*cells)
+        table.add_row(*cells, style="dim" if r.get("supported") is False else None)
     if latest:
         first = rows[0].get("change", {}) if rows else {}
         status = first.get("status") or "not seen"
@@ -485,6 +489,13 @@ def search(
             if ch.get("role") == "sighting":
                 console.print(f"  {esc(ch.get('text', ''))}", highlight=False)
     console.print(table)
+    if rows and all(r.get("supported") is False for r in rows):
+        console.print(
+            f'warning: nothing in this memory supports "{esc(str(text))}": no hit scores above what '
+            "things that are not there reach (the rule `ask --offline` declines by); these are only "
+            "the least unlike",
+            highlight=False,
+        )
     if sheet is not None:
         console.print(f"contact sheet: {esc(str(sheet))}", highlight=False)
 

@@ -42,3 +42,15 @@ def test_a_keyboard_on_the_desk_is_supported(desk: Path) -> None:
     # the time tool is not judged: no verdict, no warning
     r = run_cli("search", "--time", "+5s", "-k", "3", "--memory", str(desk), "--json")
     assert r.returncode == 0 and [row["supported"] for row in json.loads(r.stdout)["results"]] == [None] * 3
+
+
+def test_ask_shows_image_paths_relative_as_search_does(desk: Path) -> None:
+    """Run from the memory's folder: both name the pictures `desk.mem/thumbs/...`, not by the
+    absolute path (a table column of 120 characters)."""
+    for args in (
+        ("ask", "where did I see the game controller?", "--offline"),
+        ("search", "a game controller"),
+    ):
+        r = run_cli(*args, "--memory", "desk.mem", cwd=desk.parent, env={"COLUMNS": "250"})
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert "desk.mem/thumbs/" in r.stdout and str(desk.parent) not in r.stdout, r.stdout

@@ -57,6 +57,7 @@ from ..types import Filter, Hit, MemoryRecord, check_picture
 from .core import Core, check_text
 from .places import Place, Verdict, Whereabouts
 from .protocol import MAX_K, Near, TimeLike
+from .seen_index import seen_index
 from .views import ChangeConfig, chrono, follow, group_sightings, merge, sample
 
 __all__ = ["ChangeConfig", "Changes", "Place", "Verdict", "Whereabouts"]
@@ -98,7 +99,8 @@ class Changes(Core):
         if not pool:
             return Whereabouts(label, [], math.inf, 0.0, 0.0)
         best = max(sc for _, sc in pool.values())
-        floor = _floor(self, q, s.floor_sample)
+        index = seen_index(self, s.floor_sample)  # whole-memory facts, read once per state
+        floor = index.floor(q)
         thr = floor + s.match_ratio * (best - floor) if best > floor + 1e-6 else math.inf
         if min_score is not None:
             thr = max(thr, float(min_score))
@@ -107,7 +109,7 @@ class Changes(Core):
         if not seen:
             return Whereabouts(label, [], thr, floor, best)
         places = [Place(0, g) for g in group_sightings(self, sorted(seen.values(), key=chrono), s)]
-        gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * _spacing(self)
+        gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
         for p in places:
             follow(self, p, q, thr, s, asof, gap)
         for p in merge(places):
@@ -150,25 +152,6 @@ def _search(mem: Core, q: np.ndarray, k: int, filt: Filter) -> dict[int, tuple[M
     return {i: (recs[i], float(sc)) for i, sc in scored if i in recs}
 
 
-def _spread(mem: Core, n: int) -> list[int]:
-    """About n ids spread evenly over the memory: ids grow with insertion, so between the ids
-    of the oldest and the newest memory (a few may be missing: `sample` skips them). The
-    stored times, not `mem.time_span()`: a consolidated memory's span reaches past its newest
-    representative's own time, where no memory starts."""
-    st = mem.store.stats()
-    t0, t1 = float(st["t_min"]), float(st["t_max"])  # type: ignore[arg-type]
-    ends = [r.id for t in (t0, t1) for r in mem.store.by_time(t, 1)]
-    lo, hi = min(ends), max(ends)
-    return sorted({int(i) for i in np.linspace(lo, hi, max(1, min(n, hi - lo + 1)))})
-
-
-def _floor(mem: Core, q: np.ndarray, n: int) -> float:
-    """A typical memory's score: the median over memories spread evenly over the memory."""
-    recs = sample(mem, _spread(mem, n), embeddings=True)
-    scores = [float(np.dot(r.embedding, q)) for r in recs if r.embedding is not None]
-    return float(np.median(scores)) if scores else 0.0
-
-
 def _recent(
     mem: Core, q: np.ndarray, filt: Filter, thr: float, s: ChangeConfig
 ) -> dict[int, tuple[MemoryRecord, float]]:
@@ -185,22 +168,6 @@ def _recent(
             return found
         width *= 4.0
     return {}
-
-
-def _spacing(mem: Core, n: int = 64) -> float:
-    """The robot's usual time between keyframes while recording: the mean time between a memory
-    and the next one stored (ids grow with insertion), over pairs spread over the memory, not
-    counting breaks (gaps over 10 times the median: the robot was off or elsewhere). The mean,
-    not the median: keyframes come fast while turning and slowly while driving."""
-    ids = _spread(mem, n)
-    first = ids[:-1] if len(ids) > 1 else ids
-    recs = {r.id: r.t for r in sample(mem, sorted(set(first) | {i + 1 for i in first}))}
-    diffs = np.array(
-        [recs[i + 1] - recs[i] for i in first if i in recs and i + 1 in recs and recs[i + 1] > recs[i]]
-    )
-    if diffs.size == 0:
-        return 1.0
-    return float(diffs[diffs <= 10.0 * np.median(diffs)].mean())
 
 
 def _episodes(places: list[Place], gap: float) -> dict[int, int]:

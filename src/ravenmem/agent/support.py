@@ -22,16 +22,22 @@ __all__ = ["Judge", "judged"]
 
 class Judge:
     """Marks text hits as supported or not for one memory. Keeps its reasoner, so the decoys'
-    calibration is computed once per memory (a server holds one Judge for its life)."""
+    calibration is computed once per memory (a server holds one Judge for its life), and again
+    when a live memory has doubled (or halved) since: what decoys reach depends on what is there."""
 
     def __init__(self, memory: MemoryLike) -> None:
+        self.memory = memory
         self.reasoner = OfflineReasoner(memory)
+        self._count = memory.count()
 
     def mark(self, query: str, hits: list[Hit]) -> list[Hit]:
         """`hits` with `supported` set: the hit's support for `query` above the threshold
         (a hit outside the reasoner's scored pool is not supported)."""
         if not hits:
             return hits
+        n = self.memory.count()
+        if not self._count / 2 <= n <= 2 * self._count:
+            self.reasoner, self._count = OfflineReasoner(self.memory), n
         support, threshold = self.reasoner.support(query)
         return [replace(h, supported=support.get(h.memory.id, float("-inf")) > threshold) for h in hits]
 

@@ -6,9 +6,10 @@ for every place where the thing was seen, whether the robot looked at that place
 
 1. **Sightings.** Memories that show the thing: cosine to the query at least `threshold`,
    halfway (by default) between a typical memory's score (the median of a sample spread over
-   the memory) and the best match. The newest sightings are searched for explicitly (time
-   windows walking back from the end), so a thing seen ten thousand times in January and once
-   in May is found in May.
+   the memory) and the best match. The newest sightings are searched for explicitly (from the
+   newest sighting among the best matches, searching only what came after it: see
+   `ravenmem.memory.newest`), so a thing seen ten thousand times in January and once in May is
+   found in May.
 2. **Places.** Sightings are grouped into places: a sighting joins the best earlier one whose
    view it overlaps (cameras within `view_radius` metres, orientations within
    `view_angle_deg`: the full 3-D rotation when both poses carry a quaternion, else the yaw),
@@ -55,6 +56,7 @@ from ..imageio import read_image
 from ..timeparse import fmt_time
 from ..types import Filter, Hit, MemoryRecord, check_picture
 from .core import Core, check_text
+from .newest import newest_sightings
 from .places import Place, Verdict, Whereabouts
 from .protocol import MAX_K, Near, TimeLike
 from .seen_index import seen_index
@@ -104,7 +106,7 @@ class Changes(Core):
         thr = floor + s.match_ratio * (best - floor) if best > floor + 1e-6 else math.inf
         if min_score is not None:
             thr = max(thr, float(min_score))
-        pool.update(_recent(self, q, filt, thr, s))
+        pool.update(_recent(self, q, pool, filt, thr, s))
         seen = {i: Hit(memory=r, score=sc) for i, (r, sc) in pool.items() if sc >= thr}
         if not seen:
             return Whereabouts(label, [], thr, floor, best)
@@ -153,21 +155,21 @@ def _search(mem: Core, q: np.ndarray, k: int, filt: Filter) -> dict[int, tuple[M
 
 
 def _recent(
-    mem: Core, q: np.ndarray, filt: Filter, thr: float, s: ChangeConfig
+    mem: Core,
+    q: np.ndarray,
+    pool: dict[int, tuple[MemoryRecord, float]],
+    filt: Filter,
+    thr: float,
+    s: ChangeConfig,
 ) -> dict[int, tuple[MemoryRecord, float]]:
-    """The newest sightings: the best `pool` memories in time windows that grow backwards from
-    the end (a 64th of the span, then 4 times wider) until one holds a sighting."""
-    t0, t1 = mem.time_span()
-    lo = max(t0, filt.after) if filt.after is not None else t0
-    hi = min(t1, filt.before) if filt.before is not None else t1
-    width = max((hi - lo) / 64.0, 1e-3)
-    for _ in range(s.recency_windows):
-        start = max(lo, hi - width)
-        found = _search(mem, q, s.pool, Filter(after=start, before=hi, region=filt.region))
-        if any(sc >= thr for _, sc in found.values()) or start <= lo:
-            return found
-        width *= 4.0
-    return {}
+    """The newest sightings: only memories after the newest sighting in the pool can be newer,
+    so the search goes on from there (`newest_sightings`: a few searches, each later)."""
+    seen = [r.t for r, sc in pool.values() if sc >= thr]
+    start = max(seen) if seen else filt.after
+    hits = newest_sightings(
+        mem, q, start, filt.before, thr, region=filt.region, pool=s.pool, steps=s.max_rounds
+    )
+    return {h.memory.id: (h.memory, float(h.score or 0.0)) for h in hits}
 
 
 def _episodes(places: list[Place], gap: float) -> dict[int, int]:

@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import InputError
 from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
+from .newest import later_sightings
 from .places import Place
 from .protocol import MAX_K
 
@@ -139,28 +140,33 @@ def _views(
 def _newest_views(
     mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Filter, thr: float | None
 ) -> list[Hit]:
-    """The newest views of the place after its last sighting (with `thr`: the newest that show
-    the thing): time windows growing backwards from the end, inside the place's disc."""
+    """The newest views of the place after its last sighting (with `thr`: every later view that
+    shows the thing, up to the newest, from `later_sightings`; without: time windows growing
+    backwards from the end), inside the place's disc."""
     disc, cams = _disc(p, s)
-    lo = p.last.t
+    lo, last = p.last.t, chrono(p.sightings[-1])
+    if thr is not None:
+
+        def later_view(h: Hit) -> bool:
+            return chrono(h) > last and any(overlaps(h.memory, c, s) for c in cams)
+
+        return later_sightings(
+            mem,
+            q,
+            lo,
+            asof.before,
+            thr,
+            region=disc,
+            keep=later_view,
+            pool=s.pool,
+            steps=s.max_rounds,
+        )
     hi = asof.before if asof.before is not None else mem.time_span()[1]
-    if thr is not None:  # one search over the whole time first: mostly there is no later sighting
-        found = mem.store.search_vector(q, s.pool, Filter(after=lo, before=hi, region=disc))
-        recs = sample(mem, [i for i, sc in found if sc >= thr])
-        if not any(chrono(h) > chrono(p.sightings[-1]) for h in _views(mem, q, recs, cams, s)):
-            return []
     width = max((hi - lo) / 64.0, 1e-3)
     for _ in range(s.recency_windows + 4):
         start = max(lo, hi - width)
-        filt = Filter(after=start, before=hi, region=disc)
-        if thr is None:
-            recs = mem.store.by_time(start, s.pool, filt)
-        else:
-            found = mem.store.search_vector(q, s.pool, filt)
-            recs = sample(mem, [i for i, sc in found if sc >= thr])
-        got = [h for h in _views(mem, q, recs, cams, s) if chrono(h) > chrono(p.sightings[-1])]
-        if thr is not None:
-            got = [h for h in got if (h.score or 0.0) >= thr]
+        recs = mem.store.by_time(start, s.pool, Filter(after=start, before=hi, region=disc))
+        got = [h for h in _views(mem, q, recs, cams, s) if chrono(h) > last]
         if got or start <= lo:
             return got
         width *= 4.0

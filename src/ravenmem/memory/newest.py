@@ -1,0 +1,136 @@
+"""The newest sightings in a time range, found with a few searches, the first ones exact.
+
+`last_seen` keeps asking one question: which memories from time `t` on (maybe inside a disc)
+show the thing, i.e. score at least the threshold, and which is the newest? Walking time
+windows back from the end took one vector search per window (k = the pool, each reranking
+4 k vectors from SQLite): two dozen searches per question at a million memories. And one
+search over a wide range is no answer to "the newest": it returns the best matches, which can
+all be old (a thing seen far more often, or a little better, before it moved).
+
+1. Only what came after a known sighting can be newer: the caller starts the range there (the
+   newest sighting among its best matches), so the range is mostly a short recent stretch.
+2. Windows back from the end of the range, by count: the newest `MAX_K` memories the filter
+   accepts, then 8 times as many before them, and so on. A window of at most `MAX_K` memories
+   is scanned exactly (every vector read and scored: the answer is exact and costs a read of
+   a thousand vectors); a wider one is searched (its best `pool`), then searched again after
+   the newest sighting that search found, until nothing newer turns up. The first window that
+   holds a sighting ends the walk.
+3. Later sightings of one place (`later_sightings`, inside its disc): one search over the
+   whole range (exact when it is short), and nothing found there means nothing (a place is
+   mostly not seen again), as the latest mode always decided; else searched again after the
+   newest sighting found, each time strictly later, until nothing newer turns up.
+
+Windows follow the filter's ids (the store's in-RAM columns) and their times, so they tile the
+range whatever the order of ids; on a store whose ids follow time each holds the count it says.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..types import Filter, Hit, Region
+from .core import Core
+from .protocol import MAX_K
+
+__all__ = ["later_sightings", "newest_sightings"]
+
+_GROW = 8  # each window back in time holds this many times more memories than the one before
+
+
+def newest_sightings(
+    mem: Core,
+    q: np.ndarray,
+    after: float | None,
+    before: float | None,
+    thr: float,
+    *,
+    region: Region | None = None,
+    pool: int = 200,
+    steps: int = 8,
+) -> list[Hit]:
+    """Sightings (score >= `thr`) from `after` to `before` inside `region`, from the newest
+    window back from the end that holds any (step 2 of the module docstring), chronological."""
+    ids = mem.store.select(Filter(after=after, before=before, region=region))
+    end, size, hi = len(ids), MAX_K, before
+    for _ in range(steps):
+        if end <= 0:
+            break
+        start = max(0, end - size)
+        lo = after if start == 0 else _time_of(mem, int(ids[start]), after, hi)
+        got = _window(mem, q, Filter(after=lo, before=hi, region=region), thr, _any, pool, steps)
+        if got or start == 0 or lo == after:
+            return _chrono(got)
+        end, size, hi = start, size * _GROW, lo
+    return []
+
+
+def later_sightings(
+    mem: Core,
+    q: np.ndarray,
+    after: float,
+    before: float | None,
+    thr: float,
+    *,
+    region: Region | None = None,
+    keep: Callable[[Hit], bool] = lambda h: True,
+    pool: int = 200,
+    steps: int = 8,
+) -> list[Hit]:
+    """Sightings (score >= `thr`, passing `keep`) from `after` to `before` inside `region`,
+    chronological: the range scanned exactly when it is short, else searched, and searched
+    again after the newest sighting found, until nothing newer turns up (step 3)."""
+    return _chrono(_window(mem, q, Filter(after=after, before=before, region=region), thr, keep, pool, steps))
+
+
+def _any(h: Hit) -> bool:
+    return True
+
+
+def _chrono(hits: list[Hit]) -> list[Hit]:
+    return sorted(hits, key=lambda h: (h.memory.t, h.memory.id))
+
+
+def _window(
+    mem: Core, q: np.ndarray, filt: Filter, thr: float, keep: Callable[[Hit], bool], pool: int, steps: int
+) -> list[Hit]:
+    """The sightings of one window that pass `keep`: all of them when it is scanned exactly or
+    when a search's best `pool` are not all sightings (the rest score lower still); else
+    searched again after the newest of those, until that holds."""
+    out: dict[int, Hit] = {}
+    for _ in range(steps):
+        span = Filter(after=filt.after, before=filt.before)  # its count bounds the filter's
+        n = len(mem.store.select(span if filt.region is not None else filt))
+        if n == 0:
+            break
+        exact = n <= MAX_K
+        k = n if exact else min(pool, MAX_K)
+        scored = mem.store.search_vector(q, k, filt, exact=exact)
+        hits = _sightings(mem, scored, thr)
+        out.update((h.memory.id, h) for h in hits if keep(h))
+        if exact or len(hits) < len(scored) or len(scored) < k:
+            break
+        newest = max(h.memory.t for h in hits)
+        if filt.after is not None and newest <= filt.after:
+            break
+        filt = Filter(after=newest, before=filt.before, region=filt.region)
+    return list(out.values())
+
+
+def _time_of(mem: Core, memory_id: int, lo: float | None, hi: float | None) -> float | None:
+    """The time of a stored memory, kept inside [lo, hi] so windows tile the range whatever the
+    store's order of ids (`lo` when it was forgotten meanwhile: the window reaches back to it)."""
+    got = mem.stored([memory_id])
+    if not got:
+        return lo
+    t = got[0].t
+    t = t if hi is None else min(t, hi)
+    return t if lo is None else max(t, lo)
+
+
+def _sightings(mem: Core, scored: list[tuple[int, float]], thr: float) -> list[Hit]:
+    """The scored memories at or above the threshold that are still stored, as hits."""
+    score = {i: sc for i, sc in scored if sc >= thr}
+    recs = mem.stored(sorted(score)) if score else []
+    return [Hit(memory=r, score=float(score[r.id])) for r in recs]

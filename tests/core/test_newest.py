@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import ravenmem
-from ravenmem.memory.newest import later_sightings, newest_sightings
+from ravenmem.memory.newest import Later, newest_sightings
 from ravenmem.memory.views import ChangeConfig, _disc, chrono, overlaps
 from ravenmem.types import Frame, Pose, Region
 
@@ -111,19 +111,30 @@ def test_the_newest_sighting_is_the_brute_force_one(memory, after_frac) -> None:
 
 
 @pytest.mark.parametrize("spot", [3.0, 12.0, 21.0])
-def test_later_sightings_of_a_place_reach_its_newest(memory, spot) -> None:
+def test_later_sightings_of_a_place_reach_its_newest_and_are_kept(memory, spot) -> None:
     mem, emb, u = memory
     recs, scores = brute(mem, emb, u)
     thr = 0.5
     region = Region(spot, 0.0, 1.5)
     inside = [r for r in recs if abs(r.pose.x - spot) <= 1.5 and scores[r.id] >= thr]
     assert inside
-    after = inside[0].t
-    got = later_sightings(mem, u, after, None, thr, region=region, pool=40)
+    later = Later(mem, u, thr, None, pool=40, steps=8, margin=1.5)
+    got = later.find(inside[0].t, region, lambda h: True)
     assert (got[-1].memory.t, got[-1].memory.id) == (inside[-1].t, inside[-1].id)
     assert {h.memory.id for h in got} <= {r.id for r in inside}
-    none = later_sightings(mem, u, inside[-1].t + 0.5, None, thr, region=region, pool=40)
-    assert none == []
+    assert later.find(inside[-1].t + 0.5, region, lambda h: True) == []
+    # asked again inside what was searched, from when on it holds every sighting: the same
+    # answer as brute force, without a search
+    searches, (complete_from, _, _) = len(later.known), later.known[0]
+    inner = Region(spot + 0.5, 0.0, 1.0)
+    again = later.find(complete_from, inner, lambda h: h.memory.id % 2 == 0)
+    want = [
+        r.id
+        for r in recs
+        if r.t >= complete_from and scores[r.id] >= thr and abs(r.pose.x - spot - 0.5) <= 1.0
+    ]
+    assert want and [h.memory.id for h in again] == [i for i in want if i % 2 == 0]
+    assert len(later.known) == searches
 
 
 def test_last_seen_ends_every_place_at_its_newest_sighting(memory) -> None:

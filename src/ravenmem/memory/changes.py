@@ -56,7 +56,7 @@ from ..imageio import read_image
 from ..timeparse import fmt_time
 from ..types import Filter, Hit, MemoryRecord, check_picture
 from .core import Core, check_text
-from .newest import newest_sightings
+from .newest import Later, newest_sightings
 from .places import Place, Verdict, Whereabouts
 from .protocol import MAX_K, Near, TimeLike
 from .seen_index import seen_index
@@ -112,10 +112,11 @@ class Changes(Core):
             return Whereabouts(label, [], thr, floor, best)
         places = [Place(0, g) for g in group_sightings(self, sorted(seen.values(), key=chrono), s)]
         gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
+        later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, s.view_radius)
         for p in places:
-            follow(self, p, q, thr, s, asof, gap)
+            follow(self, p, q, thr, s, asof, gap, later)
         for p in merge(places):
-            follow(self, p, q, thr, s, asof, gap)
+            follow(self, p, q, thr, s, asof, gap, later)
         places.sort(key=lambda p: chrono(p.sightings[-1]), reverse=True)
         for i, p in enumerate(places, 1):
             p.index = i

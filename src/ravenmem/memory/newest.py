@@ -15,7 +15,7 @@ all be old (a thing seen far more often, or a little better, before it moved).
    a thousand vectors); a wider one is searched (its best `pool`), then searched again after
    the newest sighting that search found, until nothing newer turns up. The first window that
    holds a sighting ends the walk.
-3. Later sightings of one place (`later_sightings`, inside its disc): one search over the
+3. Later sightings of one place (`Later.find`, inside its disc): one search over the
    whole range (exact when it is short), and nothing found there means nothing (a place is
    mostly not seen again), as the latest mode always decided; else searched again after the
    newest sighting found, each time strictly later, until nothing newer turns up.
@@ -26,6 +26,7 @@ range whatever the order of ids; on a store whose ids follow time each holds the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -34,7 +35,7 @@ from ..types import Filter, Hit, Region
 from .core import Core
 from .protocol import MAX_K
 
-__all__ = ["later_sightings", "newest_sightings"]
+__all__ = ["Later", "newest_sightings"]
 
 _GROW = 8  # each window back in time holds this many times more memories than the one before
 
@@ -59,33 +60,44 @@ def newest_sightings(
             break
         start = max(0, end - size)
         lo = after if start == 0 else _time_of(mem, int(ids[start]), after, hi)
-        got = _window(mem, q, Filter(after=lo, before=hi, region=region), thr, _any, pool, steps)
+        got, _ = _window(mem, q, Filter(after=lo, before=hi, region=region), thr, pool, steps)
         if got or start == 0 or lo == after:
             return _chrono(got)
         end, size, hi = start, size * _GROW, lo
     return []
 
 
-def later_sightings(
-    mem: Core,
-    q: np.ndarray,
-    after: float,
-    before: float | None,
-    thr: float,
-    *,
-    region: Region | None = None,
-    keep: Callable[[Hit], bool] = lambda h: True,
-    pool: int = 200,
-    steps: int = 8,
-) -> list[Hit]:
-    """Sightings (score >= `thr`, passing `keep`) from `after` to `before` inside `region`,
-    chronological: the range scanned exactly when it is short, else searched, and searched
-    again after the newest sighting found, until nothing newer turns up (step 3)."""
-    return _chrono(_window(mem, q, Filter(after=after, before=before, region=region), thr, keep, pool, steps))
+class Later:
+    """One question's searches for later sightings of its places (step 3), kept: a place's disc
+    is searched a little wider (`margin` m) and, when that search found every sighting in it
+    from its start on, a later ask inside that disc and range is answered from it. The rounds
+    of one place and places beside each other (one thing seen from several viewpoints) ask
+    nearly the same question again and again: each asked the index once before."""
+
+    def __init__(
+        self, mem: Core, q: np.ndarray, thr: float, before: float | None, pool: int, steps: int, margin: float
+    ) -> None:
+        self.mem, self.q, self.thr, self.before = mem, q, thr, before
+        self.pool, self.steps, self.margin = pool, steps, margin
+        self.known: list[tuple[float, Region, list[Hit]]] = []  # complete from, disc, sightings
+
+    def find(self, after: float, region: Region, keep: Callable[[Hit], bool]) -> list[Hit]:
+        """Sightings from `after` on inside `region` that pass `keep`, chronological."""
+        for lo, disc, hits in self.known:
+            if lo <= after and math.hypot(region.x - disc.x, region.y - disc.y) + region.r <= disc.r:
+                return _chrono([h for h in hits if h.memory.t >= after and _inside(h, region) and keep(h)])
+        wide = Region(region.x, region.y, region.r + self.margin)
+        filt = Filter(after=after, before=self.before, region=wide)
+        hits, complete = _window(self.mem, self.q, filt, self.thr, self.pool, self.steps)
+        if complete is not None:
+            self.known.append((complete, wide, hits))
+        return _chrono([h for h in hits if _inside(h, region) and keep(h)])
 
 
-def _any(h: Hit) -> bool:
-    return True
+def _inside(h: Hit, region: Region) -> bool:
+    """The store's disc test (`Filter.region`)."""
+    dx, dy = h.memory.pose.x - region.x, h.memory.pose.y - region.y
+    return dx * dx + dy * dy <= region.r * region.r
 
 
 def _chrono(hits: list[Hit]) -> list[Hit]:
@@ -93,29 +105,31 @@ def _chrono(hits: list[Hit]) -> list[Hit]:
 
 
 def _window(
-    mem: Core, q: np.ndarray, filt: Filter, thr: float, keep: Callable[[Hit], bool], pool: int, steps: int
-) -> list[Hit]:
-    """The sightings of one window that pass `keep`: all of them when it is scanned exactly or
-    when a search's best `pool` are not all sightings (the rest score lower still); else
-    searched again after the newest of those, until that holds."""
+    mem: Core, q: np.ndarray, filt: Filter, thr: float, pool: int, steps: int
+) -> tuple[list[Hit], float | None]:
+    """The sightings of one window: all of them when it is scanned exactly or when a search's
+    best `pool` are not all sightings (the rest score lower still); else searched again after
+    the newest of those, until that holds. Also from when on the sightings are all there (the
+    last search's start; None when the steps ran out first)."""
     out: dict[int, Hit] = {}
     for _ in range(steps):
+        start = filt.after if filt.after is not None else -math.inf
         span = Filter(after=filt.after, before=filt.before)  # its count bounds the filter's
         n = len(mem.store.select(span if filt.region is not None else filt))
         if n == 0:
-            break
+            return list(out.values()), start
         exact = n <= MAX_K
         k = n if exact else min(pool, MAX_K)
         scored = mem.store.search_vector(q, k, filt, exact=exact)
         hits = _sightings(mem, scored, thr)
-        out.update((h.memory.id, h) for h in hits if keep(h))
+        out.update((h.memory.id, h) for h in hits)
         if exact or len(hits) < len(scored) or len(scored) < k:
-            break
+            return list(out.values()), start
         newest = max(h.memory.t for h in hits)
         if filt.after is not None and newest <= filt.after:
             break
         filt = Filter(after=newest, before=filt.before, region=filt.region)
-    return list(out.values())
+    return list(out.values()), None
 
 
 def _time_of(mem: Core, memory_id: int, lo: float | None, hi: float | None) -> float | None:

@@ -27,15 +27,15 @@ range whatever the order of ids; on a store whose ids follow time each holds the
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ..types import Filter, Hit, Region
+from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
 from .protocol import MAX_K
 
-__all__ = ["Later", "newest_sightings"]
+__all__ = ["Later", "exact_scores", "newest_sightings"]
 
 _GROW = 8  # each window back in time holds this many times more memories than the one before
 
@@ -92,6 +92,23 @@ class Later:
         if complete is not None:
             self.known.append((complete, wide, hits))
         return _chrono([h for h in hits if _inside(h, region) and keep(h)])
+
+
+def exact_scores(mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord]) -> dict[int, float]:
+    """Id -> score of records in hand, from one exact scan of the time span and disc that hold
+    them (vectors only: no record is read again); {} when those hold more than `MAX_K`."""
+    if not recs:
+        return {}
+    cx = sum(r.pose.x for r in recs) / len(recs)
+    cy = sum(r.pose.y for r in recs) / len(recs)
+    reach = max(math.hypot(r.pose.x - cx, r.pose.y - cy) for r in recs)
+    ts = [r.t for r in recs]
+    filt = Filter(after=min(ts), before=max(ts), region=Region(cx, cy, reach + 1e-3))
+    n = len(mem.store.select(filt))
+    if n == 0 or n > MAX_K:
+        return {}
+    want = {r.id for r in recs}
+    return {i: sc for i, sc in mem.store.search_vector(q, n, filt, exact=True) if i in want}
 
 
 def _inside(h: Hit, region: Region) -> bool:

@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import InputError
 from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
-from .newest import Later
+from .newest import Later, exact_scores
 from .places import Place
 from .protocol import MAX_K
 
@@ -58,10 +58,13 @@ def chrono(h: Hit) -> tuple[float, int]:
     return (h.memory.t, h.memory.id)
 
 
-def _scores(mem: Core, q: np.ndarray, ids: Sequence[int]) -> list[tuple[MemoryRecord, float]]:
-    recs = sample(mem, ids, embeddings=True)
-    out = []
-    for r in recs:
+def _scores(mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord]) -> list[tuple[MemoryRecord, float]]:
+    """The records (still stored) with their scores: read by one exact scan (`exact_scores`),
+    else from each record's embedding."""
+    got = exact_scores(mem, q, recs)
+    out = [(r, got[r.id]) for r in recs if r.id in got]
+    rest = [r.id for r in recs if r.id not in got]
+    for r in sample(mem, rest, embeddings=True) if rest else []:
         assert r.embedding is not None
         out.append((r, float(np.dot(r.embedding, q))))
         r.embedding = None
@@ -133,7 +136,7 @@ def _views(
 ) -> list[Hit]:
     """The records whose view overlaps one of `cams`, scored against the query, chronological."""
     near = [r for r in recs if any(overlaps(r, c, s) for c in cams)]
-    scored = _scores(mem, q, [r.id for r in near]) if near else []
+    scored = _scores(mem, q, near) if near else []
     return sorted((Hit(memory=r, score=sc) for r, sc in scored), key=chrono)
 
 

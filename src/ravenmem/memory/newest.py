@@ -12,13 +12,16 @@ all be old (a thing seen far more often, or a little better, before it moved).
 2. Windows back from the end of the range, by count: the newest `MAX_K` memories the filter
    accepts, then 8 times as many before them, and so on. A window of at most `MAX_K` memories
    is scanned exactly (every vector read and scored: the answer is exact and costs a read of
-   a thousand vectors); a wider one is searched (its best `pool`), then searched again after
-   the newest sighting that search found, until nothing newer turns up. The first window that
-   holds a sighting ends the walk.
+   a thousand vectors); a wider one is searched (its best `pool`): when those are not all
+   sightings, every sighting in it ranks above them and is in hand; else it is searched again
+   after the newest sighting found, each time strictly later. The first window that holds a
+   sighting ends the walk.
 3. Later sightings of one place (`Later.find`, inside its disc): one search over the
    whole range (exact when it is short), and nothing found there means nothing (a place is
-   mostly not seen again), as the latest mode always decided; else searched again after the
-   newest sighting found, each time strictly later, until nothing newer turns up.
+   mostly not seen again), as the latest mode always decided; else as a wide window above.
+   One question's searches are kept and answer its other places inside them (`Later`).
+4. Views of a place already in hand are scored by one exact scan of the span and disc that
+   hold them (`exact_scores`: vectors only), not by reading each record again.
 
 Windows follow the filter's ids (the store's in-RAM columns) and their times, so they tile the
 range whatever the order of ids; on a store whose ids follow time each holds the count it says.

@@ -165,39 +165,55 @@ def patrol(
     return poses, emb, things, where
 
 
+def build_patrol(path: Path, n: int, dim: int) -> ravenmem.Memory:
+    """A patrol memory of `n` keyframes at `path` (embeddings stored as given: no model runs)."""
+    poses, emb, things, _ = patrol(n, dim)
+    mem = ravenmem.create(path, embedder=Labels(dim, things), ocr=False, thumb_size=0)
+    img = np.zeros((2, 2, 3), np.uint8)
+    for a in range(0, n, 5000):
+        frames = [Frame(img, T0 + i, poses[i], "patrol", i) for i in range(a, min(n, a + 5000))]
+        mem.add_frames(frames, embeddings=emb[a : a + len(frames)])
+    return mem
+
+
+def verdicts(mem: ravenmem.Memory) -> list[str]:
+    """Whether the latest mode gets the patrol's changes right (mug moved, kettle gone, plant there)."""
+    checks = []
+    mug, kettle, plant = mem.last_seen("mug"), mem.last_seen("kettle"), mem.last_seen("plant")
+    at_mug = mug.now is not None and abs(mug.now.last.frame_index % 320 - 50) < 8
+    checks.append(f"mug now at its new stretch: {'yes' if at_mug else 'NO'}, status {mug.status}")
+    checks.append(f"old place {'moved' if any(p.verdict == 'moved' for p in mug.places) else 'NOT moved'}")
+    checks.append(f"kettle {kettle.status}")
+    checks.append(f"plant {plant.status}")
+    return checks
+
+
+def timings(mem: ravenmem.Memory, reps: int) -> tuple[list[float], list[float]]:
+    """Seconds per call of the text tool (k=5) and of the latest mode, alternating."""
+    st, ls = [], []
+    for _ in range(reps):
+        t = time.perf_counter()
+        mem.search_text("mug", k=5)
+        st.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        mem.last_seen("mug")
+        ls.append(time.perf_counter() - t)
+    return st, ls
+
+
 def scale(sizes: list[int], dim: int, reps: int) -> None:
     print(f"\nscale: patrol loop, dim {dim}; p50 / p90 ms over {reps} calls (2 busy cores)")
     print(
         f"{'memories':>9} {'build s':>8} | {'search_text p50':>15} {'p90':>6} | {'last_seen p50':>13} {'p90':>6} | verdicts"
     )
     for n in sizes:
-        poses, emb, things, where = patrol(n, dim)
         tmp = Path(tempfile.mkdtemp(prefix="bench-changes-"))
         try:
             t = time.perf_counter()
-            mem = ravenmem.create(tmp / "p.mem", embedder=Labels(dim, things), ocr=False, thumb_size=0)
-            img = np.zeros((2, 2, 3), np.uint8)
-            for a in range(0, n, 5000):
-                frames = [Frame(img, T0 + i, poses[i], "patrol", i) for i in range(a, min(n, a + 5000))]
-                mem.add_frames(frames, embeddings=emb[a : a + len(frames)])
+            mem = build_patrol(tmp / "p.mem", n, dim)
             build = time.perf_counter() - t
-            st, ls = [], []
-            for _ in range(reps):
-                t = time.perf_counter()
-                mem.search_text("mug", k=5)
-                st.append(time.perf_counter() - t)
-                t = time.perf_counter()
-                mem.last_seen("mug")
-                ls.append(time.perf_counter() - t)
-            checks = []
-            mug, kettle, plant = mem.last_seen("mug"), mem.last_seen("kettle"), mem.last_seen("plant")
-            at_mug = mug.now is not None and abs(mug.now.last.frame_index % 320 - 50) < 8
-            checks.append(f"mug now at its new stretch: {'yes' if at_mug else 'NO'}, status {mug.status}")
-            checks.append(
-                f"old place {'moved' if any(p.verdict == 'moved' for p in mug.places) else 'NOT moved'}"
-            )
-            checks.append(f"kettle {kettle.status}")
-            checks.append(f"plant {plant.status}")
+            st, ls = timings(mem, reps)
+            checks = verdicts(mem)
             mem.close()
         finally:
             shutil.rmtree(tmp, ignore_errors=True)

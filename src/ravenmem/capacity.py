@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from .progress import Eta
 from .types import MemoryRecord, Pose
 
 PAPER_RATE = 0.12  # keyframes per second (RAVEN's robot)
@@ -203,6 +204,18 @@ def _synthetic_batches(
         yield recs, emb
 
 
+def _counted(
+    batches: Iterator[tuple[list[MemoryRecord], np.ndarray]], eta: Eta
+) -> Iterator[tuple[list[MemoryRecord], np.ndarray]]:
+    """The batches as they are, with a progress line as each one is taken."""
+    done = 0
+    eta.update(0, force=True)
+    for recs, emb in batches:
+        yield recs, emb
+        done += len(recs)
+        eta.update(done)
+
+
 def _percentiles(fn: Callable[[int], object], n: int) -> dict[str, float]:
     fn(0)  # warm
     times = []
@@ -244,14 +257,17 @@ def measure(
     rate: float = PAPER_RATE,
     synthetic_n: int = SYNTHETIC_N,
     embedder_seconds: float = SECONDS_PER_EMBEDDER,
+    say: Callable[[str], None] | None = None,
 ) -> Capacity:
-    """Run every measurement (see the module docstring). `memory` is opened read-only."""
+    """Run every measurement (see the module docstring). `memory` is opened read-only. `say`
+    gets a line as each step starts and ends (a minute of silence reads as a hang)."""
     import importlib.util
 
     import ravenmem
 
     from .embed.base import default_threads
 
+    say = say or (lambda line: None)
     start = time.perf_counter()
     specs: list[str] = []
     mem_path = Path(memory) if memory is not None else None
@@ -262,8 +278,15 @@ def measure(
         specs.append("offline")
     if importlib.util.find_spec("torch") is not None:
         specs.append("offline:runtime=torch")
-    embedders = [measure_embedder(s, embedder_seconds) for s in specs]
+    embedders = []
+    for i, spec in enumerate(specs, 1):
+        say(f"[{i}/{len(specs) + 3}] embedder {spec}: loading, then embedding for {embedder_seconds:g} s")
+        embedders.append(measure_embedder(spec, embedder_seconds))
+        e = embedders[-1]
+        say(f"  {e.error or f'{e.frames_per_s:.1f} frames/s'}")
+    say(f"[{len(specs) + 1}/{len(specs) + 3}] OCR: reading a rendered sign for 2 s")
     ocr = measure_ocr()
+    say(f"  {f'{ocr:.1f} frames/s' if ocr else 'unavailable'}")
 
     with tempfile.TemporaryDirectory(prefix="ravenmem-bench-") as tmp:
         build_s = None
@@ -271,12 +294,17 @@ def measure(
             dim = 384
             path = Path(tmp) / "synthetic.mem"
             t0 = time.perf_counter()
+            step = f"[{len(specs) + 2}/{len(specs) + 3}] store: building a synthetic one"
+            eta = Eta(say, step, synthetic_n)
             with ravenmem.create(path, embedder="offline", ocr=False, thumb_size=0) as m:
                 dim = m.dim
-                m.import_embeddings(_synthetic_batches(synthetic_n, dim))
+                m.import_embeddings(_counted(_synthetic_batches(synthetic_n, dim), eta))
             build_s = time.perf_counter() - t0
         else:
             path = mem_path
+        say(
+            f"[{len(specs) + 3}/{len(specs) + 3}] store: RAM per memory, then each tool {QUERIES_PER_TOOL} times"
+        )
         ram = _ram_per_memory(path)
         with ravenmem.open(path) as mem:
             info = mem.info()

@@ -400,6 +400,9 @@ def hit_json(
     (`ravenmem.memory.changes.Place.as_dict`, with `role` "sighting" or "revisit").
     A hit that stands for several memories merged by `ravenmem consolidate` also has `count`
     (how many) and `first_t`/`last_t`/`first_time`/`last_time` (when they were seen).
+    `supported` (text searches): whether the hit's support reaches above what things that are
+    not in the memory reach, the rule `ask --offline` declines by (`ravenmem.agent.support`);
+    null where it was not judged (the other tools).
     """
     r = hit.memory
     out = {
@@ -420,6 +423,7 @@ def hit_json(
         "frame_index": r.frame_index,
         "ocr_text": r.ocr_text,
         "ocr_match": hit.ocr_match,
+        "supported": hit.supported,
         **({"change": change} if (change := getattr(hit, "change", None)) else {}),
     }
     if hit.count > 1 and hit.span is not None:

@@ -260,6 +260,8 @@ class Hit:
     matched); `distance` is metres for the position tool. Tools fill the one that applies.
     `count` and `span` say what a consolidated memory stands for (`ravenmem consolidate`): how
     many memories it represents and the (first, last) time they were seen; 1 and None otherwise.
+    `supported` says whether a text hit's score reaches above what things that are not there
+    reach (`ravenmem.agent.support`, the rule `ask` declines by); None where nobody judged it.
     """
 
     memory: MemoryRecord
@@ -268,6 +270,7 @@ class Hit:
     ocr_match: bool = False
     count: int = 1
     span: tuple[float, float] | None = None
+    supported: bool | None = None
 
 
 @dataclass(frozen=True)

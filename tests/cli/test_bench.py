@@ -81,3 +81,39 @@ def test_bench_text_on_a_memory_reads_it_only_and_reports_what_cannot_run(tmp_pa
 def test_bench_bad_input_is_one_line(args: list[str], match: str) -> None:
     line = assert_one_line_error(run_cli("bench", *args, timeout=120))
     assert match in line
+
+
+def test_bench_says_each_step_as_it_goes() -> None:
+    """Progress on stderr while it runs (the first line comes before the work it announces is
+    done), each step numbered, the synthetic store's build counted; stdout keeps the JSON."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.cli.helpers import REPO
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src"), str(REPO)]))
+    argv = ["bench", "--json", "--synthetic", "3000", "--seconds", "0.5"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ravenmem.cli.main", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        assert proc.stderr is not None
+        first = proc.stderr.readline()
+        running = proc.poll() is None  # the first step was announced, not reported at the end
+        out, rest = proc.communicate(timeout=600)
+    finally:
+        proc.kill()
+    assert running and re.match(r"\[1/\d\] embedder offline: loading", first), first
+    lines = [first.rstrip("\n"), *rest.splitlines()]
+    steps = [ln for ln in lines if ln.startswith("[")]
+    total = int(re.match(r"\[1/(\d)\]", first)[1])  # type: ignore[index]
+    assert list(dict.fromkeys(s.split("]")[0] for s in steps)) == [
+        f"[{i}/{total}" for i in range(1, total + 1)
+    ]
+    assert any(re.search(r"store: building a synthetic one: 3000/3000 \(100%\)", ln) for ln in lines), lines
+    assert proc.returncode == 0 and json.loads(out)["store"]["memories"] == 3000

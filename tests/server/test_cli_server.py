@@ -18,6 +18,7 @@ from PIL import Image
 
 import ravenmem
 from ravenmem.agent.methods import create_method
+from ravenmem.agent.support import judged
 from ravenmem.tools import TOOLS, hit_json
 from tests.agent.conftest import T0
 from tests.cli.helpers import run_cli
@@ -53,6 +54,7 @@ def test_search_matches_a_local_run(scene: Path, service: str):
     remote = json.loads(r.stdout)
     with local(scene) as mem:
         hits = TOOLS["search_text"].run(mem, {"query": "something blue", "after": "+25s"}, 4)
+        hits = judged(mem, "something blue", hits)  # the verdict the service adds to text hits
         rows = [hit_json(h, i + 1, mem.time_span()[0]) for i, h in enumerate(hits)]
         thumb = mem.image_file(hits[0].memory)
     assert (remote["mode"], remote["tool"]) == ("text", "search_text")

@@ -48,6 +48,7 @@ async def exercise(client: Client, image_base: str | None) -> dict[str, Any]:
     data = json.loads(text.content[0].text)  # type: ignore[union-attr]
     assert data == text.structured_content and data["tool"] == "search_text"
     assert {r["id"] for r in data["results"]} == {2, 9}
+    assert [r["supported"] for r in data["results"]] == [True, True]  # the verdict `ask` declines by
     pictures = [c for c in text.content if isinstance(c, types.ImageContent)]
     assert len(pictures) == 2 and all(p.mime_type == "image/jpeg" for p in pictures)
     arr = Image.open(io.BytesIO(base64.b64decode(pictures[0].data))).convert("RGB")

@@ -219,3 +219,30 @@ def test_live_frames_appear_in_their_panel(browser, served: Served, tmp_path) ->
     # the scrubber follows new memories while at the end
     assert by_css(d, "#until-label")[0].text.startswith(f"all {len(SCENE) + 2} memories")
     screenshot(d, tmp_path, "page-live-frames")
+
+
+def test_a_search_nothing_supports_is_shown_as_not_found(browser, served: Served, tmp_path) -> None:
+    """The verdict `ask` declines by, on the page: a banner and dimmed cards when no hit is
+    supported, nothing of the kind when the thing is there; labels wrapped, never cut; and no
+    request for /map on a memory without one (it could only answer 404)."""
+    d = browser
+    open_page(d, served, 1100, 760)
+    search(d, "a smell of toast", 4)
+    wait_for(d, lambda d: len(by_css(d, "#hits .card")) == 4, "4 hit cards")
+    note = by_css(d, "#hits-note")[0]
+    assert (
+        note.is_displayed() and 'Not found: nothing in this memory supports "a smell of toast"' in note.text
+    )
+    assert len(by_css(d, "#hits .card.unsupported")) == 4 and "not found" in by_css(d, "#hits .card")[0].text
+    screenshot(d, tmp_path, "page-not-found")
+    search(d, "red", 4)
+    wait_for(d, lambda d: not by_css(d, "#hits-note")[0].is_displayed(), "the banner to go")
+    wait_for(d, lambda d: "score 1.000" in by_css(d, "#hits .card")[0].text, "the red hits")
+    assert [c.get_attribute("class") for c in by_css(d, "#hits .card")[:2]] == ["card", "card"]
+    cut = d.execute_script(
+        "return [...document.querySelectorAll('#hits .card .meta')]"
+        ".filter(m => m.scrollWidth > m.clientWidth + 1).map(m => m.textContent)"
+    )
+    assert cut == []  # every label's figures readable at this width
+    asked = d.execute_script("return performance.getEntriesByType('resource').map(e => e.name)")
+    assert not [u for u in asked if u.split("?")[0].endswith(("/map", "/map.png"))], asked

@@ -36,6 +36,7 @@ HIT_KEYS = {
     "frame_index",
     "ocr_text",
     "ocr_match",
+    "supported",
 }
 
 
@@ -85,6 +86,22 @@ def test_text_search_is_the_cli_json_with_image_urls(served: Served):
     assert same == body
     local = [h.memory.id for h in served.mem.search_text("red", k=3)]
     assert [row["id"] for row in rows] == local
+
+
+def test_text_hits_carry_the_verdict_ask_declines_by(served: Served):
+    """A colour the scene holds is supported; a word the colour embedder cannot tell from the
+    decoys (things that are not there) is not; the other tools do not judge (null)."""
+    with served.client() as c:
+        red = c.get("/search/text", params={"q": "red", "k": 3}).json()["results"]
+        smell = c.get("/search/text", params={"q": "a smell of toast", "k": 3}).json()["results"]
+        when = c.get("/search/time", params={"t": "+20s", "k": 2}).json()["results"]
+    assert [r["supported"] for r in red[:2]] == [True, True] and {r["id"] for r in red[:2]} == {2, 9}
+    assert len(smell) == 3 and [r["supported"] for r in smell] == [False, False, False]
+    assert [r["supported"] for r in when] == [None, None]
+    # the rule is the offline reasoner's: it declines the same thing
+    with served.client() as c:
+        answer = c.post("/ask", json={"question": "where is a smell of toast?", "method": "offline"}).json()
+    assert answer["found"] is False
 
 
 def test_filters_reach_the_tools(served: Served):
@@ -494,13 +511,14 @@ def test_occupancy_map_north_up(served: Served):
     with served.client() as c:
         none = c.get("/map")
         assert none.status_code == 404 and "no occupancy map" in one_line_error(none)
-        assert c.get("/map.png").status_code == 404
+        assert c.get("/map.png").status_code == 404 and c.get("/info").json()["has_map"] is False
         grid = OccupancyGrid(MapConfig(resolution=0.5), origin=(-1.0, -2.0), shape=(8, 12))
         grid.known[:] = True
         grid.logodds[:] = -1.0  # free floor
         row, col = grid.world_to_cell(3.2, 1.1)
         grid.logodds[row, col] = 2.0  # one wall cell, north-east of the middle
         grid.save(served.mem.path)
+        assert c.get("/info").json()["has_map"] is True  # the page asks for /map only then
         meta = c.get("/map").json()
         assert (
             meta["extent"] == [-1.0, -2.0, 5.0, 2.0]

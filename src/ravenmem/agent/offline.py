@@ -338,6 +338,27 @@ class OfflineReasoner:
             pass
         return out
 
+    def _scored(
+        self, groups: list[list[str]], subject: str, image: np.ndarray | None
+    ) -> tuple[dict[int, Cand], float]:
+        """The candidates with their support, and the "found" threshold (steps 1-4 above)."""
+        pool = max(1, min(self.memory.count(), self.s.pool))
+        cands = self._fuse(groups, pool, image)
+        self._add_ocr(cands, subject, pool)
+        self._support(cands)
+        return cands, self.threshold(subject)
+
+    def support(self, query: str) -> tuple[dict[int, float], float]:
+        """Each memory's support for the thing `query` names, scored exactly as `ask` scores the
+        thing asked about, and the threshold under which `ask` declines: the verdict search
+        results carry (ravenmem.agent.support). Memories outside the scored pool are left out."""
+        subject = subject_phrase(query) or query
+        groups = rewrite(query, subject)
+        if not groups:
+            raise InputError(f"cannot tell what to look for in {query!r}")
+        cands, thr = self._scored(groups, subject, None)
+        return {mid: c.support for mid, c in cands.items()}, thr
+
     # ------------------------------------------------------------------ answering
     def ask(self, question: str, image: np.ndarray | None = None) -> Answer:
         if not question or not question.strip():
@@ -355,11 +376,7 @@ class OfflineReasoner:
         if not groups and image is None:
             raise InputError(f"cannot tell what to look for in {question!r}")
         n = mem.count()
-        pool = max(1, min(n, s.pool))
-        cands = self._fuse(groups, pool, image)
-        self._add_ocr(cands, subject, pool)
-        self._support(cands)
-        thr = self.threshold(subject)
+        cands, thr = self._scored(groups, subject, image)
         ranked = sorted(cands.values(), key=lambda c: -c.support)
         best = ranked[0] if ranked else None
         found = best is not None and best.support > thr

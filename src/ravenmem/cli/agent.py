@@ -354,6 +354,8 @@ def _render_navigation(nav: dict[str, Any]) -> None:
 
 
 def _render(a: dict[str, Any]) -> None:
+    from .main import short_path
+
     con = out_console()
     status = "[red]FAILED[/]" if a["failed"] else ("found" if a["found"] else "[yellow]not found[/]")
     if a.get("unsupported"):
@@ -396,7 +398,7 @@ def _render(a: dict[str, Any]) -> None:
                 f"{e['z']:.2f}",
                 f"{math.degrees(e['yaw']):.0f}",
                 score,
-                esc(e.get("image_file") or ""),
+                esc(short_path(e.get("image_file"))),  # relative to here, as `search` shows them
             )
         con.print(table)
     c = a["cost"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -35,7 +36,11 @@ def bench_cmd(
 
     if memory is not None and not (memory / "memory.json").is_file():
         raise InputError(f"{memory}: not a ravenmem memory (no memory.json)")
-    cap = measure(memory, rate=rate, synthetic_n=synthetic, embedder_seconds=seconds)
+
+    def say(line: str) -> None:  # progress as it goes, on stderr (stdout keeps the results)
+        print(line, file=sys.stderr, flush=True)
+
+    cap = measure(memory, rate=rate, synthetic_n=synthetic, embedder_seconds=seconds, say=say)
     if json_out:
         print(json.dumps(cap.as_dict(), indent=2))
         return

@@ -429,7 +429,7 @@ def _render_hits(rows: list[dict[str, Any]], tool: Any, call: Any, mode: str, la
             ch = r.get("change", {})
             verdict = ch.get("verdict", "") if ch.get("role") == "sighting" else "view without it"
             cells.append(f"place {ch.get('place')}: {esc(verdict)}")
-        table.add_row(*cells)
+        table.add_row(*cells, style="dim" if r.get("supported") is False else None)
     if latest:
         first = rows[0].get("change", {}) if rows else {}
         status = first.get("status") or "not seen"
@@ -440,6 +440,13 @@ def _render_hits(rows: list[dict[str, Any]], tool: Any, call: Any, mode: str, la
             if ch.get("role") == "sighting":
                 console.print(f"  {esc(ch.get('text', ''))}", highlight=False)
     console.print(table)
+    if rows and all(r.get("supported") is False for r in rows):
+        console.print(
+            f'warning: nothing in this memory supports "{esc(str(getattr(call, "query", "")))}": no hit scores above what '
+            "things that are not there reach (the rule `ask --offline` declines by); these are only "
+            "the least unlike",
+            highlight=False,
+        )
 
 
 @app.command()

@@ -167,7 +167,12 @@ def navigate(
         str, GOAL, typer.Option("--to", help="goal 'x,y' (map metres) or what to go to ('the red box')")
     ],
     from_: Annotated[
-        str | None, POINT, typer.Option("--from", help="start 'x,y' (default: the robot's last pose)")
+        str | None,
+        POINT,
+        typer.Option(
+            "--from",
+            help="start 'x,y' (default: the robot's last pose, or the nearest cell that reaches the goal)",
+        ),
     ] = None,
     method: Annotated[
         str, typer.Option(help="how a text goal is answered: offline | embedder-only | ...")
@@ -237,12 +242,27 @@ def navigate(
             f" (goal snapped from ({gp.target[0]:.2f}, {gp.target[1]:.2f}))" if gp.target else " (snapped)"
         )
     if "answer" in out:
-        line = f"answer ({out['answer']['method']}): {out['answer']['position']}; " + line
+        where = ", ".join(f"{v:.2f}" for v in out["answer"]["position"] or [])
+        line = f"answer ({out['answer']['method']}): ({where}); " + line
     if "drive" in out:
         d = out["drive"]
         line += f"; drove {d['driven_m']:.1f} m: {d['reason']}, robot at ({d['final'][0]:.2f}, {d['final'][1]:.2f})"
     sys.stdout.write(line + "\n")
-    sys.stdout.write(json.dumps(gp.pose_stamped()) + "\n")
+    for note in gp.notes:
+        sys.stdout.write(f"  note: {note}\n")
+    sys.stdout.write(json.dumps(_rounded(gp.pose_stamped())) + "\n")
+
+
+def _rounded(data: Any, places: int = 4) -> Any:
+    """JSON for a person: floats to `places` decimals (a millimetre on the map), the rest as is
+    (`--json` keeps every digit)."""
+    if isinstance(data, float):
+        return round(data, places)
+    if isinstance(data, dict):
+        return {k: _rounded(v, places) for k, v in data.items()}
+    if isinstance(data, list):
+        return [_rounded(v, places) for v in data]
+    return data
 
 
 def _declined(to: str, answer: Any) -> str:
@@ -290,8 +310,7 @@ def _plan(
     with ravenmem.open(memory) as mem:
         if drive and len(grid.trajectory):
             start = (float(grid.trajectory[0][0]), float(grid.trajectory[0][1]))  # the simulator's start
-        if start is None:
-            start = last_pose(grid, mem)
+        # no --from: goal_for starts at the robot's last pose, or near it when that is cut off
         if goal_xy is not None:
             target: Any = PositionGoal(position=list(goal_xy))
         else:
@@ -308,7 +327,7 @@ def _plan(
         gp = goal_for(target, mem, start, robot_radius=robot_radius, grid=grid)
         if goal_xy is None and not target.found and not gp.ok:
             gp.plan.reason = _declined(to, target)  # why, and what a search finds instead
-        return gp, grid, start
+        return gp, grid, gp.start or start or last_pose(grid, mem)
 
 
 def _drive(memory: Path, grid: Any, goal: Any, max_steps: int) -> dict[str, Any]:

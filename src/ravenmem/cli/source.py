@@ -86,6 +86,11 @@ class LocalSource:
         from ..tools import hit_json
 
         hits = tool.run(self.mem, call, k, image=read_image(str(image)) if image is not None else None)
+        query = getattr(call, "query", None)
+        if tool.key == "text" and query:  # the verdict `ask --offline` declines by, as the service gives it
+            from ..agent.support import judged
+
+            hits = judged(self.mem, str(query), hits)
         t0 = self.t0() or 0.0
 
         def image_file(rec: Any) -> str | None:

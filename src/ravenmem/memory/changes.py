@@ -6,9 +6,10 @@ for every place where the thing was seen, whether the robot looked at that place
 
 1. **Sightings.** Memories that show the thing: cosine to the query at least `threshold`,
    halfway (by default) between a typical memory's score (the median of a sample spread over
-   the memory) and the best match. The newest sightings are searched for explicitly (time
-   windows walking back from the end), so a thing seen ten thousand times in January and once
-   in May is found in May.
+   the memory) and the best match. The newest sightings are searched for explicitly (from the
+   newest sighting among the best matches, searching only what came after it: see
+   `ravenmem.memory.newest`), so a thing seen ten thousand times in January and once in May is
+   found in May.
 2. **Places.** Sightings are grouped into places: a sighting joins the best earlier one whose
    view it overlaps (cameras within `view_radius` metres, orientations within
    `view_angle_deg`: the full 3-D rotation when both poses carry a quaternion, else the yaw),
@@ -55,8 +56,10 @@ from ..imageio import read_image
 from ..timeparse import fmt_time
 from ..types import Filter, Hit, MemoryRecord, check_picture
 from .core import Core, check_text
+from .newest import Later, newest_sightings
 from .places import Place, Verdict, Whereabouts
 from .protocol import MAX_K, Near, TimeLike
+from .seen_index import seen_index
 from .views import ChangeConfig, chrono, follow, group_sightings, merge, sample
 
 __all__ = ["ChangeConfig", "Changes", "Place", "Verdict", "Whereabouts"]
@@ -98,20 +101,22 @@ class Changes(Core):
         if not pool:
             return Whereabouts(label, [], math.inf, 0.0, 0.0)
         best = max(sc for _, sc in pool.values())
-        floor = _floor(self, q, s.floor_sample)
+        index = seen_index(self, s.floor_sample)  # whole-memory facts, read once per state
+        floor = index.floor(q)
         thr = floor + s.match_ratio * (best - floor) if best > floor + 1e-6 else math.inf
         if min_score is not None:
             thr = max(thr, float(min_score))
-        pool.update(_recent(self, q, filt, thr, s))
+        pool.update(_recent(self, q, pool, filt, thr, s))
         seen = {i: Hit(memory=r, score=sc) for i, (r, sc) in pool.items() if sc >= thr}
         if not seen:
             return Whereabouts(label, [], thr, floor, best)
         places = [Place(0, g) for g in group_sightings(self, sorted(seen.values(), key=chrono), s)]
-        gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * _spacing(self)
+        gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
+        later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, s.view_radius)
         for p in places:
-            follow(self, p, q, thr, s, asof, gap)
+            follow(self, p, q, thr, s, asof, gap, later)
         for p in merge(places):
-            follow(self, p, q, thr, s, asof, gap)
+            follow(self, p, q, thr, s, asof, gap, later)
         places.sort(key=lambda p: chrono(p.sightings[-1]), reverse=True)
         for i, p in enumerate(places, 1):
             p.index = i
@@ -150,57 +155,22 @@ def _search(mem: Core, q: np.ndarray, k: int, filt: Filter) -> dict[int, tuple[M
     return {i: (recs[i], float(sc)) for i, sc in scored if i in recs}
 
 
-def _spread(mem: Core, n: int) -> list[int]:
-    """About n ids spread evenly over the memory: ids grow with insertion, so between the ids
-    of the oldest and the newest memory (a few may be missing: `sample` skips them). The
-    stored times, not `mem.time_span()`: a consolidated memory's span reaches past its newest
-    representative's own time, where no memory starts."""
-    st = mem.store.stats()
-    t0, t1 = float(st["t_min"]), float(st["t_max"])  # type: ignore[arg-type]
-    ends = [r.id for t in (t0, t1) for r in mem.store.by_time(t, 1)]
-    lo, hi = min(ends), max(ends)
-    return sorted({int(i) for i in np.linspace(lo, hi, max(1, min(n, hi - lo + 1)))})
-
-
-def _floor(mem: Core, q: np.ndarray, n: int) -> float:
-    """A typical memory's score: the median over memories spread evenly over the memory."""
-    recs = sample(mem, _spread(mem, n), embeddings=True)
-    scores = [float(np.dot(r.embedding, q)) for r in recs if r.embedding is not None]
-    return float(np.median(scores)) if scores else 0.0
-
-
 def _recent(
-    mem: Core, q: np.ndarray, filt: Filter, thr: float, s: ChangeConfig
+    mem: Core,
+    q: np.ndarray,
+    pool: dict[int, tuple[MemoryRecord, float]],
+    filt: Filter,
+    thr: float,
+    s: ChangeConfig,
 ) -> dict[int, tuple[MemoryRecord, float]]:
-    """The newest sightings: the best `pool` memories in time windows that grow backwards from
-    the end (a 64th of the span, then 4 times wider) until one holds a sighting."""
-    t0, t1 = mem.time_span()
-    lo = max(t0, filt.after) if filt.after is not None else t0
-    hi = min(t1, filt.before) if filt.before is not None else t1
-    width = max((hi - lo) / 64.0, 1e-3)
-    for _ in range(s.recency_windows):
-        start = max(lo, hi - width)
-        found = _search(mem, q, s.pool, Filter(after=start, before=hi, region=filt.region))
-        if any(sc >= thr for _, sc in found.values()) or start <= lo:
-            return found
-        width *= 4.0
-    return {}
-
-
-def _spacing(mem: Core, n: int = 64) -> float:
-    """The robot's usual time between keyframes while recording: the mean time between a memory
-    and the next one stored (ids grow with insertion), over pairs spread over the memory, not
-    counting breaks (gaps over 10 times the median: the robot was off or elsewhere). The mean,
-    not the median: keyframes come fast while turning and slowly while driving."""
-    ids = _spread(mem, n)
-    first = ids[:-1] if len(ids) > 1 else ids
-    recs = {r.id: r.t for r in sample(mem, sorted(set(first) | {i + 1 for i in first}))}
-    diffs = np.array(
-        [recs[i + 1] - recs[i] for i in first if i in recs and i + 1 in recs and recs[i + 1] > recs[i]]
+    """The newest sightings: only memories after the newest sighting in the pool can be newer,
+    so the search goes on from there (`newest_sightings`: a few searches, each later)."""
+    seen = [r.t for r, sc in pool.values() if sc >= thr]
+    start = max(seen) if seen else filt.after
+    hits = newest_sightings(
+        mem, q, start, filt.before, thr, region=filt.region, pool=s.pool, steps=s.max_rounds
     )
-    if diffs.size == 0:
-        return 1.0
-    return float(diffs[diffs <= 10.0 * np.median(diffs)].mean())
+    return {h.memory.id: (h.memory, float(h.score or 0.0)) for h in hits}
 
 
 def _episodes(places: list[Place], gap: float) -> dict[int, int]:

@@ -34,11 +34,31 @@ except ImportError:  # pragma: no cover - not POSIX
 __all__ = ["WriterLock"]
 
 
-def _command() -> str:
-    argv = getattr(sys, "orig_argv", None) or [sys.executable, *sys.argv]
-    text = shlex.join(argv)
-    text = "".join(c if c.isprintable() else " " for c in text)
-    return text if len(text) <= 200 else text[:197] + "..."
+def _command(limit: int = 200, part: int = 60) -> str:
+    """The holder's command line, short enough for one message line and still telling: the
+    program by its file name (a venv's path says nothing), each long argument cut in its middle
+    (its start and end tell most), and past `limit` the middle arguments left out rather than the
+    first and last ones (what runs, and on what). Bounded however long the checkout's path."""
+    argv = list(getattr(sys, "orig_argv", None) or [sys.executable, *sys.argv]) or ["python"]
+    words = [Path(argv[0]).name or argv[0], *(_middle(a, part) for a in argv[1:])]
+    words = [shlex.quote("".join(c if c.isprintable() else " " for c in w)) for w in words]
+    if len(" ".join(words)) <= limit:
+        return " ".join(words)
+    head, tail = words[:1], words[1:]  # the program and its first arguments, up to a third
+    while tail and len(" ".join([*head, tail[0]])) <= limit // 3:
+        head.append(tail.pop(0))
+    kept: list[str] = []  # then the last arguments, as many as fit
+    while tail and len(" ".join([*head, "...", tail[-1], *kept])) <= limit:
+        kept.insert(0, tail.pop())
+    return " ".join([*head, "...", *kept])
+
+
+def _middle(text: str, most: int) -> str:
+    """`text` with its middle replaced by '...' when longer than `most` characters."""
+    if len(text) <= most:
+        return text
+    keep = most - 3
+    return text[: keep // 2] + "..." + text[len(text) - (keep - keep // 2) :]
 
 
 class WriterLock:

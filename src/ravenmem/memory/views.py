@@ -15,10 +15,11 @@ import numpy as np
 from ..errors import InputError
 from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
+from .newest import Later, exact_scores
 from .places import Place
 from .protocol import MAX_K
 
-_PAGE = 256  # memories read per step of a walk forward in time
+_PAGE = 256  # memories read per step of a walk forward in time, at most
 
 
 @dataclass(frozen=True)
@@ -57,10 +58,13 @@ def chrono(h: Hit) -> tuple[float, int]:
     return (h.memory.t, h.memory.id)
 
 
-def _scores(mem: Core, q: np.ndarray, ids: Sequence[int]) -> list[tuple[MemoryRecord, float]]:
-    recs = sample(mem, ids, embeddings=True)
-    out = []
-    for r in recs:
+def _scores(mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord]) -> list[tuple[MemoryRecord, float]]:
+    """The records (still stored) with their scores: read by one exact scan (`exact_scores`),
+    else from each record's embedding."""
+    got = exact_scores(mem, q, recs)
+    out = [(r, got[r.id]) for r in recs if r.id in got]
+    rest = [r.id for r in recs if r.id not in got]
+    for r in sample(mem, rest, embeddings=True) if rest else []:
         assert r.embedding is not None
         out.append((r, float(np.dot(r.embedding, q))))
         r.embedding = None
@@ -132,46 +136,54 @@ def _views(
 ) -> list[Hit]:
     """The records whose view overlaps one of `cams`, scored against the query, chronological."""
     near = [r for r in recs if any(overlaps(r, c, s) for c in cams)]
-    scored = _scores(mem, q, [r.id for r in near]) if near else []
+    scored = _scores(mem, q, near) if near else []
     return sorted((Hit(memory=r, score=sc) for r, sc in scored), key=chrono)
 
 
-def _newest_views(
-    mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Filter, thr: float | None
-) -> list[Hit]:
-    """The newest views of the place after its last sighting (with `thr`: the newest that show
-    the thing): time windows growing backwards from the end, inside the place's disc."""
+def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> list[Hit]:
+    """Every later view of the place, inside its disc, that shows the thing (up to the newest)."""
     disc, cams = _disc(p, s)
-    lo = p.last.t
+    last = chrono(p.sightings[-1])
+
+    def later_view(h: Hit) -> bool:
+        return chrono(h) > last and any(overlaps(h.memory, c, s) for c in cams)
+
+    return later.find(p.last.t, disc, later_view)
+
+
+def _newest_views(mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Filter) -> list[Hit]:
+    """The newest views of the place after its last sighting: time windows growing backwards
+    from the end, inside the place's disc."""
+    disc, cams = _disc(p, s)
+    lo, last = p.last.t, chrono(p.sightings[-1])
     hi = asof.before if asof.before is not None else mem.time_span()[1]
-    if thr is not None:  # one search over the whole time first: mostly there is no later sighting
-        found = mem.store.search_vector(q, s.pool, Filter(after=lo, before=hi, region=disc))
-        recs = sample(mem, [i for i, sc in found if sc >= thr])
-        if not any(chrono(h) > chrono(p.sightings[-1]) for h in _views(mem, q, recs, cams, s)):
-            return []
     width = max((hi - lo) / 64.0, 1e-3)
     for _ in range(s.recency_windows + 4):
         start = max(lo, hi - width)
-        filt = Filter(after=start, before=hi, region=disc)
-        if thr is None:
-            recs = mem.store.by_time(start, s.pool, filt)
-        else:
-            found = mem.store.search_vector(q, s.pool, filt)
-            recs = sample(mem, [i for i, sc in found if sc >= thr])
-        got = [h for h in _views(mem, q, recs, cams, s) if chrono(h) > chrono(p.sightings[-1])]
-        if thr is not None:
-            got = [h for h in got if (h.score or 0.0) >= thr]
+        recs = mem.store.by_time(start, s.pool, Filter(after=start, before=hi, region=disc))
+        got = [h for h in _views(mem, q, recs, cams, s) if chrono(h) > last]
         if got or start <= lo:
             return got
         width *= 4.0
     return []
 
 
-def follow(mem: Core, p: Place, q: np.ndarray, thr: float, s: ChangeConfig, asof: Filter, gap: float) -> None:
+def follow(
+    mem: Core,
+    p: Place,
+    q: np.ndarray,
+    thr: float,
+    s: ChangeConfig,
+    asof: Filter,
+    gap: float,
+    later: Later | None = None,
+) -> None:
     """Grow the place with its newest later sightings, then collect the later views without the
-    thing: after the robot looked away, and at least a pass (`gap` s) after the last sighting."""
+    thing: after the robot looked away, and at least a pass (`gap` s) after the last sighting.
+    `later`: the question's searches for later sightings, shared by its places."""
+    later = later or Later(mem, q, thr, asof.before, s.pool, s.max_rounds, s.view_radius)
     for _ in range(s.max_rounds):
-        more = _newest_views(mem, q, p, s, asof, thr)
+        more = _later_sightings(p, s, later)
         if not more:
             break
         known = {h.memory.id for h in p.sightings}
@@ -183,7 +195,7 @@ def follow(mem: Core, p: Place, q: np.ndarray, thr: float, s: ChangeConfig, asof
     without = [h for h in _views(mem, q, first, cams, s) if (h.score or 0.0) < thr]
     p.revisit_count = len(without)
     if without:
-        newest = [h for h in _newest_views(mem, q, p, s, asof, None) if (h.score or 0.0) < thr]
+        newest = [h for h in _newest_views(mem, q, p, s, asof) if (h.score or 0.0) < thr]
         if newest and newest[-1].memory.id not in {h.memory.id for h in without}:
             without.append(newest[-1])
             p.revisit_count = max(p.revisit_count + 1, len(without))
@@ -197,17 +209,19 @@ def _visit_end(mem: Core, p: Place, start: MemoryRecord, s: ChangeConfig, asof: 
     """When the robot first looked away from the place after `start`: the time of the first
     later memory that overlaps none of the place's sightings (None if it never did)."""
     views = [h.memory for h in p.sightings]
-    cursor, read = (start.t, start.id), 0
+    cursor, read, size = (start.t, start.id), 0, 16  # mostly the robot looks away at once
     while read < s.max_walk:
-        page = mem.store.by_time(cursor[0], _PAGE, asof)
+        page = mem.store.by_time(cursor[0], size, asof)
         fresh = [r for r in page if (r.t, r.id) > cursor]
         for r in fresh:
             if not any(overlaps(r, v, s) for v in views):
                 return r.t
         read += len(fresh)
-        if len(page) < _PAGE or not fresh:
+        if len(page) < size or (not fresh and size >= _PAGE):
             return None
-        cursor = (fresh[-1].t, fresh[-1].id)
+        if fresh:
+            cursor = (fresh[-1].t, fresh[-1].id)
+        size = min(_PAGE, 4 * size)
     return None
 
 

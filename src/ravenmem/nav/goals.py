@@ -44,7 +44,7 @@ from ..types import Pose, yaw_of
 from .base import PlanResult
 from .grid import OccupancyGrid
 from .mapping import BODY, camera_matrix
-from .planning import plan_path
+from .planning import plan_path, start_near
 
 SNAP_RADIUS = 4.0  # metres a goal may move to a reachable cell that sees it
 
@@ -228,6 +228,7 @@ def goal_for(
         return GoalPlan(PlanResult(ok=False, reason=why), frame_id=frame_id, map_id=map_id, problem=MAP)
     assert answer.position is not None
     target = to_map_xy(grid, [float(v) for v in answer.position])
+    given = start is not None
     start = start if start is not None else last_pose(grid, memory)
     gp = GoalPlan(PlanResult(ok=False, requested=target), None, start, target, frame_id, map_id)
     if start is None:
@@ -238,7 +239,8 @@ def goal_for(
     gp.plan = plan_path(grid, start, target, radius, snap_radius=snap_radius)
     if not gp.plan.ok:
         gp.problem, gp.plan.reason = _blame(grid, start, target, radius, snap_radius, gp.plan.reason)
-        return gp
+        if given or gp.problem != START or not _start_nearby(grid, gp, radius, snap_radius):
+            return gp
     assert gp.plan.goal is not None
     gx, gy = gp.plan.goal
     moved = math.dist((gx, gy), target)
@@ -247,6 +249,26 @@ def goal_for(
     gp.heading = _heading(answer, memory, grid, gp, moved)
     gp.goal = (gx, gy, gp.heading.yaw)
     return gp
+
+
+def _start_nearby(grid: OccupancyGrid, gp: GoalPlan, radius: float, snap: float) -> bool:
+    """The robot's last pose is cut off from the goal (a start the caller chose is never
+    moved): plan from the nearest cell of the free region that reaches the goal instead, and
+    say so in the notes. True when that plan succeeded (then `gp` holds it)."""
+    assert gp.start is not None and gp.target is not None
+    alt = start_near(grid, gp.start, gp.target, radius, snap)
+    if alt is None:
+        return False
+    plan = plan_path(grid, alt, gp.target, radius, snap_radius=snap)
+    if not plan.ok:
+        return False
+    (x, y), why = gp.start, gp.plan.reason.split("; give another start")[0]
+    gp.notes.append(
+        f"started {math.dist(gp.start, alt):.2f} m from the robot's last pose ({x:.2f}, {y:.2f}), at the "
+        f"nearest cell that reaches the goal: {why}"
+    )
+    gp.plan, gp.start, gp.problem = plan, alt, None
+    return True
 
 
 def _refusal(answer: AnswerLike, map_id: str, allow_unsupported: bool) -> tuple[str, str] | None:

@@ -68,6 +68,38 @@ def snap_goal(
     return (int(rr[k]), int(cc[k])), False
 
 
+def start_near(
+    grid: OccupancyGrid,
+    start: tuple[float, float],
+    goal: tuple[float, float],
+    robot_radius: float,
+    snap_radius: float = 4.0,
+) -> tuple[float, float] | None:
+    """A start the robot can plan from, nearest to `start`: the nearest free cell (for a body of
+    `robot_radius`) of the largest free region that reaches within `snap_radius` of `goal` (the
+    largest region of all when none does). None when that is where `start` already is, or the
+    map has no free space. For a last pose that lies in a pocket the map closes off (a ledge
+    the robot dropped from, a doorway mapped shut, noise around the robot's own body)."""
+    trav = grid.traversable(robot_radius)
+    labels, n = ndimage.label(trav)
+    if n == 0:
+        return None
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    g = grid.world_to_cell(*goal)
+    k = int(math.ceil(snap_radius / grid.resolution))
+    h, w = trav.shape
+    r0, r1, c0, c1 = max(0, g[0] - k), min(h, g[0] + k + 1), max(0, g[1] - k), min(w, g[1] + k + 1)
+    near = np.unique(labels[r0:r1, c0:c1]) if r0 < r1 and c0 < c1 else np.zeros(0, np.int64)
+    near = near[near > 0]
+    region = int(near[np.argmax(sizes[near])]) if near.size else int(np.argmax(sizes))
+    s = grid.world_to_cell(*start)
+    if grid.contains(s) and labels[s] == region:
+        return None
+    cell = nearest_cell(labels == region, s, max(h, w))
+    return None if cell is None else grid.cell_to_world(cell)
+
+
 def plan_path(
     grid: OccupancyGrid,
     start: tuple[float, float],

@@ -136,10 +136,30 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
+    r0, r1, c0, c1, ext = _crop(grid)
+    w_m, h_m = ext[1] - ext[0], ext[3] - ext[2]
+    scale = 9.0 / max(w_m, h_m, 1e-6)
+    fig, ax = plt.subplots(figsize=(max(5.0, w_m * scale) + 3.2, max(4.0, h_m * scale) + 0.8))
+    img = grid_rgb(grid)[r0:r1, c0:c1]
+    ax.imshow(img, origin="lower", extent=ext, interpolation="nearest")
+    handles = _floor_legend(img)
+    handles += _draw_tracks(ax, layers)
+    handles += _draw_answers(ax, layers)
+    handles += _draw_poses(ax, layers, max(grid.resolution * 4, 0.04 * max(w_m, h_m)))
+    _frame(ax, grid.resolution, ext, layers.title)
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    fig.tight_layout()
+    if layers.truths:  # last: placing needs the final layout (limits, aspect, margins)
+        place_labels(ax, layers.truths, color="#d62728")
+    out = Path(path)
+    fig.savefig(out, dpi=dpi, metadata=dict([PICTURE_TAG]))  # a later --force may replace only such a file
+    plt.close(fig)
+    return out
+
+
+def _crop(grid: OccupancyGrid) -> tuple[int, int, int, int, tuple[float, float, float, float]]:
+    """Rows and columns of the known area (plus a margin) and their extent in metres."""
     x0, x1, y0, y1 = grid.extent()
     rr, cc = np.nonzero(grid.known)
     if rr.size:
@@ -149,12 +169,13 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
     else:
         r0, r1, c0, c1 = 0, grid.shape[0], 0, grid.shape[1]
     res = grid.resolution
-    ext = (x0 + c0 * res, x0 + c1 * res, y0 + r0 * res, y0 + r1 * res)
-    w_m, h_m = ext[1] - ext[0], ext[3] - ext[2]
-    scale = 9.0 / max(w_m, h_m, 1e-6)
-    fig, ax = plt.subplots(figsize=(max(5.0, w_m * scale) + 3.2, max(4.0, h_m * scale) + 0.8))
-    img = grid_rgb(grid)[r0:r1, c0:c1]
-    ax.imshow(img, origin="lower", extent=ext, interpolation="nearest")
+    return r0, r1, c0, c1, (x0 + c0 * res, x0 + c1 * res, y0 + r0 * res, y0 + r1 * res)
+
+
+def _floor_legend(img: np.ndarray) -> list:
+    """Legend entries for the kinds of cell the picture shows."""
+    from matplotlib.patches import Patch
+
     handles: list = [Patch(color=UNKNOWN, label="unknown")]
     for colour, label in (
         (FREE, "free, seen from afar"),
@@ -164,6 +185,14 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
         if np.all(img == np.asarray(colour, np.float32), axis=-1).any():
             handles.append(Patch(color=colour, label=label))
     handles.append(Patch(color=OCCUPIED, label="obstacle"))
+    return handles
+
+
+def _draw_tracks(ax: Any, layers: MapLayers) -> list:
+    """The trajectory, the memories, planned paths, drives and true objects; legend entries."""
+    from matplotlib.lines import Line2D
+
+    handles: list = []
     if layers.trajectory:
         t = np.asarray(layers.trajectory)
         ax.plot(t[:, 0], t[:, 1], color="#f28e2b", lw=1.0, alpha=0.9)
@@ -188,6 +217,15 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
         tr = np.asarray([(x, y) for _, x, y in layers.truths])
         ax.scatter(tr[:, 0], tr[:, 1], marker="x", s=28, color="#d62728", linewidths=1.2, zorder=5)
         handles.append(Line2D([], [], ls="", marker="x", color="#d62728", label="true object (named)"))
+    return handles
+
+
+def _draw_answers(ax: Any, layers: MapLayers) -> list:
+    """Answers, one marker shape per group, green when the robot got there; legend entries."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles: list = []
     shapes = ("*", "s", "D", "^", "v", "P", "X")
     groups = list(dict.fromkeys(label for label, *_ in layers.answers))
     for gi, group in enumerate(groups):
@@ -212,8 +250,15 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
             Patch(color="#2ca02c", label="answer: robot got within the radius"),
             Patch(color="#ff7f0e", label="answer: robot did not"),
         ]
+    return handles
+
+
+def _draw_poses(ax: Any, layers: MapLayers, size: float) -> list:
+    """Goal poses as arrows `size` metres long, and the start; legend entries."""
+    from matplotlib.lines import Line2D
+
+    handles: list = []
     for x, y, yaw in layers.goals:
-        size = max(res * 4, 0.04 * max(w_m, h_m))
         ax.annotate(
             "",
             (x + size * np.cos(yaw), y + size * np.sin(yaw)),
@@ -234,6 +279,14 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
             zorder=6,
         )
         handles.append(Line2D([], [], ls="", marker="^", color="#17becf", mec="black", label="start"))
+    return handles
+
+
+def _frame(ax: Any, res: float, ext: tuple[float, float, float, float], title: str | None) -> None:
+    """Scale bar, limits, equal aspect, axis labels and the title."""
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    w_m, h_m = ext[1] - ext[0], ext[3] - ext[2]
     bar = _nice_length(w_m)
     ax.add_artist(
         AnchoredSizeBar(
@@ -252,13 +305,5 @@ def draw_map(grid: OccupancyGrid, layers: MapLayers, path: str | Path, dpi: int 
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    if layers.title:
-        ax.set_title(layers.title, fontsize=9)
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
-    fig.tight_layout()
-    if layers.truths:  # last: placing needs the final layout (limits, aspect, margins)
-        place_labels(ax, layers.truths, color="#d62728")
-    out = Path(path)
-    fig.savefig(out, dpi=dpi, metadata=dict([PICTURE_TAG]))  # a later --force may replace only such a file
-    plt.close(fig)
-    return out
+    if title:
+        ax.set_title(title, fontsize=9)

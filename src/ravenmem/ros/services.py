@@ -206,6 +206,7 @@ def _memory(row: dict[str, Any], frame: str) -> dict[str, Any]:
         },
         "score": float(row["score"]) if row.get("score") is not None else 0.0,
         "distance": float(row["distance"]) if row.get("distance") is not None else -1.0,
+        "supported": row.get("supported") is not False,  # the text tool's verdict (agent.support)
     }
 
 

@@ -26,6 +26,7 @@ from ..agent.base import METHODS, needs_vlm
 from ..agent.config import VLMConfig
 from ..agent.presets import PRESETS
 from ..agent.schema import Answer
+from ..agent.support import Judge
 from ..errors import EmptyMemoryError, InputError
 from ..ingest.keyframes import KeyframeConfig
 from ..memory import Memory
@@ -131,6 +132,7 @@ class Service:
         self._map: tuple[int, tuple[bytes, dict[str, Any]]] | None = None
         self._image_url: ImageUrl = lambda rec: None
         self._links: list[Any] = []
+        self._judge: Judge | None = None  # text hits' support verdicts (its calibration kept)
 
     # ---------------------------------------------------------------- lifecycle
     def start(self) -> Service:
@@ -180,7 +182,14 @@ class Service:
             return 0.0
 
     def search(self, tool: Tool, args: ToolArgs, k: int, image: np.ndarray | None = None) -> list[Hit]:
-        return tool.run(self.mem, args, k, image=image)
+        """The tool's hits; a text search's marked supported or not (`ravenmem.agent.support`)."""
+        hits = tool.run(self.mem, args, k, image=image)
+        query = getattr(args, "query", None)
+        if tool.key != "text" or not query:
+            return hits
+        if self._judge is None:
+            self._judge = Judge(self.mem)
+        return self._judge.mark(query, hits)
 
     def rows(self, hits: list[Hit], image_url: ImageUrl) -> list[dict[str, Any]]:
         """Hits in the `--json` shape of the CLI, images as URLs."""
@@ -193,7 +202,7 @@ class Service:
     def record_json(self, rec: MemoryRecord, image_url: ImageUrl) -> dict[str, Any]:
         """One memory in the hit shape, without the fields that only a search gives."""
         row = hit_json(Hit(memory=rec), 0, self.t0(), image_url)
-        for key in ("rank", "score", "distance", "ocr_match"):
+        for key in ("rank", "score", "distance", "ocr_match", "supported"):
             row.pop(key)
         return row
 
@@ -229,15 +238,21 @@ class Service:
             picked.append(pts[-1])
         return {"count": len(pts), "stride": stride, "fields": ["id", "t", "x", "y", "yaw"], "points": picked}
 
+    def _map_files(self) -> list[Path] | None:
+        """The map's two files, or None when either is absent (or a link leading out)."""
+        files = [confine(self.mem.path, name) for name in (MAP_META, MAP_GRID)]
+        found = [f for f in files if f is not None and f.is_file()]
+        return found if len(found) == len(files) else None
+
     def occupancy_map(self) -> tuple[bytes, dict[str, Any]] | None:
         """The memory's occupancy map (`map.json` + `map.npz`, written by exploration) as a PNG,
         north up, and the rectangle it covers in metres; None when the memory has no map.
         Rendered again only when the map file changes."""
-        files = [confine(self.mem.path, name) for name in (MAP_META, MAP_GRID)]
-        if any(f is None or not f.is_file() for f in files):  # absent, or a link leading out
+        files = self._map_files()
+        if files is None:
             return None
         try:
-            stamp = files[1].stat().st_mtime_ns  # type: ignore[union-attr]
+            stamp = files[1].stat().st_mtime_ns
         except OSError:
             return None
         with self._traj_lock:
@@ -273,6 +288,7 @@ class Service:
         data = self.mem.info()
         data["path"] = self.mem.path.name
         data["live"] = self.writer.stats.as_dict() if self.writer is not None else None
+        data["has_map"] = self._map_files() is not None  # the page asks for /map only then
         data["ask"] = {
             "default_method": self.cfg.default_method,
             "default_preset": self.cfg.preset,

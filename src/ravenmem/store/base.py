@@ -76,8 +76,11 @@ class Store(Protocol):
         forget everything before a time or inside a region."""
         ...
 
-    def search_vector(self, query: np.ndarray, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:
-        """Top-k (id, cosine) for one (dim,) query, best first, honouring the filter."""
+    def search_vector(
+        self, query: np.ndarray, k: int, filt: Filter | None = None, exact: bool = False
+    ) -> list[tuple[int, float]]:
+        """Top-k (id, cosine) for one (dim,) query, best first, honouring the filter; `exact`
+        scores every memory the filter accepts (slow unless the filter keeps few)."""
         ...
 
     def search_text(self, text: str, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:

@@ -273,14 +273,21 @@ function untilParams(params) {
   return params;
 }
 
-function showHits(rows, title) {
+function showHits(rows, title, query) {
   state.hits = rows;
   $("hits-title").hidden = false;
   $("hits-title").textContent = title;
+  // a text search's verdict (the rule `ask` declines by): nothing supported is said plainly
+  const none = rows.length > 0 && rows.every((h) => h.supported === false);
+  $("hits-note").hidden = !none;
+  $("hits-note").textContent = none ? `Not found: nothing in this memory supports "${query}". ` +
+    "No hit scores above what things that are not there reach; these are only the least unlike." : "";
   $("hits").replaceChildren(...rows.map((h) => {
     const how = h.distance !== null && h.distance !== undefined ? ` ${h.distance.toFixed(2)} m away`
       : h.score === null || h.score === undefined ? "" : ` score ${h.score.toFixed(3)}`;
-    return card(h, `#${h.rank}${how}${h.ocr_match ? " (text)" : ""}`);
+    const c = card(h, `#${h.rank}${how}${h.ocr_match ? " (text)" : ""}${h.supported === false ? " not found" : ""}`);
+    if (h.supported === false) c.classList.add("unsupported");
+    return c;
   }));
 }
 
@@ -293,10 +300,10 @@ async function search(ev) {
     const params = untilParams(new URLSearchParams({ query: q, k: $("k").value || "8" }));
     const data = await api("/search/text?" + params);
     state.probe = null;
-    showHits(data.results, `"${q}": ${data.results.length} hit(s), best first` + untilNote());
+    showHits(data.results, `"${q}": ${data.results.length} hit(s), best first` + untilNote(), q);
     say(`${data.results.length} hit(s) for "${q}"`);
     fit(); draw();
-    $("ask-form").scrollIntoView({ block: "nearest" });  // the next step: ask about it
+    reveal($("ask-form"));  // the next step: ask about it
     if (!$("question").value) $("question").value = `Where did I see ${q}?`;
   } catch (e) { say(e.message, true); }
 }
@@ -310,8 +317,15 @@ async function searchNear(x, y) {
     showHits(data.results, `nearest x ${x.toFixed(2)} y ${y.toFixed(2)}: ${data.results.length} memories` + untilNote());
     say(`${data.results.length} memories near x ${x.toFixed(2)} y ${y.toFixed(2)}`);
     draw();
-    $("hits-title").scrollIntoView({ block: "nearest" });
+    reveal($("hits-title"));
   } catch (e) { say(e.message, true); }
+}
+
+function reveal(el) {
+  // scrollIntoView rounds the scroll to whole pixels: a fraction may stay below the fold
+  el.scrollIntoView({ block: "nearest" });
+  const over = el.getBoundingClientRect().bottom - window.innerHeight;
+  if (over > 0 && el.getBoundingClientRect().top - over >= 0) window.scrollBy(0, Math.ceil(over));
 }
 
 function untilNote() {
@@ -331,7 +345,7 @@ async function ask(ev) {
     });
     showAnswer(data);
     say(`answered by ${data.method} in ${data.cost.wall_s.toFixed(2)} s`);
-    $("answer").scrollIntoView({ block: "nearest" });
+    reveal($("answer"));
   } catch (e) { say(e.message, true); }
 }
 
@@ -473,7 +487,13 @@ async function load() {
   state.points = traj.points;
   setScrubber();
   fit(); draw();
-  loadMap();
+  if (info.has_map) loadMap(); else showNoMap();  // never a /map request that can only 404
+}
+
+function showNoMap() {
+  state.map = null;
+  $("map-id").hidden = state.mapName === "map";
+  $("map-id").textContent = `${state.mapName}, no occupancy map`;
 }
 
 async function loadMap() {
@@ -486,10 +506,8 @@ async function loadMap() {
     const env = m.env && m.env !== state.mapId ? m.env + ", " : "";
     $("map-id").hidden = false;
     $("map-id").textContent = `${state.mapName}: ${env}${m.kind || "occupancy"}, ${m.resolution} m cells`;
-  } catch (e) {  // 404: this memory has no occupancy map; its identity is still shown
-    state.map = null;
-    $("map-id").hidden = state.mapName === "map";
-    $("map-id").textContent = `${state.mapName}, no occupancy map`;
+  } catch (e) {  // the map went away since /info: its identity is still shown
+    showNoMap();
   }
 }
 

@@ -1,0 +1,170 @@
+"""The newest sightings in a time range, found with a few searches, the first ones exact.
+
+`last_seen` keeps asking one question: which memories from time `t` on (maybe inside a disc)
+show the thing, i.e. score at least the threshold, and which is the newest? Walking time
+windows back from the end took one vector search per window (k = the pool, each reranking
+4 k vectors from SQLite): two dozen searches per question at a million memories. And one
+search over a wide range is no answer to "the newest": it returns the best matches, which can
+all be old (a thing seen far more often, or a little better, before it moved).
+
+1. Only what came after a known sighting can be newer: the caller starts the range there (the
+   newest sighting among its best matches), so the range is mostly a short recent stretch.
+2. Windows back from the end of the range, by count: the newest `MAX_K` memories the filter
+   accepts, then 8 times as many before them, and so on. A window of at most `MAX_K` memories
+   is scanned exactly (every vector read and scored: the answer is exact and costs a read of
+   a thousand vectors); a wider one is searched (its best `pool`): when those are not all
+   sightings, every sighting in it ranks above them and is in hand; else it is searched again
+   after the newest sighting found, each time strictly later. The first window that holds a
+   sighting ends the walk.
+3. Later sightings of one place (`Later.find`, inside its disc): one search over the
+   whole range (exact when it is short), and nothing found there means nothing (a place is
+   mostly not seen again), as the latest mode always decided; else as a wide window above.
+   One question's searches are kept and answer its other places inside them (`Later`).
+4. Views of a place already in hand are scored by one exact scan of the span and disc that
+   hold them (`exact_scores`: vectors only), not by reading each record again.
+
+Windows follow the filter's ids (the store's in-RAM columns) and their times, so they tile the
+range whatever the order of ids; on a store whose ids follow time each holds the count it says.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from ..types import Filter, Hit, MemoryRecord, Region
+from .core import Core
+from .protocol import MAX_K
+
+__all__ = ["Later", "exact_scores", "newest_sightings"]
+
+_GROW = 8  # each window back in time holds this many times more memories than the one before
+
+
+def newest_sightings(
+    mem: Core,
+    q: np.ndarray,
+    after: float | None,
+    before: float | None,
+    thr: float,
+    *,
+    region: Region | None = None,
+    pool: int = 200,
+    steps: int = 8,
+) -> list[Hit]:
+    """Sightings (score >= `thr`) from `after` to `before` inside `region`, from the newest
+    window back from the end that holds any (step 2 of the module docstring), chronological."""
+    ids = mem.store.select(Filter(after=after, before=before, region=region))
+    end, size, hi = len(ids), MAX_K, before
+    for _ in range(steps):
+        if end <= 0:
+            break
+        start = max(0, end - size)
+        lo = after if start == 0 else _time_of(mem, int(ids[start]), after, hi)
+        got, _ = _window(mem, q, Filter(after=lo, before=hi, region=region), thr, pool, steps)
+        if got or start == 0 or lo == after:
+            return _chrono(got)
+        end, size, hi = start, size * _GROW, lo
+    return []
+
+
+class Later:
+    """One question's searches for later sightings of its places (step 3), kept: a place's disc
+    is searched a little wider (`margin` m) and, when that search found every sighting in it
+    from its start on, a later ask inside that disc and range is answered from it. The rounds
+    of one place and places beside each other (one thing seen from several viewpoints) ask
+    nearly the same question again and again: each asked the index once before."""
+
+    def __init__(
+        self, mem: Core, q: np.ndarray, thr: float, before: float | None, pool: int, steps: int, margin: float
+    ) -> None:
+        self.mem, self.q, self.thr, self.before = mem, q, thr, before
+        self.pool, self.steps, self.margin = pool, steps, margin
+        self.known: list[tuple[float, Region, list[Hit]]] = []  # complete from, disc, sightings
+
+    def find(self, after: float, region: Region, keep: Callable[[Hit], bool]) -> list[Hit]:
+        """Sightings from `after` on inside `region` that pass `keep`, chronological."""
+        for lo, disc, hits in self.known:
+            if lo <= after and math.hypot(region.x - disc.x, region.y - disc.y) + region.r <= disc.r:
+                return _chrono([h for h in hits if h.memory.t >= after and _inside(h, region) and keep(h)])
+        wide = Region(region.x, region.y, region.r + self.margin)
+        filt = Filter(after=after, before=self.before, region=wide)
+        hits, complete = _window(self.mem, self.q, filt, self.thr, self.pool, self.steps)
+        if complete is not None:
+            self.known.append((complete, wide, hits))
+        return _chrono([h for h in hits if _inside(h, region) and keep(h)])
+
+
+def exact_scores(mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord]) -> dict[int, float]:
+    """Id -> score of records in hand, from one exact scan of the time span and disc that hold
+    them (vectors only: no record is read again); {} when those hold more than `MAX_K`."""
+    if not recs:
+        return {}
+    cx = sum(r.pose.x for r in recs) / len(recs)
+    cy = sum(r.pose.y for r in recs) / len(recs)
+    reach = max(math.hypot(r.pose.x - cx, r.pose.y - cy) for r in recs)
+    ts = [r.t for r in recs]
+    filt = Filter(after=min(ts), before=max(ts), region=Region(cx, cy, reach + 1e-3))
+    n = len(mem.store.select(filt))
+    if n == 0 or n > MAX_K:
+        return {}
+    want = {r.id for r in recs}
+    return {i: sc for i, sc in mem.store.search_vector(q, n, filt, exact=True) if i in want}
+
+
+def _inside(h: Hit, region: Region) -> bool:
+    """The store's disc test (`Filter.region`)."""
+    dx, dy = h.memory.pose.x - region.x, h.memory.pose.y - region.y
+    return dx * dx + dy * dy <= region.r * region.r
+
+
+def _chrono(hits: list[Hit]) -> list[Hit]:
+    return sorted(hits, key=lambda h: (h.memory.t, h.memory.id))
+
+
+def _window(
+    mem: Core, q: np.ndarray, filt: Filter, thr: float, pool: int, steps: int
+) -> tuple[list[Hit], float | None]:
+    """The sightings of one window: all of them when it is scanned exactly or when a search's
+    best `pool` are not all sightings (the rest score lower still); else searched again after
+    the newest of those, until that holds. Also from when on the sightings are all there (the
+    last search's start; None when the steps ran out first)."""
+    out: dict[int, Hit] = {}
+    for _ in range(steps):
+        start = filt.after if filt.after is not None else -math.inf
+        span = Filter(after=filt.after, before=filt.before)  # its count bounds the filter's
+        n = len(mem.store.select(span if filt.region is not None else filt))
+        if n == 0:
+            return list(out.values()), start
+        exact = n <= MAX_K
+        k = n if exact else min(pool, MAX_K)
+        scored = mem.store.search_vector(q, k, filt, exact=exact)
+        hits = _sightings(mem, scored, thr)
+        out.update((h.memory.id, h) for h in hits)
+        if exact or len(hits) < len(scored) or len(scored) < k:
+            return list(out.values()), start
+        newest = max(h.memory.t for h in hits)
+        if filt.after is not None and newest <= filt.after:
+            break
+        filt = Filter(after=newest, before=filt.before, region=filt.region)
+    return list(out.values()), None
+
+
+def _time_of(mem: Core, memory_id: int, lo: float | None, hi: float | None) -> float | None:
+    """The time of a stored memory, kept inside [lo, hi] so windows tile the range whatever the
+    store's order of ids (`lo` when it was forgotten meanwhile: the window reaches back to it)."""
+    got = mem.stored([memory_id])
+    if not got:
+        return lo
+    t = got[0].t
+    t = t if hi is None else min(t, hi)
+    return t if lo is None else max(t, lo)
+
+
+def _sightings(mem: Core, scored: list[tuple[int, float]], thr: float) -> list[Hit]:
+    """The scored memories at or above the threshold that are still stored, as hits."""
+    score = {i: sc for i, sc in scored if sc >= thr}
+    recs = mem.stored(sorted(score)) if score else []
+    return [Hit(memory=r, score=float(score[r.id])) for r in recs]

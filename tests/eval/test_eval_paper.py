@@ -21,8 +21,10 @@ def test_every_published_figure_names_its_source() -> None:
     assert figures and all(f.source.startswith("https://") and f.quote for f in figures)
     assert all(str(f.value).rstrip("0").rstrip(".") in f.quote for f in figures)  # the figure is in its quote
     with pytest.raises(InputError, match="paper_figures.json: unknown metric"):
-        load_figures('{"figures": [{"benchmark": "navqa", "method": "raven", "metric": "vibes", '
-                     '"value": 1, "source": "x"}]}')  # fmt: skip
+        load_figures(
+            '{"figures": [{"benchmark": "navqa", "method": "raven", "metric": "vibes", '
+            '"value": 1, "source": "x"}]}'
+        )
     with pytest.raises(InputError, match="not a list of published figures"):
         load_figures('{"figures": [{"benchmark": "navqa"}]}')
 
@@ -33,10 +35,22 @@ def test_cli_report_puts_the_papers_figure_beside_ours(tmp_path: Path) -> None:
     run = tmp_path / "run"
     with ScriptedModel(default=navqa_policy) as srv:
         r = rm(
-            "eval", "--dataset", f"raven-qa:{data}", "--episodes", "real_world/*", "--method",
-            "raven,embedder-only", "--vlm", "scripted", "--vlm-base-url", srv.base_url, *EMB,
-            "--out", str(run), site=site,
-        )  # fmt: skip
+            "eval",
+            "--dataset",
+            f"raven-qa:{data}",
+            "--episodes",
+            "real_world/*",
+            "--method",
+            "raven,embedder-only",
+            "--vlm",
+            "scripted",
+            "--vlm-base-url",
+            srv.base_url,
+            *EMB,
+            "--out",
+            str(run),
+            site=site,
+        )
     assert r.returncode == 0, r.stderr
     r = rm("eval", "report", str(run), "--out", str(tmp_path / "report.md"), site=site)
     assert r.returncode == 0, r.stderr

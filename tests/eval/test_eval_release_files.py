@@ -120,9 +120,21 @@ def test_cli_findingdory_goals_in_every_release_form(tmp_path: Path) -> None:
     run = tmp_path / "run"
     with ScriptedModel(default=findingdory_forms_policy) as srv:
         r = rm(
-            "eval", "--dataset", f"findingdory:{root}", "--method", "raven", "--vlm", "scripted",
-            "--vlm-base-url", srv.base_url, *EMB, "--out", str(run), "--json", site=site,
-        )  # fmt: skip
+            "eval",
+            "--dataset",
+            f"findingdory:{root}",
+            "--method",
+            "raven",
+            "--vlm",
+            "scripted",
+            "--vlm-base-url",
+            srv.base_url,
+            *EMB,
+            "--out",
+            str(run),
+            "--json",
+            site=site,
+        )
     assert r.returncode == 0, r.stderr
     rows = [json.loads(x) for x in (run / "answers.jsonl").read_text().splitlines()]
     got = {

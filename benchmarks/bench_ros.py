@@ -90,8 +90,13 @@ def run_tf(messages: int = 6000) -> dict[str, Any]:
         intake.transforms(msg, t, False)
         per.append(time.perf_counter() - start)
     size = len(intake.tf.moving["base_link"]) if intake.tf is not None else 0  # type: ignore[union-attr]
-    return {"messages": messages, "p50_ms": round(pct(per, 0.5) * 1e3, 4), "p99_ms": round(pct(per, 0.99) * 1e3, 4),
-            "max_ms": round(max(per) * 1e3, 4), "samples_kept": size}  # fmt: skip
+    return {
+        "messages": messages,
+        "p50_ms": round(pct(per, 0.5) * 1e3, 4),
+        "p99_ms": round(pct(per, 0.99) * 1e3, 4),
+        "max_ms": round(max(per) * 1e3, 4),
+        "samples_kept": size,
+    }
 
 
 def _tf(parent: str, child: str, t: float, x: float) -> Any:
@@ -99,9 +104,10 @@ def _tf(parent: str, child: str, t: float, x: float) -> Any:
 
     sec = int(t)
     return NS(
-        header=NS(frame_id=parent, stamp=NS(sec=sec, nanosec=int((t - sec) * 1e9))), child_frame_id=child,
+        header=NS(frame_id=parent, stamp=NS(sec=sec, nanosec=int((t - sec) * 1e9))),
+        child_frame_id=child,
         transform=NS(translation=NS(x=x, y=0.0, z=0.0), rotation=NS(x=0.0, y=0.0, z=0.0, w=1.0)),
-    )  # fmt: skip
+    )
 
 
 def run_http(data: Path, frames: int, rate: float, keyframes: str) -> dict[str, Any]:
@@ -118,8 +124,20 @@ def run_http(data: Path, frames: int, rate: float, keyframes: str) -> dict[str, 
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
         env.pop("RAVENMEM_TOKEN", None)
-        cmd = [sys.executable, "-m", "ravenmem.cli.main", "serve", "--memory", f"{tmp}/http.mem", "--create",
-               "--port", "0", "--log-level", "warning", *(["--keyframes", keyframes] if keyframes else [])]  # fmt: skip
+        cmd = [
+            sys.executable,
+            "-m",
+            "ravenmem.cli.main",
+            "serve",
+            "--memory",
+            f"{tmp}/http.mem",
+            "--create",
+            "--port",
+            "0",
+            "--log-level",
+            "warning",
+            *(["--keyframes", keyframes] if keyframes else []),
+        ]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
         assert proc.stdout is not None
         m = re.search(r"at (http://127\.0\.0\.1:\d+)/ ", proc.stdout.readline())
@@ -130,13 +148,33 @@ def run_http(data: Path, frames: int, rate: float, keyframes: str) -> dict[str, 
 
         def post(t: float, path: Path) -> None:
             row = gt[min(int(np.searchsorted(gt[:, 0], t)), len(gt) - 1)]
-            form = {"x": row[1], "y": row[2], "z": row[3], "qx": row[4], "qy": row[5], "qz": row[6], "qw": row[7],
-                    "t": t, "source": "http"}  # fmt: skip
+            form = {
+                "x": row[1],
+                "y": row[2],
+                "z": row[3],
+                "qx": row[4],
+                "qy": row[5],
+                "qz": row[6],
+                "qw": row[7],
+                "t": t,
+                "source": "http",
+            }
             try:
-                r = httpx.post(f"{url}/memories", data={k: str(v) for k, v in form.items()},
-                               files={"image": ("f.jpg", path.read_bytes(), "image/jpeg")}, timeout=120)  # fmt: skip
-                key = "stored" if r.status_code == 201 else (
-                    f"skipped: {r.json().get('skipped')}" if r.status_code == 200 else f"HTTP {r.status_code}")  # fmt: skip
+                r = httpx.post(
+                    f"{url}/memories",
+                    data={k: str(v) for k, v in form.items()},
+                    files={"image": ("f.jpg", path.read_bytes(), "image/jpeg")},
+                    timeout=120,
+                )
+                key = (
+                    "stored"
+                    if r.status_code == 201
+                    else (
+                        f"skipped: {r.json().get('skipped')}"
+                        if r.status_code == 200
+                        else f"HTTP {r.status_code}"
+                    )
+                )
             except httpx.HTTPError as e:
                 key = f"error: {type(e).__name__}"
             with lock:
@@ -182,10 +220,18 @@ def run_http(data: Path, frames: int, rate: float, keyframes: str) -> dict[str, 
         "outcomes": outcome,
         "keyframes_per_s": round(stored / drained, 2),
         "seconds_until_stored": round(drained, 1),
-        "search_s": {"n": len(lat["search"]), "p50": round(pct(lat["search"], 0.5), 3), "p99": round(pct(lat["search"], 0.99), 3)},
-        "ask_s": {"n": len(lat["ask"]), "p50": round(pct(lat["ask"], 0.5), 3), "p99": round(pct(lat["ask"], 0.99), 3)},
+        "search_s": {
+            "n": len(lat["search"]),
+            "p50": round(pct(lat["search"], 0.5), 3),
+            "p99": round(pct(lat["search"], 0.99), 3),
+        },
+        "ask_s": {
+            "n": len(lat["ask"]),
+            "p50": round(pct(lat["ask"], 0.5), 3),
+            "p99": round(pct(lat["ask"], 0.99), 3),
+        },
         "service_exit": proc.returncode,
-    }  # fmt: skip
+    }
 
 
 def main() -> None:
@@ -210,11 +256,24 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         mem, log = Path(tmp) / "bench.mem", Path(tmp) / "node.log"
         node = start(
-            ["-m", "ravenmem.cli.main", "ros", "run", "--memory", str(mem), "--create", "--ros-args",
-             "-p", "image_qos:=reliable", "-p", "image_transport:=raw",
-             *(["-p", f"keyframes:={args.keyframes}"] if args.keyframes else [])],
-            args.domain, log,
-        )  # fmt: skip
+            [
+                "-m",
+                "ravenmem.cli.main",
+                "ros",
+                "run",
+                "--memory",
+                str(mem),
+                "--create",
+                "--ros-args",
+                "-p",
+                "image_qos:=reliable",
+                "-p",
+                "image_transport:=raw",
+                *(["-p", f"keyframes:={args.keyframes}"] if args.keyframes else []),
+            ],
+            args.domain,
+            log,
+        )
         wait_for(lambda: "ready" in log.read_text() or node.poll() is not None, 300, "the node")
         client = Client(args.domain, "bench_client")
         diag = client.collect(DiagnosticArray, "/diagnostics")
@@ -231,10 +290,23 @@ def main() -> None:
         caller.start()
         t0 = time.monotonic()
         pub = subprocess.run(
-            [sys.executable, str(REPO / "tests/ros/ros_pub.py"), "--data", str(data), "--frames", str(frames),
-             "--rate", str(args.rate), "--mode", "raw"],
-            env=graph_env(args.domain), capture_output=True, text=True, check=True,
-        )  # fmt: skip
+            [
+                sys.executable,
+                str(REPO / "tests/ros/ros_pub.py"),
+                "--data",
+                str(data),
+                "--frames",
+                str(frames),
+                "--rate",
+                str(args.rate),
+                "--mode",
+                "raw",
+            ],
+            env=graph_env(args.domain),
+            capture_output=True,
+            text=True,
+            check=True,
+        )
         streamed = time.monotonic() - t0
         done.set()
         caller.join(60)
@@ -245,8 +317,9 @@ def main() -> None:
 
         wait_for(
             lambda: counts().get("waiting for a pose") == "0" and counts().get("queue depth") == "0",
-            600, "the writer to drain",
-        )  # fmt: skip
+            600,
+            "the writer to drain",
+        )
         drained = time.monotonic() - t0
         c = counts()
         client.close()
@@ -257,16 +330,26 @@ def main() -> None:
             "plain_subscriber_received": plain[0],
             "received": int(c["received"]),
             "stored": int(c["stored"]),
-            "skipped": {k.removeprefix("skipped: "): int(v) for k, v in c.items() if k.startswith("skipped: ")},
+            "skipped": {
+                k.removeprefix("skipped: "): int(v) for k, v in c.items() if k.startswith("skipped: ")
+            },
             "lost_in_transport": int(c["lost in transport"]),
             "accounted": int(c["stored"]) + int(c["skipped"]) == int(c["received"]),
             "keyframes_per_s": round(int(c["stored"]) / drained, 2),
             "seconds_until_stored": round(drained, 1),
-            "search_s": {"n": len(lat["search"]), "p50": round(pct(lat["search"], 0.5), 3), "p99": round(pct(lat["search"], 0.99), 3)},
-            "ask_s": {"n": len(lat["ask"]), "p50": round(pct(lat["ask"], 0.5), 3), "p99": round(pct(lat["ask"], 0.99), 3)},
+            "search_s": {
+                "n": len(lat["search"]),
+                "p50": round(pct(lat["search"], 0.5), 3),
+                "p99": round(pct(lat["search"], 0.99), 3),
+            },
+            "ask_s": {
+                "n": len(lat["ask"]),
+                "p50": round(pct(lat["ask"], 0.5), 3),
+                "p99": round(pct(lat["ask"], 0.99), 3),
+            },
             "node_exit": node.returncode,
             "traceback": "Traceback" in text,
-        }  # fmt: skip
+        }
         print(json.dumps(report, indent=2))
 
 

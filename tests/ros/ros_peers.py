@@ -78,10 +78,14 @@ def serve_navigate(node, log: Path | None, seconds: float):  # type: ignore[no-u
 
     def execute(handle):  # type: ignore[no-untyped-def]
         g = handle.request.pose
-        note({
-            "frame_id": g.header.frame_id, "x": g.pose.position.x, "y": g.pose.position.y,
-            "stamp": g.header.stamp.sec + g.header.stamp.nanosec * 1e-9,
-        })  # fmt: skip
+        note(
+            {
+                "frame_id": g.header.frame_id,
+                "x": g.pose.position.x,
+                "y": g.pose.position.y,
+                "stamp": g.header.stamp.sec + g.header.stamp.nanosec * 1e-9,
+            }
+        )
         steps = max(3, round(seconds / 0.1))
         for i in range(steps):
             if handle.is_cancel_requested:
@@ -97,9 +101,13 @@ def serve_navigate(node, log: Path | None, seconds: float):  # type: ignore[no-u
         return NavigateToPose.Result(error_code=0, error_msg="")
 
     return ActionServer(
-        node, NavigateToPose, "navigate_to_pose", execute,
-        cancel_callback=lambda _r: CancelResponse.ACCEPT, callback_group=ReentrantCallbackGroup(),
-    )  # fmt: skip
+        node,
+        NavigateToPose,
+        "navigate_to_pose",
+        execute,
+        cancel_callback=lambda _r: CancelResponse.ACCEPT,
+        callback_group=ReentrantCallbackGroup(),
+    )
 
 
 if __name__ == "__main__":

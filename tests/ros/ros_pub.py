@@ -75,9 +75,12 @@ def main() -> None:
         img_pubs = [node.create_publisher(CompressedImage, t + "/compressed", img_qos) for t in topics]
         pose_pub = node.create_publisher(TFMessage, "/tf", QoSProfile(depth=200, reliability=rel))
         static = node.create_publisher(
-            TFMessage, "/tf_static",
-            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL),
-        )  # fmt: skip
+            TFMessage,
+            "/tf_static",
+            QoSProfile(
+                depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+            ),
+        )
         st = TransformStamped()
         st.header.frame_id, st.child_frame_id = "base_link", "camera_link"
         st.transform.rotation.w = 1.0

@@ -58,8 +58,13 @@ def _image(t: float, value: int = 0, encoding: str = "rgb8", h: int = 8, w: int 
     data = array.array("B", bytes([value]) * (h * w * 3))  # as rclpy hands uint8[] over
     return NS(
         header=NS(stamp=NS(sec=int(t), nanosec=int(round((t - int(t)) * 1e9)))),
-        height=h, width=w, encoding=encoding, step=w * 3, is_bigendian=0, data=data,
-    )  # fmt: skip
+        height=h,
+        width=w,
+        encoding=encoding,
+        step=w * 3,
+        is_bigendian=0,
+        data=data,
+    )
 
 
 def _odom(t: float, x: float, qw: float = 1.0) -> NS:

@@ -60,8 +60,11 @@ def _peer(what: str, log: Path, *args: str) -> subprocess.Popen[str]:
 def _publish(*args: str) -> dict[str, Any]:
     r = subprocess.run(
         [sys.executable, str(HERE / "ros_pub.py"), "--data", str(TUM), *args],
-        env=graph_env(DOMAIN), capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        env=graph_env(DOMAIN),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     return json.loads(r.stdout.strip().splitlines()[-1])
 
@@ -89,9 +92,19 @@ def test_raw_images_odometry_services_goals_sigterm(ros: Path, tmp_path: Path) -
     map_log, node_log = tmp_path / "map.log", tmp_path / "node.log"
     peer = _peer("map", map_log, "--ros-args", "-r", "__ns:=/bot1")
     node = _node(
-        mem, node_log, "-r", "__ns:=/bot1", "-p", "image_qos:=reliable", "-p", "image_transport:=raw",
-        "-p", "markers_period:=0.5", "-p", "diagnostics_period:=0.5",
-    )  # fmt: skip
+        mem,
+        node_log,
+        "-r",
+        "__ns:=/bot1",
+        "-p",
+        "image_qos:=reliable",
+        "-p",
+        "image_transport:=raw",
+        "-p",
+        "markers_period:=0.5",
+        "-p",
+        "diagnostics_period:=0.5",
+    )
     client = Client(DOMAIN)
     try:
         goals = client.collect(PoseStamped, "/bot1/goal_pose")
@@ -101,13 +114,28 @@ def test_raw_images_odometry_services_goals_sigterm(ros: Path, tmp_path: Path) -
         )
         markers = client.collect(MarkerArray, "/bot1/ravenmem/markers", latched)
         # a best-effort odometry publisher, and bad messages of every kind after the frames
-        sent = _publish("--frames", "90", "--mode", "raw", "--pose-reliability", "best_effort", "--bad",
-                        "--ros-args", "-r", "__ns:=/bot1")  # fmt: skip
+        sent = _publish(
+            "--frames",
+            "90",
+            "--mode",
+            "raw",
+            "--pose-reliability",
+            "best_effort",
+            "--bad",
+            "--ros-args",
+            "-r",
+            "__ns:=/bot1",
+        )
         wait_for(
-            lambda: _diag(diag).get("received") == str(sent["images"])
-            and _diag(diag).get("waiting for a pose") == "0" and _diag(diag).get("queue depth") == "0",
-            40, "the node to settle every frame", show=lambda: (sent, _diag(diag), len(diag)),
-        )  # fmt: skip
+            lambda: (
+                _diag(diag).get("received") == str(sent["images"])
+                and _diag(diag).get("waiting for a pose") == "0"
+                and _diag(diag).get("queue depth") == "0"
+            ),
+            40,
+            "the node to settle every frame",
+            show=lambda: (sent, _diag(diag), len(diag)),
+        )
         d = _diag(diag)
         assert int(d["stored"]) >= 2
         assert int(d["stored"]) + int(d["skipped"]) == sent["images"]
@@ -198,10 +226,15 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
         diag = client.collect(DiagnosticArray, "/diagnostics")
         sent = _publish("--frames", "30", "--mode", "compressed", "--second-camera", "camera2/image_raw")
         wait_for(
-            lambda: _diag(diag).get("received") == str(sent["images"])
-            and _diag(diag).get("waiting for a pose") == "0" and _diag(diag).get("queue depth") == "0",
-            120, "the node to settle every frame", show=lambda: (sent, _diag(diag)),
-        )  # fmt: skip
+            lambda: (
+                _diag(diag).get("received") == str(sent["images"])
+                and _diag(diag).get("waiting for a pose") == "0"
+                and _diag(diag).get("queue depth") == "0"
+            ),
+            120,
+            "the node to settle every frame",
+            show=lambda: (sent, _diag(diag)),
+        )
         assert "images: compressed on /camera/image_raw/compressed" in logs["node"].read_text()
         drive = client.call(Ask, "/ravenmem/ask", Ask.Request(question="where is the desk?", navigate=True))
         assert drive.found and drive.reason == "", drive.reason  # type: ignore[attr-defined]
@@ -262,16 +295,31 @@ def test_a_bad_parameter_is_one_line_and_exit_2(ros: Path, tmp_path: Path) -> No
     from tests.cli.helpers import assert_one_line_error, run_cli
 
     r = run_cli(
-        "ros", "run", "--memory", str(tmp_path / "m.mem"), "--create",
-        "--ros-args", "-p", "image_transport:=jpeg",
-        env=graph_env(DOMAIN), timeout=120,
-    )  # fmt: skip
+        "ros",
+        "run",
+        "--memory",
+        str(tmp_path / "m.mem"),
+        "--create",
+        "--ros-args",
+        "-p",
+        "image_transport:=jpeg",
+        env=graph_env(DOMAIN),
+        timeout=120,
+    )
     line = assert_one_line_error(r)
     assert "image_transport" in line and "jpeg" in line
     assert not (tmp_path / "m.mem").exists()  # nothing created for a run that cannot start
     # an argument rcl itself cannot parse: the same one line
     r = run_cli(
-        "ros", "run", "--memory", str(tmp_path / "m.mem"), "--create", "--ros-args", "-p", "keyframes:=",
-        env=graph_env(DOMAIN), timeout=120,
-    )  # fmt: skip
+        "ros",
+        "run",
+        "--memory",
+        str(tmp_path / "m.mem"),
+        "--create",
+        "--ros-args",
+        "-p",
+        "keyframes:=",
+        env=graph_env(DOMAIN),
+        timeout=120,
+    )
     assert "--ros-args" in assert_one_line_error(r)

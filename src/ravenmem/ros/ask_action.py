@@ -27,9 +27,13 @@ class AskAction:
         self.owner = owner
         self.cls = Ask
         self.server = ActionServer(
-            owner.node, Ask, "~/ask_action", self._execute, callback_group=group,
+            owner.node,
+            Ask,
+            "~/ask_action",
+            self._execute,
+            callback_group=group,
             cancel_callback=lambda _req: CancelResponse.ACCEPT,
-        )  # fmt: skip
+        )
 
     def _execute(self, handle: Any) -> Any:
         request = to_dict(handle.request)

@@ -246,7 +246,11 @@ def build(pkg: Package, prefix: Path, jobs: int = 2) -> None:
             env[var] = os.pathsep.join(p for p in (str(prefix), env.get(var, "")) if p)
         env["PATH"] = os.pathsep.join((str(Path(sys.executable).parent), env.get("PATH", "")))
         configure = [
-            "cmake", "-S", str(src), "-B", str(out),
+            "cmake",
+            "-S",
+            str(src),
+            "-B",
+            str(out),
             f"-DCMAKE_INSTALL_PREFIX={prefix}",
             f"-DPython3_EXECUTABLE={sys.executable}",
             "-DBUILD_TESTING=OFF",
@@ -255,7 +259,7 @@ def build(pkg: Package, prefix: Path, jobs: int = 2) -> None:
             f"-DCMAKE_PROJECT_INCLUDE={Path(tmp) / 'fixup.cmake'}",
             f"-DRAVENMEM_PYTHON_INCLUDE={sysconfig.get_paths()['include']}",
             f"-DRAVENMEM_NUMPY_INCLUDE={numpy.get_include()}",
-        ]  # fmt: skip
+        ]
         for step, cmd in (
             ("configure", configure),
             ("build", ["cmake", "--build", str(out), "-j", str(max(1, jobs))]),

@@ -157,18 +157,38 @@ class RavenmemNode:
 
         s, sub = self.s, self.node.create_subscription
         if s.odom_topic:
-            sub(Odometry, s.odom_topic, lambda m: self.intake.odometry(m, self.now()),
-                self._qos(s.pose_qos, 100), callback_group=self.sensors)  # fmt: skip
+            sub(
+                Odometry,
+                s.odom_topic,
+                lambda m: self.intake.odometry(m, self.now()),
+                self._qos(s.pose_qos, 100),
+                callback_group=self.sensors,
+            )
         else:
             from tf2_msgs.msg import TFMessage
 
-            sub(TFMessage, "/tf", lambda m: self.intake.transforms(m, self.now(), False),
-                self._qos(s.pose_qos, 100), callback_group=self.sensors)  # fmt: skip
-            sub(TFMessage, "/tf_static", lambda m: self.intake.transforms(m, self.now(), True),
-                self._latched(100), callback_group=self.sensors)  # fmt: skip
+            sub(
+                TFMessage,
+                "/tf",
+                lambda m: self.intake.transforms(m, self.now(), False),
+                self._qos(s.pose_qos, 100),
+                callback_group=self.sensors,
+            )
+            sub(
+                TFMessage,
+                "/tf_static",
+                lambda m: self.intake.transforms(m, self.now(), True),
+                self._latched(100),
+                callback_group=self.sensors,
+            )
         if s.camera_info_topic:
-            sub(CameraInfo, s.camera_info_topic, self._on_camera_info, self._qos("sensor_data"),
-                callback_group=self.sensors)  # fmt: skip
+            sub(
+                CameraInfo,
+                s.camera_info_topic,
+                self._on_camera_info,
+                self._qos("sensor_data"),
+                callback_group=self.sensors,
+            )
         if s.map_topic:
             sub(OccupancyGrid, s.map_topic, self._on_map, self._latched(1), callback_group=self.sensors)
         self._unresolved = list(s.cameras)
@@ -217,11 +237,14 @@ class RavenmemNode:
         events = SubscriptionEventCallbacks(message_lost=self._lost)
         self.image_subs.append(
             self.node.create_subscription(
-                cls, topic_name, lambda m: self.intake.image(m, kind, self.now(), source),
-                self._qos(self.s.image_qos, self.s.image_depth), callback_group=self.sensors,
+                cls,
+                topic_name,
+                lambda m: self.intake.image(m, kind, self.now(), source),
+                self._qos(self.s.image_qos, self.s.image_depth),
+                callback_group=self.sensors,
                 event_callbacks=events,
             )
-        )  # fmt: skip
+        )
 
     def _lost(self, info: Any) -> None:
         n = int(info.total_count_change)
@@ -283,10 +306,13 @@ class RavenmemNode:
         )
         try:
             grid = grid_from_occupancy(
-                int(info.width), int(info.height), float(info.resolution),
-                (float(o.position.x), float(o.position.y), yaw), msg.data,
+                int(info.width),
+                int(info.height),
+                float(info.resolution),
+                (float(o.position.x), float(o.position.y), yaw),
+                msg.data,
                 f"{self.node.resolve_topic_name(self.s.map_topic)} (nav_msgs/OccupancyGrid)",
-            )  # fmt: skip
+            )
             grid.save(self.service.mem.path)
         except InputError as e:
             self.intake._bad(str(e))

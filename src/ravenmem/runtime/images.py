@@ -83,6 +83,18 @@ class DecodeGate:
         return array
 
 
+def decode_failure(e: Exception, what: str, max_pixels: int, kind: str) -> Exception:
+    """The one error a failed decode of an upload gives: our own refusals as they are, a picture
+    past the pixel limit 413 (`TooLargeError`), anything the decoder could not read one line."""
+    if isinstance(e, InputError):
+        return e
+    if isinstance(e, (Image.DecompressionBombError, Image.DecompressionBombWarning)):
+        return TooLargeError(f"{what}: more pixels than the limit of {max_pixels}")
+    if isinstance(e, (UnidentifiedImageError, OSError, ValueError, Warning)):
+        return InputError(f"{what}: not a readable {kind} ({type(e).__name__})")
+    return e
+
+
 _UNGATED = DecodeGate(budget=1 << 62)  # the Python API's default: only max_pixels bounds it
 
 
@@ -113,12 +125,8 @@ def decode_image(
                     gate.release(n)
                     raise
                 return gate.hold(arr, n)
-    except InputError:
-        raise
-    except (Image.DecompressionBombError, Image.DecompressionBombWarning):
-        raise TooLargeError(f"{what}: more pixels than the limit of {max_pixels}") from None
-    except (UnidentifiedImageError, OSError, ValueError, Warning) as e:
-        raise InputError(f"{what}: not a readable JPEG or PNG image ({type(e).__name__})") from None
+    except Exception as e:
+        raise decode_failure(e, what, max_pixels, "JPEG or PNG image") from None
 
 
 def decode_base64_image(
@@ -178,12 +186,8 @@ def decode_depth(data: bytes, max_pixels: int, scale: float, what: str = "depth"
                     if w * h > max_pixels:
                         raise TooLargeError(f"{what}: {w}x{h} pixels is more than the limit of {max_pixels}")
                     raw = np.asarray(im)
-    except InputError:
-        raise
-    except (Image.DecompressionBombError, Image.DecompressionBombWarning):
-        raise TooLargeError(f"{what}: more pixels than the limit of {max_pixels}") from None
-    except (UnidentifiedImageError, OSError, ValueError, Warning) as e:
-        raise InputError(f"{what}: not a readable depth PNG or .npy array ({type(e).__name__})") from None
+    except Exception as e:
+        raise decode_failure(e, what, max_pixels, "depth PNG or .npy array") from None
     if (
         raw.ndim != 2
         or raw.size > max_pixels

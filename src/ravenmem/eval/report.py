@@ -22,7 +22,7 @@ import numpy as np
 
 from .config import Thresholds
 from .metrics import SWEEP_M, group_key, summarize
-from .paper import beside
+from .paper import ORIGINS, comparisons
 from .runner import read_json, read_rows, run_thresholds
 
 TYPE_COLS = ("position", "time", "duration", "frame", "binary", "text")
@@ -302,43 +302,92 @@ def _notes(groups: list[dict[str, Any]], summary: dict[str, Any]) -> list[str]:
     return ["## Notes", "", *notes, ""] if notes else []
 
 
-def _where(w: dict[str, str]) -> str:
-    return ", ".join(f"{k} {v}" for k, v in w.items()) or "all"
+def _where(w: dict[str, tuple[str, ...]]) -> str:
+    """A figure's questions in our fields: `subset irs_hard`, `ep_id ep_91-ep_100 (10)`, `all`."""
+
+    def values(vs: tuple[str, ...]) -> str:
+        return vs[0] if len(vs) == 1 else f"{vs[0]}-{vs[-1]} ({len(vs)})"
+
+    return ", ".join(f"{k} {values(vs)}" for k, vs in w.items()) or "all"
+
+
+def _ours(b: dict[str, Any]) -> str:
+    """Our value; an average with the groups' values it is the mean of."""
+    if "parts" not in b["ours"]:
+        return fmt_pct(b["ours"], n=True)
+    parts = ", ".join(f"{g} {fmt_pct(v, ci=False)}" for g, v in b["ours"]["parts"])
+    return f"{fmt_pct(b['ours'])} (mean of {parts})"
 
 
 def paper_lines(rows: list[dict[str, Any]]) -> list[str]:
-    """One line per our row that has a published figure beside it (for the console)."""
-    return [
-        f"{b['benchmark']} ({_where(b['where'])}) {b['method']} | {b['embedder']} | {b['vlm']}: "
-        f"ours {fmt_pct(b['ours'], n=True)}; the paper's (RAVEN authors): {b['paper'].label}"
-        for b in beside(rows)
+    """One line per our row that has a published figure beside it, and one for the figures of
+    the benchmarks run here that have none (for the console)."""
+    shown, missing = comparisons(rows)
+    lines = [
+        f"{b['paper'].benchmark} {b['paper'].group} ({_where(b['paper'].where)}) {b['method']} | "
+        f"{b['embedder']} | {b['vlm']}: ours {_ours(b)}; {b['paper'].theirs}: {b['paper'].label}"
+        for b in shown
     ]
+    if missing:
+        names = ", ".join(sorted({f.benchmark for f, _ in missing}))
+        lines.append(
+            f"{len(missing)} more published figure(s) for {names} have no value of ours beside them "
+            "(the report lists them under 'Published, not run here')"
+        )
+    return lines
+
+
+def _sources(figs: list[Any]) -> dict[str, int]:
+    return {s: i + 1 for i, s in enumerate(dict.fromkeys(f.source for f in figs))}
 
 
 def _paper(rows: list[dict[str, Any]]) -> list[str]:
-    """Our rows beside the RAVEN authors' published figures for the same benchmark, split and
-    method (`ravenmem.eval.paper`)."""
-    found = beside(rows)
-    if not found:
+    """Our rows beside the RAVEN authors' published figures for the same benchmark, questions
+    and method, and the figures of the benchmarks run here with no value of ours
+    (`ravenmem.eval.paper`)."""
+    shown, missing = comparisons(rows)
+    if not shown and not missing:
         return []
-    body = [
-        [b["benchmark"], _where(b["where"]), b["method"], b["embedder"], b["vlm"], fmt_pct(b["ours"], n=True)]
-        + [b["paper"].label, b["paper"].source]
-        for b in found
-    ]
-    head = ["Benchmark", "Questions", "Method", "Embedder", "VLM", "Ours: accuracy %"]
-    head += ["The paper's (RAVEN authors)", "Source"]
-    quotes = sorted({f'"{b["paper"].quote}" ({b["paper"].note})' for b in found if b["paper"].quote})
-    return [
-        "## Beside the paper",
-        "",
-        _table(head, body),
-        "",
-        "The paper's column is the published figure for the same benchmark, questions and method, "
-        "with the model and encoder that produced it as the source names them; ours is the same "
-        "metric over exactly these rows. As published: " + " ".join(quotes),
-        "",
-    ]
+    srcs = _sources([b["paper"] for b in shown] + [f for f, _ in missing])
+    out = ["## Beside the paper", ""]
+    if shown:
+        body = [
+            [p.benchmark, p.group, _where(p.where), b["method"], b["embedder"], b["vlm"], _ours(b), p.shown]
+            + [f"{ORIGINS[p.origin]}: {p.place} [{srcs[p.source]}]", p.who]
+            for b in shown
+            for p in [b["paper"]]
+        ]
+        head = ["Benchmark", "The paper's group", "Our questions", "Method", "Embedder", "VLM", "Ours %"]
+        head += ["The paper's %", "Published in", "Model, encoder (the paper's)"]
+        out += [_table(head, body), ""]
+        out += [
+            "The paper's columns are the RAVEN authors' published figure for the same benchmark, "
+            "questions and method (Embedder Only = embedder-only, ReMEmbR = caption, VLM Only = "
+            "vlm-only, Ours = raven), with the model and encoder as the source names them; ours is the "
+            "same metric over exactly these rows, by our own model and encoder, so the two differ in "
+            "model as well as in method. An average is the mean of the groups' values, as the chart's "
+            "Average bars are (not a pooled accuracy).",
+            "",
+        ]
+    if missing:
+        body = [
+            [f.benchmark, f.group, _where(f.where), f.method, f.metric, f.shown]
+            + [f"{ORIGINS[f.origin]}: {f.place} [{srcs[f.source]}]", why]
+            for f, why in missing
+        ]
+        head = ["Benchmark", "The paper's group", "Our questions", "Method", "Metric", "The paper's %"]
+        out += [
+            "### Published, not run here",
+            "",
+            _table(head + ["Published in", "Why no value of ours"], body),
+            "",
+        ]
+    notes = sorted(
+        {f"{p.group}: {p.note}." for p in [b["paper"] for b in shown] + [f for f, _ in missing] if p.note}
+    )
+    out += ["Sources: " + "; ".join(f"[{i}] {s}" for s, i in srcs.items()) + ".", ""]
+    out += [" ".join(notes), ""] if notes else []
+    return out
 
 
 def _study_value(st: dict[str, Any], p: dict[str, Any]) -> str:

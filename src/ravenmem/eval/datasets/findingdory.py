@@ -163,6 +163,8 @@ def load(path: str, split: str = "validation", **_: Any) -> list[Episode]:
                     category=str(row.get("high_level_category") or "").lower(),
                     horizon=horizon_of(times[-1] - times[0] if n_frames > 1 else None),
                     meta={
+                        # the episode: the release's long-range subset is episodes ep_91-ep_100
+                        "ep_id": str(row.get("ep_id") or Path(video).stem),
                         "low_level_category": row.get("low_level_category"),
                         "task_id": row.get("task_id"),
                         "goals": len(goals),

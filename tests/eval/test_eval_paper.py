@@ -13,10 +13,12 @@ import pytest
 
 from ravenmem.agent.base import METHODS
 from ravenmem.errors import InputError
+from ravenmem.eval.datasets import load_dataset
 from ravenmem.eval.metrics import KINDS
 from ravenmem.eval.paper import Figure, comparisons, load_figures, parts_of
 from tests.agent.scripted_server import ScriptedModel
 from tests.eval.eval_helpers import plugin_site, rm
+from tests.eval.release_files import write_findingdory_release
 from tests.eval.release_layouts import navqa_policy, write_raven_navqa, write_raven_qa_release
 
 EMB = ["--embedder", "test-color-eval", "--thumb-size", "32", "--workers", "1"]
@@ -151,7 +153,11 @@ def test_an_average_is_the_mean_of_the_groups_not_a_pooled_accuracy() -> None:
     )
 
 
-def test_findingdory_long_subset_and_memory_efficiency() -> None:
+def test_findingdory_long_subset_and_memory_efficiency(tmp_path: Path) -> None:
+    # the loader records each question's episode as the release names it (its long-range subset
+    # is episodes ep_91-ep_100)
+    eps = load_dataset(f"findingdory:{write_findingdory_release(tmp_path / 'fd')}")
+    assert {q.meta["ep_id"] for e in eps for q in e.questions} == {"ep_1"}
     rows = [
         _row("findingdory", "vlm-only", "ep_95:t0:0", True, meta={"ep_id": "ep_95"}),
         _row("findingdory", "vlm-only", "ep_1:t0:1", False, meta={"ep_id": "ep_1"}),

@@ -143,6 +143,9 @@ def test_an_average_is_the_mean_of_the_groups_not_a_pooled_accuracy() -> None:
         ("Habitat Sim", "caption"),
     }
     assert all(f.benchmark == "raven-qa" for f, _ in missing)  # only the benchmarks run here are listed
+    # a study's settings are rows of their own, as in the report's tables
+    studied = comparisons(rows + [r | {"variant": "top_k=3"} for r in rows])[0]
+    assert {b["method"] for b in studied} == {"raven", "raven [top_k=3]"}
     # without one of the groups there is no average of ours, and the report says what it needs
     shown, missing = comparisons([r for r in rows if r["question"]["subset"] != "irs_hard"])
     assert not any(b["paper"].group == "Average" for b in shown)

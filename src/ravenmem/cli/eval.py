@@ -243,8 +243,9 @@ def report_cmd(
         Path, typer.Option("--out", "-o", help="markdown file; PNGs go to <stem>_figs/ beside it")
     ] = Path("report.md"),
 ) -> None:
-    """Markdown tables (method x embedder x VLM, per category, split, horizon, cost) and PNG plots;
-    the threshold options re-score the answers (default: the run's own)."""
+    """Markdown tables (method x embedder x VLM, per category, split, horizon, cost, and the RAVEN
+    authors' published figures beside our rows) and PNG plots; the threshold options re-score the
+    answers (default: the run's own)."""
     from ..eval.report import paper_lines, write_report
     from ..eval.runner import read_rows, run_thresholds
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import InputError
 from .config import RAVEN_QA
-from .metrics import KINDS, seed_accuracy
+from .metrics import KINDS, group_key, seed_accuracy
 
 FIGURES = "paper_figures.json"
 # metric -> the score key our rows hold it in (`accuracy`: the report's Accuracy column, each
@@ -190,13 +190,12 @@ Key = tuple[str, str, str]
 
 
 def _ours(rows: list[dict[str, Any]], f: Figure) -> dict[Key, dict[str, Any]]:
-    """Our value of `f`'s metric over the rows it covers, per (method, embedder, VLM)."""
+    """Our value of `f`'s metric over the rows it covers, per (method [variant], embedder, VLM)."""
     groups: dict[Key, list[dict[str, Any]]] = {}
     for r in rows:
         if _matches(r, f):
-            groups.setdefault(
-                (str(r["method"]), str(r.get("embedder") or "-"), str(r.get("vlm") or "-")), []
-            ).append(r)
+            method, emb, vlm, variant = group_key(r)  # a study's settings stay apart, as in the tables
+            groups.setdefault((method + (f" [{variant}]" if variant else ""), emb, vlm), []).append(r)
     found = {k: seed_accuracy(rs, METRICS[f.metric]) for k, rs in groups.items()}
     return {k: v for k, v in found.items() if v.get("mean") is not None}
 

@@ -10,6 +10,7 @@ import re
 import shlex
 from pathlib import Path
 
+from ravenmem.cli._console import rounded
 from ravenmem.nav.goals import read_pose_stamped
 from ravenmem.sim.base import create_env
 from tests.cli.helpers import REPO, run_cli
@@ -47,6 +48,17 @@ def test_the_tours_navigate_block_plans_to_a_pose_that_sees_the_thing(tmp_path: 
     assert math.dist((gx, gy), data["position"][:2]) < 0.5  # where the robot stood when it saw it
     x, y, yaw, frame = read_pose_stamped(nav["pose_stamped"])
     assert (frame, x, y) == ("map", gx, gy) and math.isclose(yaw, gyaw, abs_tol=1e-9)
+
+    # in words: the plan's line, then the same goal for Nav2 on the last line, rounded as
+    # `navigate` rounds it (4 decimals; --json above keeps every digit)
+    r = run_cli(*[a for a in ask[1:] if a != "--json"], cwd=tmp_path, unset=("RAVENMEM_SERVER",))
+    assert r.returncode == 0, r.stderr[-3000:]
+    lines = r.stdout.splitlines()
+    assert any(ln.startswith("navigate: A* path") and f"to ({gx:.2f}, {gy:.2f})" in ln for ln in lines), (
+        r.stdout
+    )
+    assert json.loads(lines[-1]) == rounded(nav["pose_stamped"])
+    assert max(len(d) for d in re.findall(r"\.(\d+)", lines[-1])) <= 4, lines[-1]
 
     # the simulated robot, placed at the goal with its heading, sees the game controller
     env = create_env("synthetic:gallery")

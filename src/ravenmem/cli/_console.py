@@ -9,6 +9,7 @@ lines are printed as plain `Text`, never parsed.
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -41,3 +42,16 @@ def print_warning(message: object) -> None:
     while the command still succeeds, e.g. a video that ended early)."""
     err = Console(stderr=True, soft_wrap=True, highlight=False)
     err.print(Text.assemble(("warning:", "yellow"), " ", one_line(message)))
+
+
+def rounded(data: Any, places: int = 4) -> Any:
+    """JSON for a person: floats to `places` decimals (a tenth of a millimetre on the map), the
+    rest as is. The goal lines of `navigate` and `ask --navigate` print through it; `--json`
+    keeps every digit."""
+    if isinstance(data, float):
+        return round(data, places)
+    if isinstance(data, dict):
+        return {k: rounded(v, places) for k, v in data.items()}
+    if isinstance(data, list):
+        return [rounded(v, places) for v in data]
+    return data

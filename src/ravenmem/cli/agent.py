@@ -15,7 +15,7 @@ from rich.table import Table
 
 from ..agent.config import PROVIDERS, RESPONSE_FORMATS, TOOL_MODES
 from ..timeparse import fmt_time
-from ._console import esc, out_console
+from ._console import esc, out_console, rounded
 from .options import (
     CONFIG,
     COUNT,
@@ -350,7 +350,7 @@ def _render_navigation(nav: dict[str, Any]) -> None:
     )
     for note in nav.get("notes", []):
         con.print(f"[yellow]note:[/] {esc(note)}", highlight=False)
-    sys.stdout.write(json.dumps(nav["pose_stamped"]) + "\n")
+    sys.stdout.write(json.dumps(rounded(nav["pose_stamped"])) + "\n")
 
 
 def _render(a: dict[str, Any]) -> None:

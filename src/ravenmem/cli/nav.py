@@ -10,6 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
+from ._console import rounded
 from .options import (
     ANGLE,
     CELL_SIZE,
@@ -250,19 +251,7 @@ def navigate(
     sys.stdout.write(line + "\n")
     for note in gp.notes:
         sys.stdout.write(f"  note: {note}\n")
-    sys.stdout.write(json.dumps(_rounded(gp.pose_stamped())) + "\n")
-
-
-def _rounded(data: Any, places: int = 4) -> Any:
-    """JSON for a person: floats to `places` decimals (a millimetre on the map), the rest as is
-    (`--json` keeps every digit)."""
-    if isinstance(data, float):
-        return round(data, places)
-    if isinstance(data, dict):
-        return {k: _rounded(v, places) for k, v in data.items()}
-    if isinstance(data, list):
-        return [_rounded(v, places) for v in data]
-    return data
+    sys.stdout.write(json.dumps(rounded(gp.pose_stamped())) + "\n")
 
 
 def _declined(to: str, answer: Any) -> str:

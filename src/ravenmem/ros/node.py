@@ -133,8 +133,12 @@ class RavenmemNode:
     def _qos(self, name: str, depth: int = 10) -> Any:
         from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-        if name == "sensor_data":
-            return qos_profile_sensor_data
+        if name == "sensor_data":  # best effort, volatile, at the depth asked for
+            return QoSProfile(
+                depth=depth,
+                reliability=qos_profile_sensor_data.reliability,
+                durability=qos_profile_sensor_data.durability,
+            )
         rel = ReliabilityPolicy.RELIABLE if name == "reliable" else ReliabilityPolicy.BEST_EFFORT
         return QoSProfile(depth=depth, reliability=rel)
 
@@ -232,14 +236,23 @@ class RavenmemNode:
         source = self.s.source_of(camera)
         from rclpy.event_handler import SubscriptionEventCallbacks
 
-        # what DDS itself dropped before the node saw it (a best-effort reader, or a full
-        # history): counted too, so a lost frame is never silent
+        # an image that never reached the node is counted: a gap in its publisher's sequence
+        # numbers (a history that overflowed while the node was busy: DDS says nothing), and
+        # what the middleware itself reports lost
         events = SubscriptionEventCallbacks(message_lost=self._lost)
+
+        def take(msg: Any, info: Any) -> None:
+            gid = info.get("publisher_gid")
+            publisher = None if gid is None else str(gid)
+            self.intake.image(
+                msg, kind, self.now(), source, publisher, info.get("publication_sequence_number")
+            )
+
         self.image_subs.append(
             self.node.create_subscription(
                 cls,
                 topic_name,
-                lambda m: self.intake.image(m, kind, self.now(), source),
+                take,
                 self._qos(self.s.image_qos, self.s.image_depth),
                 callback_group=self.sensors,
                 event_callbacks=events,
@@ -248,9 +261,8 @@ class RavenmemNode:
 
     def _lost(self, info: Any) -> None:
         n = int(info.total_count_change)
-        with self.intake.counts._lock:
-            self.intake.counts.lost += n
-        self.log(f"{n} image(s) lost in transport (DDS)")
+        self.intake.counts.missed(n, reported=True)
+        self.log(f"{n} image(s) lost in transport (reported by DDS)")
 
     def _publish_and_serve(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray

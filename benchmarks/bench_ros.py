@@ -47,8 +47,14 @@ def pct(xs: list[float], q: float) -> float:
 
 
 def latency(xs: list[float]) -> dict[str, Any]:
-    """Calls made, p50 and p99 in seconds."""
-    return {"n": len(xs), "p50": round(pct(xs, 0.5), 3), "p99": round(pct(xs, 0.99), 3)}
+    """Calls made, p50, p99 and the slowest in seconds, and the first call's (a cold start shows)."""
+    return {
+        "n": len(xs),
+        "p50": round(pct(xs, 0.5), 3),
+        "p99": round(pct(xs, 0.99), 3),
+        "max": round(max(xs, default=float("nan")), 3),
+        "first": round(xs[0], 3) if xs else None,
+    }
 
 
 def call_loop(search: Any, ask: Any, done: threading.Event, out: dict[str, list[float]]) -> None:
@@ -262,6 +268,8 @@ def run_ros(data: Path, frames: int, rate: float, keyframes: str, domain: int) -
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
 
+    from ravenmem.ros.params import NodeSettings
+
     with tempfile.TemporaryDirectory() as tmp:
         mem, log = Path(tmp) / "bench.mem", Path(tmp) / "node.log"
         ros_args = ["-p", "image_qos:=reliable", "-p", "image_transport:=raw"]
@@ -272,7 +280,9 @@ def run_ros(data: Path, frames: int, rate: float, keyframes: str, domain: int) -
         diag = client.collect(DiagnosticArray, "/diagnostics")
         # a plain subscriber beside the node, with the node's QoS: what any subscriber got
         plain = client.count(
-            Image, "/camera/image_raw", QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
+            Image,
+            "/camera/image_raw",
+            QoSProfile(depth=NodeSettings().image_depth, reliability=ReliabilityPolicy.RELIABLE),
         )
         lat: dict[str, list[float]] = {"search": [], "ask": []}
         done = threading.Event()

@@ -8,8 +8,11 @@ received is accounted for: stored, skipped with its reason, waiting here, or in 
 queue (`Counts.balance` checks it). Bad messages (an image that does not decode, a pose with
 NaN or a zero quaternion) are counted by reason and never stored.
 
-Not thread-safe by itself: the node calls `image`, `odometry`, `tf` and `settle` from one
-callback group (one at a time); the writer's answers come from its thread through `Counts`.
+Thread-safe: `image`, `odometry`, `transforms`, `settle` and `latest_xy` take one lock (each
+is quick: nothing under it waits on the embedder or the disk), so the node runs the image
+callbacks in a callback group of their own, never queued behind the pose callbacks, and its
+services read the latest pose meanwhile; the writer's answers come from its thread through
+`Counts`.
 """
 
 from __future__ import annotations
@@ -21,7 +24,8 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from functools import wraps
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -145,6 +149,18 @@ class _Waiting:
 
 
 Transform = tuple[tuple[float, float, float], tuple[float, float, float, float]]
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _locked(fn: F) -> F:
+    """Run a `FrameIntake` method under the intake's lock."""
+
+    @wraps(fn)
+    def run(self: FrameIntake, *args: Any, **kwargs: Any) -> Any:
+        with self._lock:
+            return fn(self, *args, **kwargs)
+
+    return run  # type: ignore[return-value]
 
 
 class FrameIntake:
@@ -171,8 +187,10 @@ class FrameIntake:
         self._refused: dict[str, str | None] = {}
         self.gaps = SequenceGaps()
         self.stopping = False
+        self._lock = threading.RLock()
 
     # ---------------------------------------------------------------- input
+    @_locked
     def image(
         self,
         msg: Any,
@@ -211,6 +229,7 @@ class FrameIntake:
             self._skip(SKIP_QUEUE)
         self.settle()
 
+    @_locked
     def odometry(self, msg: Any, now: float) -> None:
         pq = msgs.pose_of(msg, msgs.ODOMETRY)
         if pq is None:
@@ -226,6 +245,7 @@ class FrameIntake:
         self.counts.poses += 1
         self.settle()
 
+    @_locked
     def transforms(self, msg: Any, now: float, static: bool) -> None:
         assert self.tf is not None
         for tfm in msg.transforms:
@@ -269,12 +289,14 @@ class FrameIntake:
         got = self.tf.lookup(parent, self.s.base_frame, t)
         return got if isinstance(got, str) else (parent, got)
 
+    @_locked
     def latest_xy(self) -> tuple[float, float] | None:
         t = self.newest()
         got = None if t is None else self.pose_at(t)
         return None if got is None or isinstance(got, str) else (got[1][0][0], got[1][0][1])
 
     # ---------------------------------------------------------------- settling
+    @_locked
     def settle(self, flush: bool = False) -> None:
         """Pose and submit every waiting image whose poses are known, or that waited too long
         (`flush`: all of them, the node is stopping)."""

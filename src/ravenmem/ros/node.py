@@ -100,9 +100,11 @@ class NodeLogic:
 
 
 class RavenmemNode:
-    """The rclpy node around a running `Service` (see the module docstring). Sensor callbacks run
-    one at a time (one mutually exclusive group: the intake has one caller); services, the
-    action and NavigateToPose waits run in a reentrant group on the executor's other threads."""
+    """The rclpy node around a running `Service` (see the module docstring). Pose and map
+    callbacks run one at a time (one mutually exclusive group), each camera's images in a group
+    of its own (the intake takes its own lock), so an image is never queued behind the poses
+    and the subscription's history does not fill up; services, the action and NavigateToPose
+    waits run in a reentrant group on the executor's other threads."""
 
     def __init__(self, node: Any, settings: NodeSettings, service: Service) -> None:
         from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -222,6 +224,7 @@ class RavenmemNode:
             self._discover.cancel()
 
     def _subscribe_images(self, transport: str, topic_name: str, camera: str) -> None:
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
         from sensor_msgs.msg import CompressedImage, Image
 
         if (
@@ -254,7 +257,7 @@ class RavenmemNode:
                 topic_name,
                 take,
                 self._qos(self.s.image_qos, self.s.image_depth),
-                callback_group=self.sensors,
+                callback_group=MutuallyExclusiveCallbackGroup(),
                 event_callbacks=events,
             )
         )
@@ -462,6 +465,8 @@ def main(argv: list[str] | None = None) -> None:
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
+    from ..server.run import warm_up
+
     with _stderr_held() as said:  # rcl logs a bad argument itself before raising
         try:  # a malformed --ros-args (rcl parses it) is the user's input: one line, exit 2
             rclpy.init(args=["ravenmem", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
@@ -482,6 +487,7 @@ def main(argv: list[str] | None = None) -> None:
         service = _open_service(args.memory, args.create, settings)
         ros_node = RavenmemNode(node, settings, service)
         service.attach(ros_node)
+        warm_up(service)  # the embedder loaded and run once: the first search is as fast as the next
         executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         node.get_logger().info(f"ravenmem: {args.memory} ({service.mem.count()} memories), ready")

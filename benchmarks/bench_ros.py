@@ -1,15 +1,18 @@
 """The ROS 2 node on a real graph (not a test; prints numbers).
 
-Run: nice python benchmarks/bench_ros.py [--seconds 20] [--keyframes all] [--domain 131] [--http]
+Run: nice -n 5 python benchmarks/bench_ros.py [--seconds 60] [--keyframes all] [--domain 131] [--http]
 (needs the `ros` extra and `ravenmem ros setup`; the TUM recording from $RAVENMEM_TUM_DATA).
 
 Three processes over Fast DDS on this host: `ravenmem ros run` on a new memory (the default
 embedder), the TUM freiburg1_rpy frames (640x480 rgb8) published as sensor_msgs/Image with
-nav_msgs/Odometry at 30 Hz for `--seconds` (the recording played again when longer), and a
-client here that calls /ravenmem/search every 0.5 s and /ravenmem/ask (offline) every 2 s while
-the frames stream. Prints: frames offered, received by the node, stored, skipped by reason, lost
-in transport, and what a plain subscriber beside the node received; keyframes stored per second (until the last was stored); service latencies (p50, p99); the
-node's exit code on SIGTERM. Every received frame must be accounted for (stored + skipped).
+nav_msgs/Odometry at `--rate` (30 Hz) for `--seconds` (the recording played again when longer),
+and a client here that calls /ravenmem/search every 0.5 s and /ravenmem/ask (offline) every 2 s
+while the frames stream, beside a plain subscriber with the node's QoS. Prints: frames offered,
+what the plain subscriber received, what the node received and what it counted lost in
+transport (sequence gaps; and what DDS reported), stored, skipped by reason; keyframes stored
+per second (until the last was stored); service latencies (n, p50, p99, max, the first call);
+the node's exit code on SIGTERM. Every frame offered must be received or counted lost, and
+every frame received stored or skipped with a reason.
 
 `--tf`: the node's cost per /tf message (the intake's bounded TF buffer, 100 Hz odom -> base_link
 for 60 s of stamps with 30 s kept, one image posed per 3 messages), no graph.
@@ -244,7 +247,7 @@ def run_http(data: Path, frames: int, rate: float, keyframes: str) -> dict[str, 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--keyframes", default="all", help="the node's keyframe rule ('' for the defaults)")
     ap.add_argument("--domain", type=int, default=131)

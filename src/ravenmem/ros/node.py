@@ -10,8 +10,9 @@ compressed, `auto`: chosen once a publisher is discovered), odometry or /tf + /t
 CameraInfo (kept in the memory's manifest), the OccupancyGrid on `map_topic` (the memory's map
 for goal planning). Callbacks never wait on the embedder or the disk: images go through
 `ros.intake.FrameIntake` into the runtime's one `LiveWriter`, and every image is accounted for
-(published on /diagnostics). Outputs: services `~/ask` and `~/search` (`ravenmem_msgs`, the
-replies of `ros.services`), the action `~/ask_action` (feedback while it works, cancellable), a
+(published on /diagnostics), even one that never reached it (a gap in its publisher's
+sequence numbers). Outputs: services `~/ask` and `~/search` (`ravenmem_msgs`, the
+replies of `ros.services`), the action `~/ask_action` (a feedback per tool call, cancellable), a
 goal on `goal_topic` (or through Nav2's NavigateToPose when `navigate_action` is set) only for a
 question that asks to navigate, MarkerArrays on `~/markers`. SIGINT and SIGTERM stop the intake,
 store what was queued and exit 0.

@@ -54,6 +54,13 @@ def main() -> None:
     ap.add_argument("--size", default="", help="WxH to resize to (raw mode), e.g. 640x480")
     ap.add_argument("--bad", action="store_true", help="also send one bad message of each kind")
     ap.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the subscriber")
+    ap.add_argument(
+        "--alone",
+        type=float,
+        default=0.0,
+        help="send the first and the last frame this many seconds apart from the others (around a "
+        "burst: the frames whose sequence numbers show a subscriber what it missed between them)",
+    )
     args = ap.parse_args(argv[: len(argv) - len(ros_args)])
 
     import rclpy
@@ -152,6 +159,8 @@ def main() -> None:
             stamp(info, t)
             info_pub.publish(info)
         next_t += period
+        if i in (0, len(rgb) - 2) and args.alone > 0:
+            next_t = time.monotonic() + args.alone
         time.sleep(max(0.0, next_t - time.monotonic()))
     bad = 0
     if args.bad and args.mode == "raw":

@@ -53,6 +53,27 @@ def start(args: list[str], domain: int, log: Path) -> subprocess.Popen[str]:
     )
 
 
+def launch(args: list[str], domain: int, log: Path, what: str, timeout: float = 180) -> subprocess.Popen[str]:
+    """`start` a process of the graph and wait until it logs "ready" (it must still be running)."""
+    proc = start(args, domain, log)
+    wait_for(lambda: "ready" in log.read_text() or proc.poll() is not None, timeout, what)
+    assert proc.poll() is None, f"{what} exited {proc.returncode}: {log.read_text()[-3000:]}"
+    return proc
+
+
+def launch_node(memory: Path, domain: int, log: Path, *ros_args: str) -> subprocess.Popen[str]:
+    """`ravenmem ros run --memory MEMORY --create --ros-args ROS_ARGS`, once it is ready."""
+    args = ["-m", "ravenmem.cli.main", "ros", "run", "--memory", str(memory), "--create"]
+    return launch([*args, "--ros-args", *ros_args], domain, log, "the node to start", 300)
+
+
+def launch_peer(what: str, domain: int, log: Path, *args: str) -> subprocess.Popen[str]:
+    """A peer of tests/ros/ros_peers.py (`map`, `nav`), once it is ready."""
+    return launch(
+        [str(Path(__file__).parent / "ros_peers.py"), what, *args], domain, log, f"the {what} peer", 60
+    )
+
+
 class Client:
     """An rclpy node of the test process on `domain` (its own context), spun on a thread:
     subscriptions that collect what arrives, service and action calls with timeouts."""

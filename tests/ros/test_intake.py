@@ -15,7 +15,7 @@ import pytest
 import ravenmem
 from ravenmem.ingest.keyframes import KeyframeConfig
 from ravenmem.ros import msgs
-from ravenmem.ros.intake import BAD_POSE, SKIP_NO_POSE, SKIP_QUEUE, FrameIntake
+from ravenmem.ros.intake import BAD_POSE, SKIP_NO_POSE, SKIP_QUEUE, FrameIntake, SequenceGaps
 from ravenmem.ros.params import NodeSettings
 from ravenmem.ros.tf import GAP, TOO_NEW, TOO_OLD, PoseBuffer, TfBuffer
 from ravenmem.runtime.live import LiveWriter
@@ -110,3 +110,30 @@ def test_every_image_is_accounted_for_and_bad_messages_are_never_stored(tmp_path
         xs = sorted(r.pose.x for r in m.all_records())
     assert xs == pytest.approx([0.05, 0.15, 0.25, 0.35, 0.45])  # interpolated at each stamp
     assert np.isfinite(xs).all()
+
+
+def test_sequence_gaps_count_the_images_that_never_arrived_per_publisher() -> None:
+    gaps = SequenceGaps()
+    assert gaps.missed("a", 7) == 0  # the first seen: what came before was not ours to get
+    assert gaps.missed("a", 8) == 0 and gaps.missed("a", 12) == 3  # 9, 10, 11 never arrived
+    assert gaps.missed("b", 1) == 0 and gaps.missed("b", 3) == 1  # per publisher
+    assert gaps.missed("a", 11) == 0 and gaps.missed("a", 13) == 0  # late or repeated: no gap
+    assert gaps.missed("a", None) == 0 and gaps.missed(None, 40) == 0  # no number: nothing known
+    assert gaps.missed("a", 14) == 0
+    for i in range(SequenceGaps.MAX_PUBLISHERS + 5):  # bounded
+        gaps.missed(f"p{i}", 1)
+    assert len(gaps.last) == SequenceGaps.MAX_PUBLISHERS
+
+
+def test_the_intake_counts_a_sequence_gap_as_lost_not_received() -> None:
+    class Writer:
+        def submit(self, *a: object, **k: object) -> object:
+            raise AssertionError("no pose: nothing is submitted")
+
+    intake = FrameIntake(Writer(), NodeSettings(pose_wait=60.0))  # type: ignore[arg-type]
+    for seq in (1, 2, 5, 6, 9):
+        intake.image(_image(1.0, value=seq), msgs.IMAGE, 1.0, "ros", "gid-1", seq)
+    c = intake.counts.as_dict(len(intake.waiting))
+    assert (c["received"], c["lost_in_transport"], c["lost_reported_by_dds"]) == (5, 4, 0)
+    intake.counts.missed(2, reported=True)  # what the middleware reports is kept apart
+    assert intake.counts.as_dict()["lost_reported_by_dds"] == 2

@@ -7,6 +7,7 @@ goals go out only for a question that asks to navigate; SIGTERM exits 0 with the
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -19,7 +20,7 @@ from PIL import Image as PILImage
 
 import ravenmem
 from tests.conftest import TUM, tum_data
-from tests.ros.rosgraph import Client, graph_env, require_ros, start, stop, wait_for
+from tests.ros.rosgraph import Client, graph_env, launch_node, launch_peer, require_ros, stop, wait_for
 
 pytestmark = pytest.mark.ros
 DOMAIN = 117  # this module's ROS domain (other modules of tests/ros use others)
@@ -34,27 +35,11 @@ def ros() -> Path:
 
 
 def _node(mem: Path, log: Path, *ros_args: str) -> subprocess.Popen[str]:
-    args = [
-        "-m",
-        "ravenmem.cli.main",
-        "ros",
-        "run",
-        "--memory",
-        str(mem),
-        "--create",
-        "--ros-args",
-        *ros_args,
-    ]
-    proc = start(args, DOMAIN, log)
-    wait_for(lambda: "ready" in log.read_text() or proc.poll() is not None, 180, "the node to start")
-    assert proc.poll() is None, log.read_text()[-3000:]
-    return proc
+    return launch_node(mem, DOMAIN, log, *ros_args)
 
 
 def _peer(what: str, log: Path, *args: str) -> subprocess.Popen[str]:
-    proc = start([str(HERE / "ros_peers.py"), what, *args], DOMAIN, log)
-    wait_for(lambda: "ready" in log.read_text() or proc.poll() is not None, 60, f"the {what} peer")
-    return proc
+    return launch_peer(what, DOMAIN, log, *args)
 
 
 def _publish(*args: str) -> dict[str, Any]:
@@ -283,6 +268,97 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
     assert run["stored"] >= 2  # keyframes: all; the frames were posed through /tf
     with ravenmem.open(mem) as m:  # two cameras, two keyframe streams
         assert {r.source for r in m.all_records()} == {"ros", "ros:camera2/image_raw"}
+
+
+def _two_tool_calls_then_answer(body: dict[str, Any]) -> dict[str, Any]:
+    """The scripted model: search_text, then search_time, then an answer resting on the first
+    memory the text search showed (its id read from the tool result, as a model would)."""
+    from tests.agent.scripted_server import answer, tool
+
+    shown = [m["content"] for m in body["messages"] if m["role"] == "tool"]
+    if not shown:
+        return tool("search_text", query="a desk")
+    if len(shown) == 1:
+        return tool("search_time", time="+0")
+    first = re.search(r"\[m(\d+)\]", shown[0])
+    assert first is not None, shown[0]
+    return answer(question_type="position", answer="by the desk", evidence=[int(first.group(1))])
+
+
+def test_images_lost_in_a_burst_are_counted_and_the_action_reports_each_tool_call(
+    ros: Path, tmp_path: Path
+) -> None:
+    from diagnostic_msgs.msg import DiagnosticArray
+    from ravenmem_msgs.action import Ask as AskAction
+    from rclpy.action import ActionClient
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
+    from tests.agent.scripted_server import ScriptedModel
+
+    mem, log = tmp_path / "robot.mem", tmp_path / "node.log"
+    with ScriptedModel(default=_two_tool_calls_then_answer) as model:
+        # a one-image history: a burst overflows it while the node is busy, and DDS says nothing
+        node = _node(
+            mem,
+            log,
+            *("-p", "image_qos:=reliable", "-p", "image_transport:=raw", "-p", "image_depth:=1"),
+            *("-p", "keyframes:=all", "-p", "diagnostics_period:=0.5"),
+            *("-p", "model:=scripted", "-p", f"base_url:={model.base_url}"),
+        )
+        client = Client(DOMAIN)
+        try:
+            diag = client.collect(DiagnosticArray, "/diagnostics")
+            plain = client.count(
+                Image, "/camera/image_raw", QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+            )
+            # 58 frames as fast as they go between two sent a second apart: a gap shows between
+            # two images the node received from the same publisher
+            sent = _publish("--frames", "60", "--mode", "raw", "--rate", "1000", "--alone", "1")
+
+            def seen() -> int:
+                d = _diag(diag)
+                return int(d.get("received", 0)) + int(d.get("lost in transport", 0))
+
+            # every image sent: received by the node, or counted lost (a gap in the sequence)
+            wait_for(
+                lambda: (
+                    seen() == sent["images"]
+                    and _diag(diag).get("queue depth") == "0"
+                    and _diag(diag).get("waiting for a pose") == "0"
+                ),
+                120,
+                "the node to account for every image",
+                show=lambda: (sent, plain, _diag(diag)),
+            )
+            d = _diag(diag)
+            assert int(d["lost in transport"]) >= 1 and int(d["received"]) < sent["images"], d
+            assert plain[0] <= seen()  # so every image a plain subscriber got, too
+            assert int(d["stored"]) + int(d["skipped"]) == int(d["received"]) and int(d["stored"]) >= 2
+
+            action = ActionClient(client.node, AskAction, "/ravenmem/ask_action")
+            assert action.wait_for_server(timeout_sec=30)
+            feedback: list[Any] = []
+            accepted = action.send_goal_async(
+                AskAction.Goal(question="where is the desk?"), feedback_callback=feedback.append
+            )
+            wait_for(lambda: accepted.done(), 60, "the action to accept the goal")
+            ended = accepted.result().get_result_async()
+            wait_for(lambda: ended.done(), 120, "the action's result")
+            result = ended.result().result
+        finally:
+            client.close()
+            text = stop(node, log)
+    assert node.returncode == 0, text[-3000:]
+    assert result.found and result.answer == "by the desk", result.reason
+    cost = json.loads(result.answer_json)["cost"]
+    calls = [f.feedback for f in feedback if f.feedback.step > 0]
+    # one feedback per tool call the answer records, in order, as the agent reported each
+    assert len(calls) == cost["tool_calls"] == 2 and cost["tool_calls_rejected"] == 0
+    assert [(c.step, c.tool, c.ok) for c in calls] == [(1, "search_text", True), (2, "search_time", True)]
+    assert json.loads(calls[0].arguments) == {"query": "a desk"}
+    assert calls[0].hits >= 2 and calls[0].stage == f"search_text: {calls[0].hits} memories"
+    assert len(model.requests) == 3  # the model was asked three times: two tool calls, the answer
 
 
 def _time(sec: int, nanosec: int) -> Any:

@@ -49,6 +49,7 @@ from .images import data_url, jpeg_of_array
 from .labels import FrameLabels
 from .parse import MAX_REPLY_CHARS, ModelAnswer, build_answer, evidence_of, extract_json
 from .presets import get_preset
+from .progress import Progress, ToolStep, report
 from .prompts import NO_PICTURES, budget_spent, reask, system_prompt
 from .questions import classify_question
 from .replies import answer_schema, response_format, step_schema, strip_thinking, text_tool_calls
@@ -178,6 +179,7 @@ class Agent:
         self.mode = "json" if self.client.config.tool_mode == "json" else "native"
         self.text_only = self.client.config.vision is False  # sticky once a server refused pictures
         self.tools_accepted = False  # a request with tools got a reply: later 4xx are not about tools
+        self.progress: Progress | None = None  # told of each tool call as it ends (agent.progress)
 
     # ------------------------------------------------------------------ public
     def ask(self, question: str, image: np.ndarray | str | Path | None = None) -> Answer:
@@ -425,19 +427,18 @@ class Agent:
         run.candidate = obj
         return Step.CHECK_ANSWER
 
+    def _log_call(self, run: _Run, name: str, arguments: str, hits: int, reason: str | None) -> None:
+        """One tool call into the trace, and to the progress callback as it ends."""
+        shown = arguments[:300]
+        run.call_log.append({"name": name, "arguments": shown, "ok": reason is None, "reason": reason})
+        report(self.progress, ToolStep(len(run.call_log), name, shown, reason is None, hits, reason))
+
     def _run_tools(self, run: _Run) -> Step:
         native = run.messages[-1].get("tool_calls") is not None
         if run.tool_calls >= self.max_tool_calls:
             for cid, name, args in run.calls:
                 shown = args if isinstance(args, str) else json.dumps(args, default=str)
-                run.call_log.append(
-                    {
-                        "name": name,
-                        "arguments": shown[:300],
-                        "ok": False,
-                        "reason": "the tool budget is spent",
-                    }
-                )
+                self._log_call(run, name, shown, 0, "the tool budget is spent")
                 if native:
                     run.messages.append(
                         {"role": "tool", "tool_call_id": cid, "content": "not run: tool budget spent"}
@@ -447,19 +448,18 @@ class Agent:
             return Step.REASK
         texts, images = [], []
         for cid, name, args in run.calls:
+            hits = 0
             if run.tool_calls < self.max_tool_calls:
                 out = run.runner.run(name, args, run.wm)
                 run.tool_calls += 1
                 images += out.images
-                text = out.text
+                text, hits = out.text, len(out.hits)
                 reason = None if out.ok else text.removeprefix("error: ")
             else:
                 text = f"{name}: not run, the tool budget ({self.max_tool_calls} calls) is spent"
                 reason = "the tool budget is spent"
             shown_args = args if isinstance(args, str) else json.dumps(args, default=str)
-            run.call_log.append(
-                {"name": name, "arguments": shown_args[:300], "ok": reason is None, "reason": reason}
-            )
+            self._log_call(run, name, shown_args, hits, reason)
             texts.append(text)
             if native:
                 run.messages.append({"role": "tool", "tool_call_id": cid, "content": text})

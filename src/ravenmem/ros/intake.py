@@ -8,8 +8,11 @@ received is accounted for: stored, skipped with its reason, waiting here, or in 
 queue (`Counts.balance` checks it). Bad messages (an image that does not decode, a pose with
 NaN or a zero quaternion) are counted by reason and never stored.
 
-Not thread-safe by itself: the node calls `image`, `odometry`, `tf` and `settle` from one
-callback group (one at a time); the writer's answers come from its thread through `Counts`.
+Thread-safe: `image`, `odometry`, `transforms`, `settle` and `latest_xy` take one lock (each
+is quick: nothing under it waits on the embedder or the disk), so the node runs the image
+callbacks in a callback group of their own, never queued behind the pose callbacks, and its
+services read the latest pose meanwhile; the writer's answers come from its thread through
+`Counts`.
 """
 
 from __future__ import annotations
@@ -21,7 +24,8 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from functools import wraps
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -50,7 +54,8 @@ class Counts:
     skipped: dict[str, int] = field(default_factory=dict)
     bad: dict[str, int] = field(default_factory=dict)  # bad messages of any kind, by reason
     poses: int = 0
-    lost: int = 0  # images DDS reported lost before the node got them (not in `received`)
+    lost: int = 0  # images a publisher sent that never reached the node (`SequenceGaps`)
+    dds_lost: int = 0  # images the middleware reported lost (its own count; may overlap `lost`)
     in_writer: int = 0
     last_frame: float | None = None  # monotonic time of the last image
     last_id: int | None = None
@@ -59,6 +64,15 @@ class Counts:
     def skip(self, reason: str) -> None:
         with self._lock:
             self.skipped[reason] = self.skipped.get(reason, 0) + 1
+
+    def missed(self, n: int, reported: bool = False) -> None:
+        """`n` images that never reached the node: found by a sequence gap, or `reported` by
+        the middleware."""
+        with self._lock:
+            if reported:
+                self.dds_lost += n
+            else:
+                self.lost += n
 
     def bad_message(self, reason: str) -> None:
         with self._lock:
@@ -88,6 +102,7 @@ class Counts:
                 "pending": pending,
                 "in_writer": self.in_writer,
                 "lost_in_transport": self.lost,
+                "lost_reported_by_dds": self.dds_lost,
                 "bad_messages": dict(self.bad),
                 "poses": self.poses,
                 "last_frame_age": age,
@@ -100,6 +115,30 @@ class Counts:
             return self.received - self.stored - sum(self.skipped.values()) - pending - self.in_writer
 
 
+class SequenceGaps:
+    """Images a publisher sent that never reached the node, from the gaps in its publication
+    sequence numbers (ROS 2 message info; Fast DDS, Cyclone DDS and rmw_zenoh give them). A
+    subscription whose history overflowed while the node was busy drops its oldest images
+    without a word (a KEEP_LAST history replaces them; DDS reports no loss), so the gap is the
+    only trace; counted, a lost image is never silent. Only gaps after the first image seen from
+    a publisher count (what it sent before the node joined was not the node's to get)."""
+
+    MAX_PUBLISHERS = 1024  # publishers remembered (the oldest forgotten past it)
+
+    def __init__(self) -> None:
+        self.last: dict[Any, int] = {}
+
+    def missed(self, publisher: Any, seq: int | None) -> int:
+        """Images missed before this one (`seq`) from `publisher`; 0 without a number."""
+        if not seq or publisher is None:
+            return 0
+        prev = self.last.pop(publisher, None)
+        self.last[publisher] = seq if prev is None else max(seq, prev)  # the newest last
+        while len(self.last) > self.MAX_PUBLISHERS:
+            del self.last[next(iter(self.last))]
+        return 0 if prev is None or seq <= prev else seq - prev - 1
+
+
 @dataclass
 class _Waiting:
     t: float
@@ -110,6 +149,18 @@ class _Waiting:
 
 
 Transform = tuple[tuple[float, float, float], tuple[float, float, float, float]]
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _locked(fn: F) -> F:
+    """Run a `FrameIntake` method under the intake's lock."""
+
+    @wraps(fn)
+    def run(self: FrameIntake, *args: Any, **kwargs: Any) -> Any:
+        with self._lock:
+            return fn(self, *args, **kwargs)
+
+    return run  # type: ignore[return-value]
 
 
 class FrameIntake:
@@ -134,13 +185,30 @@ class FrameIntake:
         self.odom = PoseBuffer(settings.history, max_gap=settings.max_gap)
         self.frame: str | None = None  # the poses' frame, once known
         self._refused: dict[str, str | None] = {}
+        self.gaps = SequenceGaps()
         self.stopping = False
+        self._lock = threading.RLock()
 
     # ---------------------------------------------------------------- input
-    def image(self, msg: Any, kind: str, now: float, source: str | None = None) -> None:
+    @_locked
+    def image(
+        self,
+        msg: Any,
+        kind: str,
+        now: float,
+        source: str | None = None,
+        publisher: Any = None,
+        seq: int | None = None,
+    ) -> None:
         """One Image or CompressedImage; `now` is the receive time (ROS clock) for a zero stamp;
-        `source` the camera's source name (default: `settings.source`)."""
+        `source` the camera's source name (default: `settings.source`); `publisher` and `seq`
+        (its publication sequence number, when the middleware gives one) reveal the images
+        that never arrived."""
         c = self.counts
+        missed = self.gaps.missed(publisher, seq)
+        if missed:
+            c.missed(missed)
+            self.log(f"{missed} image(s) lost before the node took them (sequence gap)")
         with c._lock:
             c.received += 1
             c.last_frame = time.monotonic()
@@ -161,6 +229,7 @@ class FrameIntake:
             self._skip(SKIP_QUEUE)
         self.settle()
 
+    @_locked
     def odometry(self, msg: Any, now: float) -> None:
         pq = msgs.pose_of(msg, msgs.ODOMETRY)
         if pq is None:
@@ -176,6 +245,7 @@ class FrameIntake:
         self.counts.poses += 1
         self.settle()
 
+    @_locked
     def transforms(self, msg: Any, now: float, static: bool) -> None:
         assert self.tf is not None
         for tfm in msg.transforms:
@@ -219,12 +289,14 @@ class FrameIntake:
         got = self.tf.lookup(parent, self.s.base_frame, t)
         return got if isinstance(got, str) else (parent, got)
 
+    @_locked
     def latest_xy(self) -> tuple[float, float] | None:
         t = self.newest()
         got = None if t is None else self.pose_at(t)
         return None if got is None or isinstance(got, str) else (got[1][0][0], got[1][0][1])
 
     # ---------------------------------------------------------------- settling
+    @_locked
     def settle(self, flush: bool = False) -> None:
         """Pose and submit every waiting image whose poses are known, or that waited too long
         (`flush`: all of them, the node is stopping)."""

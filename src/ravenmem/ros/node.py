@@ -10,8 +10,9 @@ compressed, `auto`: chosen once a publisher is discovered), odometry or /tf + /t
 CameraInfo (kept in the memory's manifest), the OccupancyGrid on `map_topic` (the memory's map
 for goal planning). Callbacks never wait on the embedder or the disk: images go through
 `ros.intake.FrameIntake` into the runtime's one `LiveWriter`, and every image is accounted for
-(published on /diagnostics). Outputs: services `~/ask` and `~/search` (`ravenmem_msgs`, the
-replies of `ros.services`), the action `~/ask_action` (feedback while it works, cancellable), a
+(published on /diagnostics), even one that never reached it (a gap in its publisher's
+sequence numbers). Outputs: services `~/ask` and `~/search` (`ravenmem_msgs`, the
+replies of `ros.services`), the action `~/ask_action` (a feedback per tool call, cancellable), a
 goal on `goal_topic` (or through Nav2's NavigateToPose when `navigate_action` is set) only for a
 question that asks to navigate, MarkerArrays on `~/markers`. SIGINT and SIGTERM stop the intake,
 store what was queued and exit 0.
@@ -100,9 +101,11 @@ class NodeLogic:
 
 
 class RavenmemNode:
-    """The rclpy node around a running `Service` (see the module docstring). Sensor callbacks run
-    one at a time (one mutually exclusive group: the intake has one caller); services, the
-    action and NavigateToPose waits run in a reentrant group on the executor's other threads."""
+    """The rclpy node around a running `Service` (see the module docstring). Pose and map
+    callbacks run one at a time (one mutually exclusive group), each camera's images in a group
+    of its own (the intake takes its own lock), so an image is never queued behind the poses
+    and the subscription's history does not fill up; services, the action and NavigateToPose
+    waits run in a reentrant group on the executor's other threads."""
 
     def __init__(self, node: Any, settings: NodeSettings, service: Service) -> None:
         from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -133,8 +136,12 @@ class RavenmemNode:
     def _qos(self, name: str, depth: int = 10) -> Any:
         from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-        if name == "sensor_data":
-            return qos_profile_sensor_data
+        if name == "sensor_data":  # best effort, volatile, at the depth asked for
+            return QoSProfile(
+                depth=depth,
+                reliability=qos_profile_sensor_data.reliability,
+                durability=qos_profile_sensor_data.durability,
+            )
         rel = ReliabilityPolicy.RELIABLE if name == "reliable" else ReliabilityPolicy.BEST_EFFORT
         return QoSProfile(depth=depth, reliability=rel)
 
@@ -218,6 +225,7 @@ class RavenmemNode:
             self._discover.cancel()
 
     def _subscribe_images(self, transport: str, topic_name: str, camera: str) -> None:
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
         from sensor_msgs.msg import CompressedImage, Image
 
         if (
@@ -232,25 +240,33 @@ class RavenmemNode:
         source = self.s.source_of(camera)
         from rclpy.event_handler import SubscriptionEventCallbacks
 
-        # what DDS itself dropped before the node saw it (a best-effort reader, or a full
-        # history): counted too, so a lost frame is never silent
+        # an image that never reached the node is counted: a gap in its publisher's sequence
+        # numbers (a history that overflowed while the node was busy: DDS says nothing), and
+        # what the middleware itself reports lost
         events = SubscriptionEventCallbacks(message_lost=self._lost)
+
+        def take(msg: Any, info: Any) -> None:
+            gid = info.get("publisher_gid")
+            publisher = None if gid is None else str(gid)
+            self.intake.image(
+                msg, kind, self.now(), source, publisher, info.get("publication_sequence_number")
+            )
+
         self.image_subs.append(
             self.node.create_subscription(
                 cls,
                 topic_name,
-                lambda m: self.intake.image(m, kind, self.now(), source),
+                take,
                 self._qos(self.s.image_qos, self.s.image_depth),
-                callback_group=self.sensors,
+                callback_group=MutuallyExclusiveCallbackGroup(),
                 event_callbacks=events,
             )
         )
 
     def _lost(self, info: Any) -> None:
         n = int(info.total_count_change)
-        with self.intake.counts._lock:
-            self.intake.counts.lost += n
-        self.log(f"{n} image(s) lost in transport (DDS)")
+        self.intake.counts.missed(n, reported=True)
+        self.log(f"{n} image(s) lost in transport (reported by DDS)")
 
     def _publish_and_serve(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
@@ -450,6 +466,8 @@ def main(argv: list[str] | None = None) -> None:
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
+    from ..server.run import warm_up
+
     with _stderr_held() as said:  # rcl logs a bad argument itself before raising
         try:  # a malformed --ros-args (rcl parses it) is the user's input: one line, exit 2
             rclpy.init(args=["ravenmem", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
@@ -470,6 +488,7 @@ def main(argv: list[str] | None = None) -> None:
         service = _open_service(args.memory, args.create, settings)
         ros_node = RavenmemNode(node, settings, service)
         service.attach(ros_node)
+        warm_up(service)  # the embedder loaded and run once: the first search is as fast as the next
         executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         node.get_logger().info(f"ravenmem: {args.memory} ({service.mem.count()} memories), ready")

@@ -48,7 +48,8 @@ def diagnostics(stamp: Any, counts: dict[str, Any], name: str = "ravenmem: frame
         "skipped": sum(counts["skipped"].values()),
         "waiting for a pose": counts["pending"],
         "queue depth": counts["in_writer"],
-        "lost in transport": counts["lost_in_transport"],
+        "lost in transport": counts["lost_in_transport"],  # sequence gaps: never reached the node
+        "lost (reported by DDS)": counts["lost_reported_by_dds"],
         "poses": counts["poses"],
         "last frame age (s)": "" if counts["last_frame_age"] is None else f"{counts['last_frame_age']:.2f}",
     }

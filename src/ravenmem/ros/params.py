@@ -40,7 +40,7 @@ class NodeSettings:
     base_url: str = ""
     source: str = "ros"  # the memories' source name
     image_qos: str = "sensor_data"
-    image_depth: int = 30  # images the subscription buffers while a callback runs
+    image_depth: int = 60  # images the subscription holds until the node takes them (2 s at 30 Hz)
     pose_qos: str = "best_effort"  # a best-effort subscription matches reliable and best-effort publishers
     queue_size: int = 32  # images waiting for their pose at once
     writer_depth: int = 16  # frames handed to the writer and not yet stored; past it a frame is skipped

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from ..agent.ask import AskResult
+from ..agent.progress import Progress
 from ..errors import RavenmemError
 from ..refusal import refusal_of
 from ..runtime.ask import AskArgs
@@ -81,8 +82,9 @@ def register() -> None:
 class Backend(Protocol):
     """What the services need of a memory: answer (and plan), search, and its map."""
 
-    def ask(self, args: AskArgs, image: np.ndarray | None) -> AskResult:
-        """The typed result of a question (with `args.navigate`, its plan)."""
+    def ask(self, args: AskArgs, image: np.ndarray | None, progress: Progress | None = None) -> AskResult:
+        """The typed result of a question (with `args.navigate`, its plan); each tool call, as
+        it ends, to `progress`."""
         ...
 
     def answer_json(self, result: AskResult) -> dict[str, Any]:
@@ -111,14 +113,15 @@ def ask_args_of(request: dict[str, Any]) -> AskArgs:
     return AskArgs.check({k: request[k] for k in ASK_FIELDS if k in request})
 
 
-def ask_reply(backend: Backend, request: dict[str, Any]) -> dict[str, Any]:
+def ask_reply(backend: Backend, request: dict[str, Any], progress: Progress | None = None) -> dict[str, Any]:
     """`Ask_Response` (as a dict) for an `Ask_Request` (as a dict): never raises; a question
-    that cannot be answered comes back with `found` false and the reason."""
+    that cannot be answered comes back with `found` false and the reason. `progress` hears of
+    each tool call as it ends (the question action's feedback)."""
     if not str(request.get("question") or "").strip():
         return {"found": False, "reason": "empty question"}
     try:
         args = ask_args_of(request)
-        result = backend.ask(args, _image(request.get("image")))
+        result = backend.ask(args, _image(request.get("image")), progress)
         data = backend.answer_json(result)
     except RavenmemError as e:
         return {"found": False, "reason": " ".join(str(e).split())}
@@ -283,9 +286,9 @@ class ServiceBackend:
     def frame_id(self) -> str:
         return self.service.mem.frame_id
 
-    def ask(self, args: AskArgs, image: np.ndarray | None) -> AskResult:
+    def ask(self, args: AskArgs, image: np.ndarray | None, progress: Progress | None = None) -> AskResult:
         """`Service.ask`, from the robot's latest pose, driven there when the link can drive."""
-        return self.service.ask(args, image, start=self.start(), drive=self.drive)
+        return self.service.ask(args, image, start=self.start(), drive=self.drive, progress=progress)
 
     def answer_json(self, result: AskResult) -> dict[str, Any]:
         return self.service.result_json(result, lambda rec: None)

@@ -20,11 +20,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PIL import Image
 
-from ..agent.ask import AskRequest, AskResult
+from ..agent.ask import AskRequest, AskResult, build_method
 from ..agent.ask import ask as agent_ask
 from ..agent.base import METHODS, needs_vlm
 from ..agent.config import VLMConfig
 from ..agent.presets import PRESETS
+from ..agent.progress import Progress, ToolStep, watch
 from ..agent.schema import Answer
 from ..agent.support import Judge
 from ..errors import EmptyMemoryError, InputError
@@ -308,15 +309,18 @@ class Service:
         picture: np.ndarray | None = None,
         start: tuple[float, float] | None = None,
         drive: Callable[[dict[str, Any]], dict[str, Any] | None] | None = None,
+        progress: Progress | None = None,
     ) -> AskResult:
         """The one way every front end asks (HTTP, MCP, the robot services): answer `args` as
         `ravenmem ask` does (`agent.ask`) with the service's own VLM (what the question leaves
         out comes from the service's defaults, then the preset or the method); with `navigate`,
         plan a path on the memory's map to the answer (from `args.start`, else `start`, the
         robot's latest pose a link knows, else the trajectory's last pose); `drive` (a link's
-        NavigateToPose) drives to a goal that may be used. Then publish: every answer to the
-        event stream, the ones that may be used to the robot links. The result stays typed; each
-        front end writes its own wire format from it (`result_json`, an `Ask_Response`)."""
+        NavigateToPose) drives to a goal that may be used. Each tool call, as it ends, goes to
+        the event stream (`tool_call`) and to `progress` (`agent.progress.ToolStep`: the ROS 2
+        action's feedback). Then publish: every answer to the event stream, the ones that may be
+        used to the robot links. The result stays typed; each front end writes its own wire
+        format from it (`result_json`, an `Ask_Response`)."""
         image = picture if picture is not None else self.picture_of(args)
         opts = args.to_options(
             self.cfg.default_method,
@@ -337,7 +341,16 @@ class Service:
                     ans, where, allow_unsupported=allow, grid=grid, robot_radius=args.robot_radius
                 )
 
-        result = agent_ask(self.mem, AskRequest(args.question, opts, image, plan, args.allow_unsupported))
+        def step(ev: ToolStep) -> None:
+            self.bus.publish("tool_call", {"question": args.question, **ev.as_dict()})
+            if progress is not None:
+                progress(ev)
+
+        method = build_method(self.mem, opts)
+        watch(method, step)
+        result = agent_ask(
+            self.mem, AskRequest(args.question, opts, image, plan, args.allow_unsupported), method
+        )
         if drive is not None and result.goal is not None:
             result.drive = drive(result.goal)  # how the drive went, in the answer
         self.publish(result)

@@ -28,9 +28,9 @@ def serve(path: Path) -> tuple[str, object]:
     import uvicorn
 
     import ravenmem
+    from ravenmem.runtime.service import Service, ServiceConfig
     from ravenmem.server.app import create_app
     from ravenmem.server.run import make_server
-    from ravenmem.runtime.service import Service, ServiceConfig
 
     mem = ravenmem.open(path, writable=True)
     service = Service(mem, ServiceConfig())

@@ -140,10 +140,10 @@ def _window(
             return list(out.values()), start
         exact = n <= MAX_K
         k = n if exact else min(pool, MAX_K)
-        scored = mem.store.search_vector(q, k, filt, exact=exact)
+        scored = mem.store.search_vector(q, k, filt, exact=exact, min_score=thr)
         hits = _sightings(mem, scored, thr)
         out.update((h.memory.id, h) for h in hits)
-        if exact or len(hits) < len(scored) or len(scored) < k:
+        if exact or len(scored) < k:
             return list(out.values()), start
         newest = max(h.memory.t for h in hits)
         if filt.after is not None and newest <= filt.after:

@@ -156,6 +156,37 @@ class Columns:
             return np.arange(lo, hi, dtype=np.int64)
         return np.flatnonzero(mask).astype(np.int64) + (lo if filt.region is not None else 0)
 
+    def first_from(self, t: float, k: int, filt: Filter) -> np.ndarray:
+        """Positions of the first `k` memories with time >= `t` that the filter accepts, in
+        (time, id) order: `by_time` with a region, where SQLite would read every row of the
+        time range to test its position. On a chronological store the positions are walked
+        forward in growing steps until k are found (a disc holds a few memories of each
+        pass: a few thousand positions hold the first hundreds); otherwise every accepted
+        one is sorted."""
+        after = t if filt.after is None else max(t, filt.after)
+        filt = Filter(after=after, before=filt.before, region=filt.region)
+        if k == 0:
+            return np.empty(0, np.int64)
+        if not self.t_sorted:
+            pos = self.select(filt)
+            order = np.lexsort((self.ids[pos], self.col("t")[pos]))
+            return pos[order[:k]]
+        tcol, reg = self.col("t"), filt.region
+        lo = int(np.searchsorted(tcol, after, "left"))
+        hi = self.n if filt.before is None else max(lo, int(np.searchsorted(tcol, filt.before, "right")))
+        if reg is None:
+            return np.arange(lo, min(hi, lo + k), dtype=np.int64)
+        found: list[np.ndarray] = []
+        got, step = 0, max(1024, 16 * k)
+        while lo < hi and got < k:
+            end = min(hi, lo + step)
+            dx, dy = self.col("x")[lo:end] - reg.x, self.col("y")[lo:end] - reg.y
+            inside = np.flatnonzero(dx * dx + dy * dy <= reg.r * reg.r) + lo
+            found.append(inside[: k - got])
+            got += len(found[-1])
+            lo, step = end, step * 4
+        return np.concatenate(found) if found else np.empty(0, np.int64)
+
     def select_ids(self, filt: Filter) -> tuple[np.ndarray, bool]:
         """(sorted ids the filter accepts, contiguous): contiguous when they are a run of
         consecutive positions, i.e. no stored id between the first and last is left out."""

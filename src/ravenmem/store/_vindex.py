@@ -72,16 +72,23 @@ class VectorIndex:
         # IVF only: the list each id lives in (-1: absent) and the list centroids, so that a
         # filtered search can probe just the lists that hold accepted ids
         self.list_of = np.full(0, -1, np.int32)
+        # sq8 only: ids whose code may hold a clipped dimension (an extreme code), so that
+        # their code score can be further from the exact one than `score_error` says
+        self.rough = np.zeros(0, bool)
         self.centroids = np.zeros((0, dim), np.float32)
         if self.kind == "ivf":
             self.centroids = index.quantizer.reconstruct_n(0, index.nlist)
             lists = index.invlists
+            sq8, width = self.codes == "sq8", int(index.code_size)
             for lst in range(index.nlist):
                 size = lists.list_size(lst)
                 if size:
                     ids = faiss.rev_swig_ptr(lists.get_ids(lst), size).view(np.int64)
                     self._grow(int(ids.max()))
                     self.list_of[ids] = lst
+                    if sq8:
+                        codes = faiss.rev_swig_ptr(lists.get_codes(lst), size * width).reshape(size, width)
+                        self.rough[ids] = ((codes == 0) | (codes == 255)).any(axis=1)
 
     @classmethod
     def flat(cls, dim: int) -> VectorIndex:
@@ -127,6 +134,34 @@ class VectorIndex:
         """True when search scores are exact inner products (no re-ranking needed)."""
         return self.codes == "flat"
 
+    def score_error(self, q: np.ndarray) -> float:
+        """How far a search's score for the unit query `q` may be from the exact cosine.
+
+        sq8 keeps each dimension of a residual to half a step of its 8-bit grid (the trained
+        range over 255), so a score is off by at most half a step times the sum of |q_i|;
+        twice that is returned, for residuals of memories added after training that fall a
+        little outside the widened range. fp16 keeps 11 significant bits of residuals below 1
+        in size. Flat codes are exact. A floor on exact scores (`LocalStore.search_vector`'s
+        `min_score`) re-ranks only candidates within this of it, and every one whose code
+        may be clipped (`trusted`)."""
+        codes = self.codes
+        if codes == "flat":
+            return 0.0
+        l1 = float(np.abs(q).sum())
+        if codes == "fp16":
+            return 2.0**-10 * l1
+        step = float(faiss.vector_to_array(self.index.sq.trained)[1]) / 255.0  # uniform: [min, range]
+        return step * l1
+
+    def codes_scanned(self, allowed: np.ndarray) -> int:
+        """How many codes an exact search restricted to `allowed` scores: every code of every
+        list that holds one of them (all of them for flat)."""
+        if self.kind == "flat":
+            return self.ntotal
+        lists = np.flatnonzero(np.bincount(self.list_of[allowed], minlength=self.nlist))
+        sizes = self.index.invlists
+        return sum(int(sizes.list_size(int(lst))) for lst in lists)
+
     @property
     def ntotal(self) -> int:
         return int(self.index.ntotal)
@@ -150,6 +185,24 @@ class VectorIndex:
             grown = np.full(max(max_id + 1, 2 * len(self.list_of)), -1, np.int32)
             grown[: len(self.list_of)] = self.list_of
             self.list_of = grown
+            rough = np.zeros(len(grown), bool)
+            rough[: len(self.rough)] = self.rough
+            self.rough = rough
+
+    def _mark_rough(self, ids: np.ndarray, x: np.ndarray, lists: np.ndarray) -> None:
+        """Flag the rows whose residual reaches the first or last step of the sq8 grid (the
+        codes a clipped value gets; `__init__` flags extreme codes of a loaded index)."""
+        if self.codes != "sq8":
+            return
+        vmin, vdiff = (float(v) for v in faiss.vector_to_array(self.index.sq.trained)[:2])
+        resid = x - self.centroids[lists] if self.index.by_residual else x
+        step = vdiff / 255.0
+        self.rough[ids] = ((resid < vmin + step) | (resid >= vmin + vdiff - step)).any(axis=1)
+
+    def trusted(self, ids: np.ndarray) -> np.ndarray:
+        """Per id: whether its code score is within `score_error` of the exact one."""
+        ids = np.asarray(ids, np.int64)
+        return ~self.rough[ids] if self.kind == "ivf" else np.ones(len(ids), bool)
 
     def _assign(self, x: np.ndarray) -> np.ndarray:
         """The list of each row: exact (flat quantizer) for small batches; for large ones an
@@ -181,6 +234,7 @@ class VectorIndex:
             self.index.add_core(len(x), faiss.swig_ptr(x), faiss.swig_ptr(xids), faiss.swig_ptr(lists))
         self._grow(int(xids.max()))
         self.list_of[xids] = lists
+        self._mark_rough(xids, x, lists)
 
     def remove(self, ids: np.ndarray) -> int:
         """Remove ids (absent ones are ignored); returns how many were removed."""

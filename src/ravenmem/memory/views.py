@@ -109,13 +109,25 @@ def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hi
         a, b = hits[i].memory, hits[i + 1].memory
         if root(i) == root(i + 1):
             continue
-        step = mem.store.by_time(a.t, 2, Filter(before=b.t))
-        if len(step) == 2 and step[0].id == a.id and step[1].id == b.id:
+        if next_in_time(mem, a, b):
             parent[root(i)] = root(i + 1)
     groups: dict[int, list[Hit]] = {}
     for i, h in enumerate(hits):
         groups.setdefault(root(i), []).append(h)
     return [sorted(g, key=chrono) for g in groups.values()]
+
+
+def next_in_time(mem: Core, a: MemoryRecord, b: MemoryRecord) -> bool:
+    """Whether `b` is the memory right after `a` in time order (time, then id), both stored:
+    counted from the ids in their time span (the store's filter, no record read), not
+    counting those at `b`'s time with a larger id (after `b` in that order)."""
+    ids = mem.store.select(Filter(after=a.t, before=b.t))
+    if len(ids) < 2 or not np.isin([a.id, b.id], ids).all():
+        return False
+    if len(ids) == 2:
+        return True
+    tied = mem.store.select(Filter(after=b.t, before=b.t))
+    return len(ids) - 2 - int((tied > b.id).sum()) == 0
 
 
 def _disc(p: Place, s: ChangeConfig) -> tuple[Region, list[MemoryRecord]]:

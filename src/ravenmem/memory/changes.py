@@ -60,7 +60,7 @@ from .newest import Later, newest_sightings
 from .places import Place, Verdict, Whereabouts
 from .protocol import MAX_K, Near, TimeLike
 from .seen_index import seen_index
-from .views import ChangeConfig, chrono, follow, group_sightings, merge, sample
+from .views import ChangeConfig, chrono, group_sightings, grow, merge, revisits, sample
 
 __all__ = ["ChangeConfig", "Changes", "Place", "Verdict", "Whereabouts"]
 
@@ -114,9 +114,11 @@ class Changes(Core):
         gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
         later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, s.view_radius)
         for p in places:
-            follow(self, p, q, thr, s, asof, gap, later)
-        for p in merge(places):
-            follow(self, p, q, thr, s, asof, gap, later)
+            grow(p, s, later)
+        for p in merge(places):  # a place that took others in grows again from its new last
+            grow(p, s, later)
+        for p in places:  # revisits once, of the places left (they read only their sightings)
+            revisits(self, p, q, thr, s, asof, gap)
         places.sort(key=lambda p: chrono(p.sightings[-1]), reverse=True)
         for i, p in enumerate(places, 1):
             p.index = i

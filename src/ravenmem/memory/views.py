@@ -180,26 +180,22 @@ def _newest_views(mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Fil
     return []
 
 
-def follow(
-    mem: Core,
-    p: Place,
-    q: np.ndarray,
-    thr: float,
-    s: ChangeConfig,
-    asof: Filter,
-    gap: float,
-    later: Later | None = None,
-) -> None:
-    """Grow the place with its newest later sightings, then collect the later views without the
-    thing: after the robot looked away, and at least a pass (`gap` s) after the last sighting.
-    `later`: the question's searches for later sightings, shared by its places."""
-    later = later or Later(mem, q, thr, asof.before, s.pool, s.max_rounds, s.view_radius)
+def grow(p: Place, s: ChangeConfig, later: Later) -> None:
+    """Add the place's later sightings (its own views after its last sighting that show the
+    thing), round by round until none is new."""
     for _ in range(s.max_rounds):
         more = _later_sightings(p, s, later)
         if not more:
             break
         known = {h.memory.id for h in p.sightings}
         p.sightings = sorted(p.sightings + [h for h in more if h.memory.id not in known], key=chrono)
+
+
+def revisits(
+    mem: Core, p: Place, q: np.ndarray, thr: float, s: ChangeConfig, asof: Filter, gap: float
+) -> None:
+    """The later views of the place without the thing (`Place.revisits`, `revisit_count`) and
+    whether the robot came back to it at all (`later_visit`): from its sightings only."""
     end = _visit_end(mem, p, p.last, s, asof)
     start = p.last.t + gap if end is None else max(end, p.last.t + gap)
     disc, cams = _disc(p, s)

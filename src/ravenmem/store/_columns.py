@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..fsio import atomic_open
-from ..types import Filter
+from ..types import Filter, Region
 
 _MAGIC = b"RVMCOLS1"
 _HEADER = struct.Struct("<8sqqqI4x16s")  # magic, n, max id covered, deletions reflected, crc, store uid
@@ -38,6 +38,7 @@ class ColumnsFileError(Exception):
 
 
 _BRUTE_MAX = 50_000  # below this many candidates a numpy scan beats a tree query with a mask
+_BLOCK = 65_536  # rows per block of a disc test (two float64 buffers that stay in cache)
 
 
 class Columns:
@@ -147,14 +148,30 @@ class Columns:
             else:
                 mask = (t >= after) & (t <= before)
         if filt.region is not None:
-            reg = filt.region
-            dx = self.col("x")[lo:hi] - reg.x
-            dy = self.col("y")[lo:hi] - reg.y
-            inside = dx * dx + dy * dy <= reg.r * reg.r
-            mask = inside if mask is None else mask[lo:hi] & inside
+            pos = self.inside(lo, hi, filt.region)
+            return pos if mask is None else pos[mask[pos]]
         if mask is None:
             return np.arange(lo, hi, dtype=np.int64)
-        return np.flatnonzero(mask).astype(np.int64) + (lo if filt.region is not None else 0)
+        return np.flatnonzero(mask).astype(np.int64)
+
+    def inside(self, lo: int, hi: int, reg: Region) -> np.ndarray:
+        """Positions in [lo, hi) whose (x, y) lies in the disc (dx*dx + dy*dy <= r*r, as SQL
+        tests it), ascending. In blocks of `_BLOCK` rows through two reused buffers: a
+        filter over half a million memories took three times as long with whole-range
+        temporaries (each one pass over memory)."""
+        out: list[np.ndarray] = []
+        size = min(_BLOCK, max(0, hi - lo))
+        bx, by = np.empty(size, np.float64), np.empty(size, np.float64)
+        x, y, r2 = self.col("x"), self.col("y"), reg.r * reg.r
+        for s in range(lo, hi, _BLOCK):
+            e = min(hi, s + _BLOCK)
+            dx = np.subtract(x[s:e], reg.x, out=bx[: e - s])
+            dy = np.subtract(y[s:e], reg.y, out=by[: e - s])
+            np.multiply(dx, dx, out=dx)
+            np.multiply(dy, dy, out=dy)
+            dx += dy
+            out.append(np.flatnonzero(dx <= r2) + s)
+        return np.concatenate(out).astype(np.int64) if out else np.empty(0, np.int64)
 
     def first_from(self, t: float, k: int, filt: Filter) -> np.ndarray:
         """Positions of the first `k` memories with time >= `t` that the filter accepts, in
@@ -180,9 +197,7 @@ class Columns:
         got, step = 0, max(1024, 16 * k)
         while lo < hi and got < k:
             end = min(hi, lo + step)
-            dx, dy = self.col("x")[lo:end] - reg.x, self.col("y")[lo:end] - reg.y
-            inside = np.flatnonzero(dx * dx + dy * dy <= reg.r * reg.r) + lo
-            found.append(inside[: k - got])
+            found.append(self.inside(lo, end, reg)[: k - got])
             got += len(found[-1])
             lo, step = end, step * 4
         return np.concatenate(found) if found else np.empty(0, np.int64)

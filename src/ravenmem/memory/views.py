@@ -84,6 +84,30 @@ def overlaps(a: MemoryRecord, b: MemoryRecord, s: ChangeConfig | None = None) ->
     return close and math.degrees(a.pose.rotation_to(b.pose)) <= s.view_angle_deg
 
 
+def overlapping(recs: Sequence[MemoryRecord], cams: Sequence[MemoryRecord], s: ChangeConfig) -> np.ndarray:
+    """Per record, whether its view overlaps one of `cams` (`overlaps`, the same arithmetic in
+    the same order, over all pairs at once: a page of records against a place's hundreds of
+    sightings was that many calls)."""
+    if not recs or not cams:
+        return np.zeros(len(recs), bool)
+    a, b = _poses(recs), _poses(cams)
+    close = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) <= s.view_radius
+    turn = np.abs(np.mod(b[None, :, 2] - a[:, None, 2] + math.pi, 2.0 * math.pi) - math.pi)
+    qa, qb = a[:, None, 3:], b[None, :, 3:]
+    dot = np.abs(
+        qa[..., 0] * qb[..., 0] + qa[..., 1] * qb[..., 1] + qa[..., 2] * qb[..., 2] + qa[..., 3] * qb[..., 3]
+    )
+    both = ~np.isnan(dot)
+    turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot[both]))
+    return (close & (np.degrees(turn) <= s.view_angle_deg)).any(axis=1)
+
+
+def _poses(recs: Sequence[MemoryRecord]) -> np.ndarray:
+    """(n, 7): x, y, yaw and the quaternion (NaN without one) of each record's pose."""
+    nan = (math.nan,) * 4
+    return np.array([(r.pose.x, r.pose.y, r.pose.yaw, *(r.pose.quat or nan)) for r in recs], np.float64)
+
+
 def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hit]]:
     """Places: each sighting joins the best-scored earlier seed whose view it overlaps (no
     chains: a robot turning on the spot does not make one place of every direction), and
@@ -147,7 +171,7 @@ def _views(
     mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord], cams: list[MemoryRecord], s: ChangeConfig
 ) -> list[Hit]:
     """The records whose view overlaps one of `cams`, scored against the query, chronological."""
-    near = [r for r in recs if any(overlaps(r, c, s) for c in cams)]
+    near = [r for r, ok in zip(recs, overlapping(recs, cams, s), strict=True) if ok]
     scored = _scores(mem, q, near) if near else []
     return sorted((Hit(memory=r, score=sc) for r, sc in scored), key=chrono)
 
@@ -221,9 +245,9 @@ def _visit_end(mem: Core, p: Place, start: MemoryRecord, s: ChangeConfig, asof: 
     while read < s.max_walk:
         page = mem.store.by_time(cursor[0], size, asof)
         fresh = [r for r in page if (r.t, r.id) > cursor]
-        for r in fresh:
-            if not any(overlaps(r, v, s) for v in views):
-                return r.t
+        away = np.flatnonzero(~overlapping(fresh, views, s))
+        if len(away):
+            return fresh[int(away[0])].t
         read += len(fresh)
         if len(page) < size or (not fresh and size >= _PAGE):
             return None

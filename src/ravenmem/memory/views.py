@@ -145,13 +145,15 @@ def next_in_time(mem: Core, a: MemoryRecord, b: MemoryRecord) -> bool:
     """Whether `b` is the memory right after `a` in time order (time, then id), both stored:
     counted from the ids in their time span (the store's filter, no record read), not
     counting those at `b`'s time with a larger id (after `b` in that order)."""
-    ids = mem.store.select(Filter(after=a.t, before=b.t))
-    if len(ids) < 2 or not np.isin([a.id, b.id], ids).all():
+    ids = mem.store.select(Filter(after=a.t, before=b.t))  # sorted
+    if len(ids) < 2:
         return False
-    if len(ids) == 2:
-        return True
-    tied = mem.store.select(Filter(after=b.t, before=b.t))
-    return len(ids) - 2 - int((tied > b.id).sum()) == 0
+    if len(ids) > 2:
+        tied = mem.store.select(Filter(after=b.t, before=b.t))
+        if len(ids) - 2 - int((tied > b.id).sum()) != 0:
+            return False
+    at = np.searchsorted(ids, [a.id, b.id])
+    return bool(np.all(at < len(ids)) and np.all(ids[np.minimum(at, len(ids) - 1)] == [a.id, b.id]))
 
 
 def _disc(p: Place, s: ChangeConfig) -> tuple[Region, list[MemoryRecord]]:

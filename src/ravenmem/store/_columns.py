@@ -140,12 +140,11 @@ class Columns:
         mask: np.ndarray | None = None
         t = self.col("t")
         if filt.after is not None or filt.before is not None:
-            after = -np.inf if filt.after is None else filt.after
-            before = np.inf if filt.before is None else filt.before
             if self.t_sorted:
-                lo = int(np.searchsorted(t, after, "left"))
-                hi = max(lo, int(np.searchsorted(t, before, "right")))
+                lo, hi = self._span(filt)
             else:
+                after = -np.inf if filt.after is None else filt.after
+                before = np.inf if filt.before is None else filt.before
                 mask = (t >= after) & (t <= before)
         if filt.region is not None:
             pos = self.inside(lo, hi, filt.region)
@@ -205,9 +204,19 @@ class Columns:
     def select_ids(self, filt: Filter) -> tuple[np.ndarray, bool]:
         """(sorted ids the filter accepts, contiguous): contiguous when they are a run of
         consecutive positions, i.e. no stored id between the first and last is left out."""
+        if filt.region is None and (self.t_sorted or (filt.after is None and filt.before is None)):
+            lo, hi = self._span(filt)  # a run of positions: a view of the ids, not a gather
+            return self.ids[lo:hi], hi > lo
         pos = self.select(filt)
         contiguous = len(pos) > 0 and int(pos[-1]) - int(pos[0]) + 1 == len(pos)
         return self.ids[pos], contiguous
+
+    def _span(self, filt: Filter) -> tuple[int, int]:
+        """[lo, hi) positions of the filter's time range (the columns are in time order)."""
+        t = self.col("t")
+        lo = 0 if filt.after is None else int(np.searchsorted(t, filt.after, "left"))
+        hi = self.n if filt.before is None else max(lo, int(np.searchsorted(t, filt.before, "right")))
+        return lo, hi
 
     # --- position tool ---------------------------------------------------------------------------
     def nearest(

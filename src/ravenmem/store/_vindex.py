@@ -321,12 +321,12 @@ class VectorIndex:
                 params,
                 None,
             )
-        return [(int(i), float(d)) for i, d in zip(ids[0], dist[0], strict=True) if i >= 0]
+        return _pairs(ids[0], dist[0])
 
     def _run(self, q: np.ndarray, k: int, params: Any) -> list[tuple[int, float]]:
         with _one_thread():
             dist, ids = self.index.search(q, k, params=params)
-        return [(int(i), float(d)) for i, d in zip(ids[0], dist[0], strict=True) if i >= 0]
+        return _pairs(ids[0], dist[0])
 
     # --- file ----------------------------------------------------------------------------------
     def save(self, path: Path, max_id: int, uid: bytes, deletions: int = 0) -> None:
@@ -382,6 +382,12 @@ class VectorIndex:
         if seen != crc or index.ntotal != ntotal or index.d != dim:
             raise IndexFileError(f"{path.name} failed its checksum")
         return cls(index, dim, trained_n), max_id, deletions
+
+
+def _pairs(ids: np.ndarray, dist: np.ndarray) -> list[tuple[int, float]]:
+    """FAISS's result row as (id, score) pairs, empty slots (id -1) left out."""
+    keep = ids >= 0
+    return list(zip(ids[keep].tolist(), dist[keep].tolist(), strict=True))
 
 
 def _selector(allowed: np.ndarray, contiguous: bool) -> tuple[Any, np.ndarray | None]:

@@ -11,11 +11,12 @@ all be old (a thing seen far more often, or a little better, before it moved).
    newest sighting among its best matches), so the range is mostly a short recent stretch.
 2. Windows back from the end of the range, by count: the newest `MAX_K` memories the filter
    accepts, then 8 times as many before them, and so on. A window of at most `MAX_K` memories
-   is scanned exactly (every vector read and scored: the answer is exact and costs a read of
-   a thousand vectors); a wider one is searched (its best `pool`): when those are not all
-   sightings, every sighting in it ranks above them and is in hand; else it is searched again
-   after the newest sighting found, each time strictly later. The first window that holds a
-   sighting ends the walk.
+   is searched exactly (the answer is exact); a wider one is searched for its best `pool`:
+   when fewer than that reach the threshold, every sighting in it is in hand; else it is
+   searched again after the newest sighting found, each time strictly later. The first window
+   that holds a sighting ends the walk. Every search passes the threshold as the store's
+   `min_score`: a sighting is all it asks for, so the local store reads from SQLite only the
+   vectors whose index codes can reach it, not four times the pool.
 3. Later sightings of one place (`Later.find`, inside its disc): one search over the
    whole range (exact when it is short), and nothing found there means nothing (a place is
    mostly not seen again), as the latest mode always decided; else as a wide window above.

@@ -432,6 +432,15 @@ def test_a_score_floor_reads_only_the_vectors_near_it(
                 exact = store.search_vector(q, 3_000, filt, exact=True, min_score=floor)
                 assert [i for i, _ in exact] == [i for i, sc in scan if sc >= floor]
                 assert sum(read) < len(scan) // 2  # the codes chose; few vectors were read
+        # new places after the flags were read: their codes are flagged as they are added
+        more = robot_stream(600, DIM, seed=8, step=0.15, jump_every=100)
+        store.add(make_records(600, t0=recs[-1].t + 1.0), more)
+        for qi in (10, 250, 590):
+            q = (more[qi] + 0.3 * rng.normal(size=DIM) / np.sqrt(DIM)).astype(np.float32)
+            full = store.search_vector(q, 40)
+            floor = full[9][1] - 1e-6
+            got = store.search_vector(q, 40, min_score=floor)
+            assert [i for i, _ in got] == [i for i, sc in full if sc >= floor]
     finally:
         store.close()
 

@@ -73,22 +73,19 @@ class VectorIndex:
         # filtered search can probe just the lists that hold accepted ids
         self.list_of = np.full(0, -1, np.int32)
         # sq8 only: ids whose code may hold a clipped dimension (an extreme code), so that
-        # their code score can be further from the exact one than `score_error` says
-        self.rough = np.zeros(0, bool)
+        # their code score can be further from the exact one than `score_error` says; read
+        # from the codes at the first `trusted` (a quarter of a second at 1M: not at open)
+        self._rough: np.ndarray | None = None
         self.centroids = np.zeros((0, dim), np.float32)
         if self.kind == "ivf":
             self.centroids = index.quantizer.reconstruct_n(0, index.nlist)
             lists = index.invlists
-            sq8, width = self.codes == "sq8", int(index.code_size)
             for lst in range(index.nlist):
                 size = lists.list_size(lst)
                 if size:
                     ids = faiss.rev_swig_ptr(lists.get_ids(lst), size).view(np.int64)
                     self._grow(int(ids.max()))
                     self.list_of[ids] = lst
-                    if sq8:
-                        codes = faiss.rev_swig_ptr(lists.get_codes(lst), size * width).reshape(size, width)
-                        self.rough[ids] = ((codes == 0) | (codes == 255)).any(axis=1)
 
     @classmethod
     def flat(cls, dim: int) -> VectorIndex:
@@ -185,24 +182,42 @@ class VectorIndex:
             grown = np.full(max(max_id + 1, 2 * len(self.list_of)), -1, np.int32)
             grown[: len(self.list_of)] = self.list_of
             self.list_of = grown
-            rough = np.zeros(len(grown), bool)
-            rough[: len(self.rough)] = self.rough
-            self.rough = rough
+            if self._rough is not None:
+                rough = np.zeros(len(grown), bool)
+                rough[: len(self._rough)] = self._rough
+                self._rough = rough
 
     def _mark_rough(self, ids: np.ndarray, x: np.ndarray, lists: np.ndarray) -> None:
-        """Flag the rows whose residual reaches the first or last step of the sq8 grid (the
-        codes a clipped value gets; `__init__` flags extreme codes of a loaded index)."""
-        if self.codes != "sq8":
+        """Flag added rows whose residual reaches the first or last step of the sq8 grid (the
+        codes a clipped value gets), once the flags were read (`trusted`)."""
+        if self._rough is None or self.codes != "sq8":
             return
         vmin, vdiff = (float(v) for v in faiss.vector_to_array(self.index.sq.trained)[:2])
         resid = x - self.centroids[lists] if self.index.by_residual else x
         step = vdiff / 255.0
-        self.rough[ids] = ((resid < vmin + step) | (resid >= vmin + vdiff - step)).any(axis=1)
+        self._rough[ids] = ((resid < vmin + step) | (resid >= vmin + vdiff - step)).any(axis=1)
 
     def trusted(self, ids: np.ndarray) -> np.ndarray:
-        """Per id: whether its code score is within `score_error` of the exact one."""
+        """Per id: whether its code score is within `score_error` of the exact one (an sq8
+        code holding a first or last step of the grid may be a clipped value: not trusted)."""
         ids = np.asarray(ids, np.int64)
-        return ~self.rough[ids] if self.kind == "ivf" else np.ones(len(ids), bool)
+        if self.codes != "sq8":
+            return np.ones(len(ids), bool)
+        if self._rough is None:
+            self._rough = self._read_rough()
+        return ~self._rough[ids]
+
+    def _read_rough(self) -> np.ndarray:
+        """Per id, whether its stored code has an extreme byte (0 or 255) in some dimension."""
+        rough = np.zeros(len(self.list_of), bool)
+        lists, width = self.index.invlists, int(self.index.code_size)
+        for lst in range(self.nlist):
+            size = lists.list_size(lst)
+            if size:
+                ids = faiss.rev_swig_ptr(lists.get_ids(lst), size).view(np.int64)
+                codes = faiss.rev_swig_ptr(lists.get_codes(lst), size * width).reshape(size, width)
+                rough[ids] = ((codes == 0) | (codes == 255)).any(axis=1)
+        return rough
 
     def _assign(self, x: np.ndarray) -> np.ndarray:
         """The list of each row: exact (flat quantizer) for small batches; for large ones an

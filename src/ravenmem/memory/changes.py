@@ -113,9 +113,7 @@ class Changes(Core):
         places = [Place(0, g) for g in group_sightings(self, sorted(seen.values(), key=chrono), s)]
         gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
         later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, 2.0 * s.view_radius)
-        for p in sorted(
-            places, key=lambda p: chrono(p.sightings[-1])
-        ):  # earliest first: its search serves later ones
+        for p in sorted(places, key=lambda p: chrono(p.sightings[-1])):  # earliest first (see Later)
             grow(p, s, later)
         for p in merge(places):  # a place that took others in grows again from its new last
             grow(p, s, later)

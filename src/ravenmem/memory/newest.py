@@ -76,7 +76,9 @@ class Later:
     is searched a little wider (`margin` m) and, when that search found every sighting in it
     from its start on, a later ask inside that disc and range is answered from it. The rounds
     of one place and places beside each other (one thing seen from several viewpoints) ask
-    nearly the same question again and again: each asked the index once before."""
+    nearly the same question again and again: each asked the index once before. Asked for the
+    places in the order of their last sightings, the first search (the longest range) answers
+    the places beside it."""
 
     def __init__(
         self, mem: Core, q: np.ndarray, thr: float, before: float | None, pool: int, steps: int, margin: float

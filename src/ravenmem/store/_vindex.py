@@ -72,10 +72,12 @@ class VectorIndex:
         # IVF only: the list each id lives in (-1: absent) and the list centroids, so that a
         # filtered search can probe just the lists that hold accepted ids
         self.list_of = np.full(0, -1, np.int32)
-        # sq8 only: ids whose code may hold a clipped dimension (an extreme code), so that
-        # their code score can be further from the exact one than `score_error` says; read
-        # from the codes at the first `trusted` (a quarter of a second at 1M: not at open)
-        self._rough: np.ndarray | None = None
+        # sq8 only: per id, whether its code may hold a clipped dimension (an extreme code), so
+        # that its code score can be further from the exact one than `score_error` says; read
+        # from a list's codes when `trusted` first asks about one of its ids (all lists take a
+        # quarter of a second at 1M: not at open), again after an add to that list
+        self._rough = np.zeros(0, bool)
+        self._rough_read = np.zeros(0, bool)  # per list
         self.centroids = np.zeros((0, dim), np.float32)
         if self.kind == "ivf":
             self.centroids = index.quantizer.reconstruct_n(0, index.nlist)
@@ -182,20 +184,9 @@ class VectorIndex:
             grown = np.full(max(max_id + 1, 2 * len(self.list_of)), -1, np.int32)
             grown[: len(self.list_of)] = self.list_of
             self.list_of = grown
-            if self._rough is not None:
-                rough = np.zeros(len(grown), bool)
-                rough[: len(self._rough)] = self._rough
-                self._rough = rough
-
-    def _mark_rough(self, ids: np.ndarray, x: np.ndarray, lists: np.ndarray) -> None:
-        """Flag added rows whose residual reaches the first or last step of the sq8 grid (the
-        codes a clipped value gets), once the flags were read (`trusted`)."""
-        if self._rough is None or self.codes != "sq8":
-            return
-        vmin, vdiff = (float(v) for v in faiss.vector_to_array(self.index.sq.trained)[:2])
-        resid = x - self.centroids[lists] if self.index.by_residual else x
-        step = vdiff / 255.0
-        self._rough[ids] = ((resid < vmin + step) | (resid >= vmin + vdiff - step)).any(axis=1)
+            rough = np.zeros(len(grown), bool)
+            rough[: len(self._rough)] = self._rough
+            self._rough = rough
 
     def trusted(self, ids: np.ndarray) -> np.ndarray:
         """Per id: whether its code score is within `score_error` of the exact one (an sq8
@@ -203,21 +194,22 @@ class VectorIndex:
         ids = np.asarray(ids, np.int64)
         if self.codes != "sq8":
             return np.ones(len(ids), bool)
-        if self._rough is None:
-            self._rough = self._read_rough()
+        if len(self._rough_read) != self.nlist:
+            self._rough_read = np.zeros(self.nlist, bool)
+        for lst in np.unique(self.list_of[ids]):
+            if lst >= 0 and not self._rough_read[lst]:
+                self._read_rough(int(lst))
         return ~self._rough[ids]
 
-    def _read_rough(self) -> np.ndarray:
-        """Per id, whether its stored code has an extreme byte (0 or 255) in some dimension."""
-        rough = np.zeros(len(self.list_of), bool)
+    def _read_rough(self, lst: int) -> None:
+        """Flag the ids of list `lst` whose code has an extreme byte (0 or 255) somewhere."""
         lists, width = self.index.invlists, int(self.index.code_size)
-        for lst in range(self.nlist):
-            size = lists.list_size(lst)
-            if size:
-                ids = faiss.rev_swig_ptr(lists.get_ids(lst), size).view(np.int64)
-                codes = faiss.rev_swig_ptr(lists.get_codes(lst), size * width).reshape(size, width)
-                rough[ids] = ((codes == 0) | (codes == 255)).any(axis=1)
-        return rough
+        size = lists.list_size(lst)
+        if size:
+            ids = faiss.rev_swig_ptr(lists.get_ids(lst), size).view(np.int64)
+            codes = faiss.rev_swig_ptr(lists.get_codes(lst), size * width).reshape(size, width)
+            self._rough[ids] = ((codes == 0) | (codes == 255)).any(axis=1)
+        self._rough_read[lst] = True
 
     def _assign(self, x: np.ndarray) -> np.ndarray:
         """The list of each row: exact (flat quantizer) for small batches; for large ones an
@@ -249,7 +241,8 @@ class VectorIndex:
             self.index.add_core(len(x), faiss.swig_ptr(x), faiss.swig_ptr(xids), faiss.swig_ptr(lists))
         self._grow(int(xids.max()))
         self.list_of[xids] = lists
-        self._mark_rough(xids, x, lists)
+        if len(self._rough_read):
+            self._rough_read[lists] = False  # their new codes are read at the next `trusted`
 
     def remove(self, ids: np.ndarray) -> int:
         """Remove ids (absent ones are ignored); returns how many were removed."""

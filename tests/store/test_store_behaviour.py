@@ -92,6 +92,27 @@ def test_vector_filters_exact(filled: Data, fi: int) -> None:
     assert all(filt.accepts(r) for r in store.get([h[0] for h in hits]))
 
 
+@pytest.mark.parametrize("fi", [None, *range(len(FILTERS))])
+def test_a_score_floor_keeps_the_best_that_reach_it(filled: Data, fi: int | None) -> None:
+    """`min_score`: the top k of what scores at least the floor, exact or not; fewer when
+    fewer reach it; a floor that is no number is refused."""
+    store, recs, emb = filled
+    filt = None if fi is None else FILTERS[fi]
+    q = (emb[57] + 0.1 * np.random.default_rng(3).normal(size=DIM)).astype(np.float32)
+    ids, scores = brute_vector(recs, emb, q, N, filt)
+    for k, rank in ((10, 3), (10, 25), (4, 0)):
+        floor = scores[rank] if rank < len(scores) else 0.0
+        want = [(i, sc) for i, sc in zip(ids, scores, strict=True) if sc >= floor - 1e-6][:k]
+        for exact in (False, True):
+            got = store.search_vector(q, k, filt, exact=exact, min_score=floor - 1e-6)
+            assert [h[0] for h in got] == [w[0] for w in want]
+            assert np.allclose([h[1] for h in got], [w[1] for w in want], atol=1e-5)
+    assert store.search_vector(q, 5, filt, min_score=1.01) == []
+    for bad in (float("nan"), "0.5", True):
+        with pytest.raises(InputError, match="min_score"):
+            store.search_vector(q, 5, filt, min_score=bad)  # type: ignore[arg-type]
+
+
 def test_by_time_starts_at_t_in_order(filled: Data) -> None:
     store, recs, _ = filled
     chrono = sorted(recs, key=lambda r: (r.t, r.id))

@@ -393,3 +393,79 @@ def test_a_filtered_ivf_search_probes_at_least_nprobe_lists(tmp_path: Path) -> N
         assert np.mean(recalls) >= 0.95  # 0.76 when the budget alone decided
     finally:
         store.close()
+
+
+def test_a_score_floor_reads_only_the_vectors_near_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With `min_score`, the IVF's codes decide which candidates can reach the floor (within
+    their error bound), and only those are read from SQLite and scored exactly: the answer is
+    the unfloored search's cut at the floor, and an exact search over a window the codes
+    cover is the scan's answer, read from a fraction of the vectors."""
+    from ravenmem.store import _sql
+
+    store, emb = filled(tmp_path / "m", 3_000, ann_threshold=1_000, background=False)
+    read: list[int] = []
+    fetch = _sql.fetch_vectors
+    monkeypatch.setattr(_sql, "fetch_vectors", lambda conn, ids: read.append(len(ids)) or fetch(conn, ids))
+    try:
+        recs = make_records(3_000)
+        rng = np.random.default_rng(4)
+        for filt in (
+            None,
+            Filter(after=recs[500].t, before=recs[800].t),
+            Filter(region=Region(-9.0, 1.0, 2.5)),
+        ):
+            for qi in rng.choice(3_000, 3, replace=False):
+                q = (emb[qi] + 0.3 * rng.normal(size=DIM) / np.sqrt(DIM)).astype(np.float32)
+                full = store.search_vector(q, 40, filt)
+                floor = full[5][1] - 1e-6  # scores of one vector may differ in the last bits
+                read.clear()
+                got = store.search_vector(q, 40, filt, min_score=floor)
+                assert [i for i, _ in got] == [i for i, sc in full if sc >= floor] and len(got) == 6
+                assert np.allclose([sc for _, sc in got], [sc for _, sc in full[:6]], atol=1e-6)
+                assert sum(read) < 4 * 40  # not every candidate re-read
+                if filt is None:
+                    continue
+                scan = store.search_vector(q, 3_000, filt, exact=True)
+                read.clear()
+                exact = store.search_vector(q, 3_000, filt, exact=True, min_score=floor)
+                assert [i for i, _ in exact] == [i for i, sc in scan if sc >= floor]
+                assert sum(read) < len(scan) // 2  # the codes chose; few vectors were read
+        # new places after the flags were read: their codes are flagged as they are added
+        more = robot_stream(600, DIM, seed=8, step=0.15, jump_every=100)
+        store.add(make_records(600, t0=recs[-1].t + 1.0), more)
+        for qi in (10, 250, 590):
+            q = (more[qi] + 0.3 * rng.normal(size=DIM) / np.sqrt(DIM)).astype(np.float32)
+            full = store.search_vector(q, 40)
+            floor = full[9][1] - 1e-6
+            got = store.search_vector(q, 40, min_score=floor)
+            assert [i for i, _ in got] == [i for i, sc in full if sc >= floor]
+    finally:
+        store.close()
+
+
+def test_by_time_in_a_region_walks_the_columns(tmp_path: Path) -> None:
+    """`by_time` with a region reads its positions from the columns: on a chronological store
+    by walking forward in growing steps, on another by sorting what the filter accepts; both
+    give SQLite's order (time, then id) and bounds."""
+    store, _ = filled(tmp_path / "m", 6_000, ann_threshold=100_000)
+    recs = [r.with_id(i + 1) for i, r in enumerate(make_records(6_000))]
+    try:
+        for t, k, filt in (
+            (recs[10].t, 50, Filter(region=Region(-9.0, 1.0, 1.0))),
+            (recs[0].t, 700, Filter(region=Region(10.0, 0.0, 2.0))),  # past the first step
+            (recs[2_000].t, 30, Filter(after=recs[2_500].t, before=recs[5_000].t, region=Region(0, 6, 1.5))),
+            (recs[5_990].t, 30, Filter(region=Region(10.0, 0.0, 2.0))),  # past the end: fewer
+        ):
+            want = [r.id for r in recs if r.t >= t and filt.accepts(r)][:k]
+            assert [r.id for r in store.by_time(t, k, filt)] == want
+        cols = _columns.Columns()
+        cols.append(
+            np.array([1, 2, 3, 4]), np.array([4.0, 1.0, 3.0, 1.0]), np.zeros(4), np.zeros(4), np.zeros(4)
+        )
+        assert not cols.t_sorted
+        got = cols.first_from(1.0, 3, Filter(region=Region(0.0, 0.0, 1.0)))
+        assert cols.ids[got].tolist() == [2, 4, 3]  # time, then id
+    finally:
+        store.close()

@@ -60,7 +60,7 @@ from .newest import Later, newest_sightings
 from .places import Place, Verdict, Whereabouts
 from .protocol import MAX_K, Near, TimeLike
 from .seen_index import seen_index
-from .views import ChangeConfig, chrono, follow, group_sightings, merge, sample
+from .views import ChangeConfig, chrono, group_sightings, grow, merge, revisits, sample
 
 __all__ = ["ChangeConfig", "Changes", "Place", "Verdict", "Whereabouts"]
 
@@ -112,11 +112,13 @@ class Changes(Core):
             return Whereabouts(label, [], thr, floor, best)
         places = [Place(0, g) for g in group_sightings(self, sorted(seen.values(), key=chrono), s)]
         gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
-        later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, s.view_radius)
-        for p in places:
-            follow(self, p, q, thr, s, asof, gap, later)
-        for p in merge(places):
-            follow(self, p, q, thr, s, asof, gap, later)
+        later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, 2.0 * s.view_radius)
+        for p in sorted(places, key=lambda p: chrono(p.sightings[-1])):  # earliest first (see Later)
+            grow(p, s, later)
+        for p in merge(places):  # a place that took others in grows again from its new last
+            grow(p, s, later)
+        for p in places:  # revisits once, of the places left (they read only their sightings)
+            revisits(self, p, q, thr, s, asof, gap)
         places.sort(key=lambda p: chrono(p.sightings[-1]), reverse=True)
         for i, p in enumerate(places, 1):
             p.index = i

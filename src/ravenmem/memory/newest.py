@@ -11,11 +11,12 @@ all be old (a thing seen far more often, or a little better, before it moved).
    newest sighting among its best matches), so the range is mostly a short recent stretch.
 2. Windows back from the end of the range, by count: the newest `MAX_K` memories the filter
    accepts, then 8 times as many before them, and so on. A window of at most `MAX_K` memories
-   is scanned exactly (every vector read and scored: the answer is exact and costs a read of
-   a thousand vectors); a wider one is searched (its best `pool`): when those are not all
-   sightings, every sighting in it ranks above them and is in hand; else it is searched again
-   after the newest sighting found, each time strictly later. The first window that holds a
-   sighting ends the walk.
+   is searched exactly (the answer is exact); a wider one is searched for its best `pool`:
+   when fewer than that reach the threshold, every sighting in it is in hand; else it is
+   searched again after the newest sighting found, each time strictly later. The first window
+   that holds a sighting ends the walk. Every search passes the threshold as the store's
+   `min_score`: a sighting is all it asks for, so the local store reads from SQLite only the
+   vectors whose index codes can reach it, not four times the pool.
 3. Later sightings of one place (`Later.find`, inside its disc): one search over the
    whole range (exact when it is short), and nothing found there means nothing (a place is
    mostly not seen again), as the latest mode always decided; else as a wide window above.
@@ -75,7 +76,9 @@ class Later:
     is searched a little wider (`margin` m) and, when that search found every sighting in it
     from its start on, a later ask inside that disc and range is answered from it. The rounds
     of one place and places beside each other (one thing seen from several viewpoints) ask
-    nearly the same question again and again: each asked the index once before."""
+    nearly the same question again and again: each asked the index once before. Asked for the
+    places in the order of their last sightings, the first search (the longest range) answers
+    the places beside it."""
 
     def __init__(
         self, mem: Core, q: np.ndarray, thr: float, before: float | None, pool: int, steps: int, margin: float
@@ -140,10 +143,10 @@ def _window(
             return list(out.values()), start
         exact = n <= MAX_K
         k = n if exact else min(pool, MAX_K)
-        scored = mem.store.search_vector(q, k, filt, exact=exact)
+        scored = mem.store.search_vector(q, k, filt, exact=exact, min_score=thr)
         hits = _sightings(mem, scored, thr)
         out.update((h.memory.id, h) for h in hits)
-        if exact or len(hits) < len(scored) or len(scored) < k:
+        if exact or len(scored) < k:
             return list(out.values()), start
         newest = max(h.memory.t for h in hits)
         if filt.after is not None and newest <= filt.after:

@@ -84,6 +84,30 @@ def overlaps(a: MemoryRecord, b: MemoryRecord, s: ChangeConfig | None = None) ->
     return close and math.degrees(a.pose.rotation_to(b.pose)) <= s.view_angle_deg
 
 
+def overlapping(recs: Sequence[MemoryRecord], cams: Sequence[MemoryRecord], s: ChangeConfig) -> np.ndarray:
+    """Per record, whether its view overlaps one of `cams` (`overlaps`, the same arithmetic in
+    the same order, over all pairs at once: a page of records against a place's hundreds of
+    sightings was that many calls)."""
+    if not recs or not cams:
+        return np.zeros(len(recs), bool)
+    a, b = _poses(recs), _poses(cams)
+    close = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) <= s.view_radius
+    turn = np.abs(np.mod(b[None, :, 2] - a[:, None, 2] + math.pi, 2.0 * math.pi) - math.pi)
+    qa, qb = a[:, None, 3:], b[None, :, 3:]
+    dot = np.abs(
+        qa[..., 0] * qb[..., 0] + qa[..., 1] * qb[..., 1] + qa[..., 2] * qb[..., 2] + qa[..., 3] * qb[..., 3]
+    )
+    both = ~np.isnan(dot)
+    turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot[both]))
+    return (close & (np.degrees(turn) <= s.view_angle_deg)).any(axis=1)
+
+
+def _poses(recs: Sequence[MemoryRecord]) -> np.ndarray:
+    """(n, 7): x, y, yaw and the quaternion (NaN without one) of each record's pose."""
+    nan = (math.nan,) * 4
+    return np.array([(r.pose.x, r.pose.y, r.pose.yaw, *(r.pose.quat or nan)) for r in recs], np.float64)
+
+
 def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hit]]:
     """Places: each sighting joins the best-scored earlier seed whose view it overlaps (no
     chains: a robot turning on the spot does not make one place of every direction), and
@@ -109,13 +133,27 @@ def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hi
         a, b = hits[i].memory, hits[i + 1].memory
         if root(i) == root(i + 1):
             continue
-        step = mem.store.by_time(a.t, 2, Filter(before=b.t))
-        if len(step) == 2 and step[0].id == a.id and step[1].id == b.id:
+        if next_in_time(mem, a, b):
             parent[root(i)] = root(i + 1)
     groups: dict[int, list[Hit]] = {}
     for i, h in enumerate(hits):
         groups.setdefault(root(i), []).append(h)
     return [sorted(g, key=chrono) for g in groups.values()]
+
+
+def next_in_time(mem: Core, a: MemoryRecord, b: MemoryRecord) -> bool:
+    """Whether `b` is the memory right after `a` in time order (time, then id), both stored:
+    counted from the ids in their time span (the store's filter, no record read), not
+    counting those at `b`'s time with a larger id (after `b` in that order)."""
+    ids = mem.store.select(Filter(after=a.t, before=b.t))  # sorted
+    if len(ids) < 2:
+        return False
+    if len(ids) > 2:
+        tied = mem.store.select(Filter(after=b.t, before=b.t))
+        if len(ids) - 2 - int((tied > b.id).sum()) != 0:
+            return False
+    at = np.searchsorted(ids, [a.id, b.id])
+    return bool(np.all(at < len(ids)) and np.all(ids[np.minimum(at, len(ids) - 1)] == [a.id, b.id]))
 
 
 def _disc(p: Place, s: ChangeConfig) -> tuple[Region, list[MemoryRecord]]:
@@ -135,7 +173,7 @@ def _views(
     mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord], cams: list[MemoryRecord], s: ChangeConfig
 ) -> list[Hit]:
     """The records whose view overlaps one of `cams`, scored against the query, chronological."""
-    near = [r for r in recs if any(overlaps(r, c, s) for c in cams)]
+    near = [r for r, ok in zip(recs, overlapping(recs, cams, s), strict=True) if ok]
     scored = _scores(mem, q, near) if near else []
     return sorted((Hit(memory=r, score=sc) for r, sc in scored), key=chrono)
 
@@ -168,26 +206,22 @@ def _newest_views(mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Fil
     return []
 
 
-def follow(
-    mem: Core,
-    p: Place,
-    q: np.ndarray,
-    thr: float,
-    s: ChangeConfig,
-    asof: Filter,
-    gap: float,
-    later: Later | None = None,
-) -> None:
-    """Grow the place with its newest later sightings, then collect the later views without the
-    thing: after the robot looked away, and at least a pass (`gap` s) after the last sighting.
-    `later`: the question's searches for later sightings, shared by its places."""
-    later = later or Later(mem, q, thr, asof.before, s.pool, s.max_rounds, s.view_radius)
+def grow(p: Place, s: ChangeConfig, later: Later) -> None:
+    """Add the place's later sightings (its own views after its last sighting that show the
+    thing), round by round until none is new."""
     for _ in range(s.max_rounds):
         more = _later_sightings(p, s, later)
         if not more:
             break
         known = {h.memory.id for h in p.sightings}
         p.sightings = sorted(p.sightings + [h for h in more if h.memory.id not in known], key=chrono)
+
+
+def revisits(
+    mem: Core, p: Place, q: np.ndarray, thr: float, s: ChangeConfig, asof: Filter, gap: float
+) -> None:
+    """The later views of the place without the thing (`Place.revisits`, `revisit_count`) and
+    whether the robot came back to it at all (`later_visit`): from its sightings only."""
     end = _visit_end(mem, p, p.last, s, asof)
     start = p.last.t + gap if end is None else max(end, p.last.t + gap)
     disc, cams = _disc(p, s)
@@ -213,9 +247,9 @@ def _visit_end(mem: Core, p: Place, start: MemoryRecord, s: ChangeConfig, asof: 
     while read < s.max_walk:
         page = mem.store.by_time(cursor[0], size, asof)
         fresh = [r for r in page if (r.t, r.id) > cursor]
-        for r in fresh:
-            if not any(overlaps(r, v, s) for v in views):
-                return r.t
+        away = np.flatnonzero(~overlapping(fresh, views, s))
+        if len(away):
+            return fresh[int(away[0])].t
         read += len(fresh)
         if len(page) < size or (not fresh and size >= _PAGE):
             return None

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..fsio import atomic_open
-from ..types import Filter
+from ..types import Filter, Region
 
 _MAGIC = b"RVMCOLS1"
 _HEADER = struct.Struct("<8sqqqI4x16s")  # magic, n, max id covered, deletions reflected, crc, store uid
@@ -38,6 +38,7 @@ class ColumnsFileError(Exception):
 
 
 _BRUTE_MAX = 50_000  # below this many candidates a numpy scan beats a tree query with a mask
+_BLOCK = 65_536  # rows per block of a disc test (two float64 buffers that stay in cache)
 
 
 class Columns:
@@ -139,29 +140,83 @@ class Columns:
         mask: np.ndarray | None = None
         t = self.col("t")
         if filt.after is not None or filt.before is not None:
-            after = -np.inf if filt.after is None else filt.after
-            before = np.inf if filt.before is None else filt.before
             if self.t_sorted:
-                lo = int(np.searchsorted(t, after, "left"))
-                hi = max(lo, int(np.searchsorted(t, before, "right")))
+                lo, hi = self._span(filt)
             else:
+                after = -np.inf if filt.after is None else filt.after
+                before = np.inf if filt.before is None else filt.before
                 mask = (t >= after) & (t <= before)
         if filt.region is not None:
-            reg = filt.region
-            dx = self.col("x")[lo:hi] - reg.x
-            dy = self.col("y")[lo:hi] - reg.y
-            inside = dx * dx + dy * dy <= reg.r * reg.r
-            mask = inside if mask is None else mask[lo:hi] & inside
+            pos = self.inside(lo, hi, filt.region)
+            return pos if mask is None else pos[mask[pos]]
         if mask is None:
             return np.arange(lo, hi, dtype=np.int64)
-        return np.flatnonzero(mask).astype(np.int64) + (lo if filt.region is not None else 0)
+        return np.flatnonzero(mask).astype(np.int64)
+
+    def inside(self, lo: int, hi: int, reg: Region) -> np.ndarray:
+        """Positions in [lo, hi) whose (x, y) lies in the disc (dx*dx + dy*dy <= r*r, as SQL
+        tests it), ascending. In blocks of `_BLOCK` rows through two reused buffers: a
+        filter over half a million memories took three times as long with whole-range
+        temporaries (each one pass over memory)."""
+        out: list[np.ndarray] = []
+        size = min(_BLOCK, max(0, hi - lo))
+        bx, by = np.empty(size, np.float64), np.empty(size, np.float64)
+        x, y, r2 = self.col("x"), self.col("y"), reg.r * reg.r
+        for s in range(lo, hi, _BLOCK):
+            e = min(hi, s + _BLOCK)
+            dx = np.subtract(x[s:e], reg.x, out=bx[: e - s])
+            dy = np.subtract(y[s:e], reg.y, out=by[: e - s])
+            np.multiply(dx, dx, out=dx)
+            np.multiply(dy, dy, out=dy)
+            dx += dy
+            out.append(np.flatnonzero(dx <= r2) + s)
+        return np.concatenate(out).astype(np.int64) if out else np.empty(0, np.int64)
+
+    def first_from(self, t: float, k: int, filt: Filter) -> np.ndarray:
+        """Positions of the first `k` memories with time >= `t` that the filter accepts, in
+        (time, id) order: `by_time` with a region, where SQLite would read every row of the
+        time range to test its position. On a chronological store the positions are walked
+        forward in growing steps until k are found (a disc holds a few memories of each
+        pass: a few thousand positions hold the first hundreds); otherwise every accepted
+        one is sorted."""
+        after = t if filt.after is None else max(t, filt.after)
+        filt = Filter(after=after, before=filt.before, region=filt.region)
+        if k == 0:
+            return np.empty(0, np.int64)
+        if not self.t_sorted:
+            pos = self.select(filt)
+            order = np.lexsort((self.ids[pos], self.col("t")[pos]))
+            return pos[order[:k]]
+        tcol, reg = self.col("t"), filt.region
+        lo = int(np.searchsorted(tcol, after, "left"))
+        hi = self.n if filt.before is None else max(lo, int(np.searchsorted(tcol, filt.before, "right")))
+        if reg is None:
+            return np.arange(lo, min(hi, lo + k), dtype=np.int64)
+        found: list[np.ndarray] = []
+        got, step = 0, max(1024, 16 * k)
+        while lo < hi and got < k:
+            end = min(hi, lo + step)
+            found.append(self.inside(lo, end, reg)[: k - got])
+            got += len(found[-1])
+            lo, step = end, step * 4
+        return np.concatenate(found) if found else np.empty(0, np.int64)
 
     def select_ids(self, filt: Filter) -> tuple[np.ndarray, bool]:
         """(sorted ids the filter accepts, contiguous): contiguous when they are a run of
         consecutive positions, i.e. no stored id between the first and last is left out."""
+        if filt.region is None and (self.t_sorted or (filt.after is None and filt.before is None)):
+            lo, hi = self._span(filt)  # a run of positions: a view of the ids, not a gather
+            return self.ids[lo:hi], hi > lo
         pos = self.select(filt)
         contiguous = len(pos) > 0 and int(pos[-1]) - int(pos[0]) + 1 == len(pos)
         return self.ids[pos], contiguous
+
+    def _span(self, filt: Filter) -> tuple[int, int]:
+        """[lo, hi) positions of the filter's time range (the columns are in time order)."""
+        t = self.col("t")
+        lo = 0 if filt.after is None else int(np.searchsorted(t, filt.after, "left"))
+        hi = self.n if filt.before is None else max(lo, int(np.searchsorted(t, filt.before, "right")))
+        return lo, hi
 
     # --- position tool ---------------------------------------------------------------------------
     def nearest(

@@ -194,6 +194,20 @@ def check_query(query: np.ndarray, dim: int) -> np.ndarray:
     return normalise(q[None, :], "query")
 
 
+def check_min_score(v: object) -> float | None:
+    """A search's score floor: None, or a number (a cosine; -inf keeps everything)."""
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or math.isnan(v):
+        raise InputError(f"min_score: expected a number or None, got {v!r}")
+    return float(v)
+
+
+def above(hits: list[tuple[int, float]], min_score: float | None) -> list[tuple[int, float]]:
+    """The (id, score) hits that score at least `min_score` (all of them when it is None)."""
+    return hits if min_score is None else [h for h in hits if h[1] >= min_score]
+
+
 def check_filter(filt: Filter | None) -> Filter | None:
     """None for 'no filter'; an error for a region with a negative radius."""
     if filt is None or filt.empty:

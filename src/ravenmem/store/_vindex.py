@@ -72,6 +72,12 @@ class VectorIndex:
         # IVF only: the list each id lives in (-1: absent) and the list centroids, so that a
         # filtered search can probe just the lists that hold accepted ids
         self.list_of = np.full(0, -1, np.int32)
+        # sq8 only: per id, whether its code may hold a clipped dimension (an extreme code), so
+        # that its code score can be further from the exact one than `score_error` says; read
+        # from a list's codes when `trusted` first asks about one of its ids (all lists take a
+        # quarter of a second at 1M: not at open), again after an add to that list
+        self._rough = np.zeros(0, bool)
+        self._rough_read = np.zeros(0, bool)  # per list
         self.centroids = np.zeros((0, dim), np.float32)
         if self.kind == "ivf":
             self.centroids = index.quantizer.reconstruct_n(0, index.nlist)
@@ -127,6 +133,34 @@ class VectorIndex:
         """True when search scores are exact inner products (no re-ranking needed)."""
         return self.codes == "flat"
 
+    def score_error(self, q: np.ndarray) -> float:
+        """How far a search's score for the unit query `q` may be from the exact cosine.
+
+        sq8 keeps each dimension of a residual to half a step of its 8-bit grid (the trained
+        range over 255), so a score is off by at most half a step times the sum of |q_i|;
+        twice that is returned, for residuals of memories added after training that fall a
+        little outside the widened range. fp16 keeps 11 significant bits of residuals below 1
+        in size. Flat codes are exact. A floor on exact scores (`LocalStore.search_vector`'s
+        `min_score`) re-ranks only candidates within this of it, and every one whose code
+        may be clipped (`trusted`)."""
+        codes = self.codes
+        if codes == "flat":
+            return 0.0
+        l1 = float(np.abs(q).sum())
+        if codes == "fp16":
+            return 2.0**-10 * l1
+        step = float(faiss.vector_to_array(self.index.sq.trained)[1]) / 255.0  # uniform: [min, range]
+        return step * l1
+
+    def codes_scanned(self, allowed: np.ndarray) -> int:
+        """How many codes an exact search restricted to `allowed` scores: every code of every
+        list that holds one of them (all of them for flat)."""
+        if self.kind == "flat":
+            return self.ntotal
+        lists = np.flatnonzero(np.bincount(self.list_of[allowed], minlength=self.nlist))
+        sizes = self.index.invlists
+        return sum(int(sizes.list_size(int(lst))) for lst in lists)
+
     @property
     def ntotal(self) -> int:
         return int(self.index.ntotal)
@@ -150,6 +184,32 @@ class VectorIndex:
             grown = np.full(max(max_id + 1, 2 * len(self.list_of)), -1, np.int32)
             grown[: len(self.list_of)] = self.list_of
             self.list_of = grown
+            rough = np.zeros(len(grown), bool)
+            rough[: len(self._rough)] = self._rough
+            self._rough = rough
+
+    def trusted(self, ids: np.ndarray) -> np.ndarray:
+        """Per id: whether its code score is within `score_error` of the exact one (an sq8
+        code holding a first or last step of the grid may be a clipped value: not trusted)."""
+        ids = np.asarray(ids, np.int64)
+        if self.codes != "sq8":
+            return np.ones(len(ids), bool)
+        if len(self._rough_read) != self.nlist:
+            self._rough_read = np.zeros(self.nlist, bool)
+        for lst in np.unique(self.list_of[ids]):
+            if lst >= 0 and not self._rough_read[lst]:
+                self._read_rough(int(lst))
+        return ~self._rough[ids]
+
+    def _read_rough(self, lst: int) -> None:
+        """Flag the ids of list `lst` whose code has an extreme byte (0 or 255) somewhere."""
+        lists, width = self.index.invlists, int(self.index.code_size)
+        size = lists.list_size(lst)
+        if size:
+            ids = faiss.rev_swig_ptr(lists.get_ids(lst), size).view(np.int64)
+            codes = faiss.rev_swig_ptr(lists.get_codes(lst), size * width).reshape(size, width)
+            self._rough[ids] = ((codes == 0) | (codes == 255)).any(axis=1)
+        self._rough_read[lst] = True
 
     def _assign(self, x: np.ndarray) -> np.ndarray:
         """The list of each row: exact (flat quantizer) for small batches; for large ones an
@@ -181,6 +241,8 @@ class VectorIndex:
             self.index.add_core(len(x), faiss.swig_ptr(x), faiss.swig_ptr(xids), faiss.swig_ptr(lists))
         self._grow(int(xids.max()))
         self.list_of[xids] = lists
+        if len(self._rough_read):
+            self._rough_read[lists] = False  # their new codes are read at the next `trusted`
 
     def remove(self, ids: np.ndarray) -> int:
         """Remove ids (absent ones are ignored); returns how many were removed."""
@@ -267,12 +329,12 @@ class VectorIndex:
                 params,
                 None,
             )
-        return [(int(i), float(d)) for i, d in zip(ids[0], dist[0], strict=True) if i >= 0]
+        return _pairs(ids[0], dist[0])
 
     def _run(self, q: np.ndarray, k: int, params: Any) -> list[tuple[int, float]]:
         with _one_thread():
             dist, ids = self.index.search(q, k, params=params)
-        return [(int(i), float(d)) for i, d in zip(ids[0], dist[0], strict=True) if i >= 0]
+        return _pairs(ids[0], dist[0])
 
     # --- file ----------------------------------------------------------------------------------
     def save(self, path: Path, max_id: int, uid: bytes, deletions: int = 0) -> None:
@@ -328,6 +390,12 @@ class VectorIndex:
         if seen != crc or index.ntotal != ntotal or index.d != dim:
             raise IndexFileError(f"{path.name} failed its checksum")
         return cls(index, dim, trained_n), max_id, deletions
+
+
+def _pairs(ids: np.ndarray, dist: np.ndarray) -> list[tuple[int, float]]:
+    """FAISS's result row as (id, score) pairs, empty slots (id -1) left out."""
+    keep = ids >= 0
+    return list(zip(ids[keep].tolist(), dist[keep].tolist(), strict=True))
 
 
 def _selector(allowed: np.ndarray, contiguous: bool) -> tuple[Any, np.ndarray | None]:

@@ -77,10 +77,17 @@ class Store(Protocol):
         ...
 
     def search_vector(
-        self, query: np.ndarray, k: int, filt: Filter | None = None, exact: bool = False
+        self,
+        query: np.ndarray,
+        k: int,
+        filt: Filter | None = None,
+        exact: bool = False,
+        min_score: float | None = None,
     ) -> list[tuple[int, float]]:
         """Top-k (id, cosine) for one (dim,) query, best first, honouring the filter; `exact`
-        scores every memory the filter accepts (slow unless the filter keeps few)."""
+        scores every memory the filter accepts (slow unless the filter keeps few). `min_score`
+        keeps only the hits that score at least that (so fewer than k when fewer do); a store
+        may use it to read fewer candidates."""
         ...
 
     def search_text(self, text: str, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:

@@ -44,11 +44,13 @@ from . import _sql
 from ._columns import Columns, ColumnsFileError
 from ._common import (
     DIM_KEY,
+    above,
     check_add,
     check_dim,
     check_filter,
     check_ids,
     check_limit,
+    check_min_score,
     check_point,
     check_poses,
     check_query,
@@ -67,6 +69,8 @@ UID_KEY = "store.uid"
 POSES_KEY = "store.poses"  # bumped by every `set_poses`: the columns cache is of one pose epoch
 _MAX_T = 1.7976931348623157e308  # every finite time is within +-this; inf and text are not
 _RERANK_MIN = 32  # candidates re-ranked per query at least (k = 1 still gets a margin)
+_CODE_EXACT_MAX = 50_000  # an exact search with a floor scores up to this many codes, not vectors
+_CODES_PER_READ = 256  # codes scored in the time of one vector read from SQLite (measured at 1M)
 
 
 class LocalStore(IndexLifecycle):
@@ -293,12 +297,25 @@ class LocalStore(IndexLifecycle):
 
     # --- tools -----------------------------------------------------------------------------------
     def search_vector(
-        self, query: np.ndarray, k: int, filt: Filter | None = None, exact: bool = False
+        self,
+        query: np.ndarray,
+        k: int,
+        filt: Filter | None = None,
+        exact: bool = False,
+        min_score: float | None = None,
     ) -> list[tuple[int, float]]:
         """Top-k (id, cosine). The IVF's 8-bit codes only pick candidates: the best
         `rerank` x k are scored again with their exact vectors from SQLite. `exact=True` is the
-        ground truth (a scan of every vector the filter accepts; slow on big stores)."""
+        ground truth (a scan of every vector the filter accepts; slow on big stores).
+
+        `min_score` keeps only hits scoring at least that: only the candidates whose code
+        score is within the codes' error (`VectorIndex.score_error`) of it are read and
+        re-ranked, so "which of these score above t" reads the few that do, not `rerank` x k
+        vectors. With `exact` and a filter that keeps at most `_CODE_EXACT_MAX` memories, every
+        one of them is scored from its code and only those near or above the floor are read:
+        the same answer as the scan, from a fraction of the reads."""
         q, k, filt = check_query(query, self.dim), check_limit(k), check_filter(filt)
+        floor = check_min_score(min_score)
         with self._lock:
             self._check_open()
             if k == 0 or self._count == 0:
@@ -310,10 +327,30 @@ class LocalStore(IndexLifecycle):
                     return []
             vi = self._vi
             if exact and not vi.exact_scores:
-                return self._scan(q, k, allowed, contiguous)
-            want = k if vi.exact_scores else max(self.rerank * k, _RERANK_MIN)
+                if floor is None or not self._codes_cover(allowed):
+                    return above(self._scan(q, k, allowed, contiguous), floor)
+                assert allowed is not None  # _codes_cover refuses the whole store
+                want = len(allowed)  # every accepted memory's code score
+            else:
+                want = k if vi.exact_scores else max(self.rerank * k, _RERANK_MIN)
             hits = vi.search(q, want, self.nprobe, allowed, exact, self.filter_budget, contiguous)
-            return hits[:k] if vi.exact_scores else self._rescore(q, [i for i, _ in hits], k)
+            if vi.exact_scores:
+                return above(hits[:k], floor)
+            if floor is not None and hits:
+                near = floor - vi.score_error(q[0])
+                sure = vi.trusted(np.array([i for i, _ in hits], np.int64))
+                hits = [h for h, ok in zip(hits, sure, strict=True) if h[1] >= near or not ok]
+            return above(self._rescore(q, [i for i, _ in hits], k), floor)
+
+    def _codes_cover(self, allowed: np.ndarray | None) -> bool:
+        """Whether an exact search should score `allowed` from the index's codes: every stored
+        memory is in the index (none deferred), and the lists that hold them are short enough
+        that scoring all their codes costs less than reading the accepted vectors (a code
+        costs about a 256th of a read; a time window of a robot that saw the same few scenes
+        all along spreads over a few crowded lists)."""
+        if allowed is None or len(allowed) > _CODE_EXACT_MAX or self._vi_upto != self._last_id:
+            return False
+        return self._vi.codes_scanned(allowed) <= _CODES_PER_READ * len(allowed)
 
     def _rescore(self, q: np.ndarray, ids: Sequence[int], k: int) -> list[tuple[int, float]]:
         """Exact cosine of `ids` from their SQLite vectors, best k (older first on ties)."""
@@ -384,6 +421,13 @@ class LocalStore(IndexLifecycle):
         k, filt = check_limit(k), check_filter(filt)
         if not _finite(t) and t not in (float("inf"), float("-inf")):
             raise InputError(f"t: expected a timestamp in seconds, got {t!r}")
+        if filt is not None and filt.region is not None:  # positions from the columns, as select's
+            with self._lock:
+                self._check_open()
+                cols = self._columns()
+                want = cols.ids[cols.first_from(float(t), k, filt)].tolist()
+                found = self._records(want)
+            return [found[i] for i in want if i in found]
         cond, args = _sql.where(filt)
         sql = (
             f"SELECT {_sql.COLS} FROM memories WHERE t >= ?"
@@ -419,27 +463,30 @@ class LocalStore(IndexLifecycle):
     def get(self, ids: Sequence[int], with_embeddings: bool = False) -> list[MemoryRecord]:
         """Records in the order of `ids`; an unknown id raises KeyError."""
         want = [int(i) for i in ids]
-        found: dict[int, MemoryRecord] = {}
-        uniq = sorted({i for i in want if 0 <= i <= MAX_ID})  # others cannot be stored: unknown
         with self._lock:
             self._check_open()
-            for s in range(0, len(uniq), 900):
-                chunk = uniq[s : s + 900]
-                marks = ",".join("?" * len(chunk))
-                rows = self._conn.execute(f"SELECT {_sql.COLS} FROM memories WHERE id IN ({marks})", chunk)
-                vecs = {}
-                if with_embeddings:
-                    vecs = dict(
-                        self._conn.execute(
-                            f"SELECT id, v FROM vectors WHERE id IN ({marks})", chunk
-                        ).fetchall()
-                    )
-                for row in rows.fetchall():
-                    found[int(row[0])] = _sql.to_record(row, vecs.get(row[0]) if with_embeddings else None)
+            found = self._records(want, with_embeddings)
         missing = [i for i in want if i not in found]
         if missing:
             raise KeyError(f"unknown memory id(s): {missing[:10]}")
         return [found[i] for i in want]
+
+    def _records(self, ids: Sequence[int], with_embeddings: bool = False) -> dict[int, MemoryRecord]:
+        """id -> record of the `ids` stored (read in chunks of 900; caller holds the lock)."""
+        found: dict[int, MemoryRecord] = {}
+        uniq = sorted({i for i in ids if 0 <= i <= MAX_ID})  # others cannot be stored: unknown
+        for s in range(0, len(uniq), 900):
+            chunk = uniq[s : s + 900]
+            marks = ",".join("?" * len(chunk))
+            rows = self._conn.execute(f"SELECT {_sql.COLS} FROM memories WHERE id IN ({marks})", chunk)
+            vecs = {}
+            if with_embeddings:
+                vecs = dict(
+                    self._conn.execute(f"SELECT id, v FROM vectors WHERE id IN ({marks})", chunk).fetchall()
+                )
+            for row in rows.fetchall():
+                found[int(row[0])] = _sql.to_record(row, vecs.get(row[0]) if with_embeddings else None)
+        return found
 
     def source_frames(self, source: str) -> SourceFrames:
         """Every memory from `source`, sorted by (frame_index, id), via the source index."""

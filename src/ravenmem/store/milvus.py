@@ -30,11 +30,13 @@ from ._common import (
     DIM_KEY,
     QUAT_COLUMNS,
     RECORD_COLUMNS,
+    above,
     check_add,
     check_dim,
     check_filter,
     check_ids,
     check_limit,
+    check_min_score,
     check_point,
     check_poses,
     check_query,
@@ -349,10 +351,20 @@ class MilvusStore:
 
     # --- tools -----------------------------------------------------------------------------------
     def search_vector(
-        self, query: np.ndarray, k: int, filt: Filter | None = None, exact: bool = False
+        self,
+        query: np.ndarray,
+        k: int,
+        filt: Filter | None = None,
+        exact: bool = False,
+        min_score: float | None = None,
     ) -> list[tuple[int, float]]:
-        """Top-k (id, cosine); a region filter oversamples, then falls back to an exact scan."""
+        """Top-k (id, cosine) scoring at least `min_score` (when given): the top k, then the
+        floor (Milvus reads no vectors of its own to re-rank, so a floor saves nothing here)."""
         q, k, filt = check_query(query, self.dim), check_limit(k), check_filter(filt)
+        return above(self._top_k(q, k, filt, exact), check_min_score(min_score))
+
+    def _top_k(self, q: np.ndarray, k: int, filt: Filter | None, exact: bool) -> list[tuple[int, float]]:
+        """Top-k (id, cosine); a region filter oversamples, then falls back to an exact scan."""
         if k == 0:
             return []
         expr = _expr(filt)

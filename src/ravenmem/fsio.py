@@ -174,6 +174,20 @@ def rollback(conn: sqlite3.Connection) -> None:
         conn.execute("ROLLBACK")
 
 
+@contextmanager
+def write_transaction(conn: sqlite3.Connection) -> Iterator[None]:
+    """One write transaction: BEGIN IMMEDIATE (the write lock taken up front, so two writers
+    queue instead of failing half-way), COMMIT when the block ends, and on any error (a
+    KeyboardInterrupt included) the rollback that leaves the rows as they were, then the error."""
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        yield
+        conn.execute("COMMIT")
+    except BaseException:
+        rollback(conn)
+        raise
+
+
 def reports_full_disk(fn: Callable[P, R]) -> Callable[P, R]:
     """`fn` (a write) with a full disk raised as one `DiskFullError`, whatever raised it (SQLite,
     a thumbnail, the manifest): callers and front ends see one line, "disk full ..."."""

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fsio import rollback, sqlite_reader
+from ..fsio import sqlite_reader, write_transaction
 from ..store.base import Store
 from .folder import GROUPS
 from .recovery import set_aside
@@ -103,8 +103,7 @@ class GroupTable:
             raise ValueError("a consolidation batch deletes at least one memory")
         ids = np.asarray(drop, np.int64)
         c = self._conn
-        c.execute("BEGIN IMMEDIATE")
-        try:
+        with write_transaction(c):
             cur = c.execute(
                 "INSERT INTO batches (witness, drop_ids, created) VALUES (?, ?, ?)",
                 (int(ids[0]), ids.tobytes(), time.time()),
@@ -114,17 +113,12 @@ class GroupTable:
                 "INSERT INTO pending VALUES (?, ?, ?, ?, ?)",
                 [(batch, int(r), int(n), float(a), float(b)) for r, n, a, b in rows],
             )
-            c.execute("COMMIT")
-        except BaseException:
-            rollback(c)
-            raise
         return batch
 
     def commit(self, batch: int) -> None:
         """Phase 3: the store deleted the batch's ids; its rows become the live ones."""
         c = self._conn
-        c.execute("BEGIN IMMEDIATE")
-        try:
+        with write_transaction(c):
             row = c.execute("SELECT drop_ids FROM batches WHERE id = ?", (batch,)).fetchone()
             if row is not None:
                 dropped = np.frombuffer(row[0], np.int64)
@@ -135,21 +129,17 @@ class GroupTable:
                 )
             c.execute("DELETE FROM pending WHERE batch = ?", (batch,))
             c.execute("DELETE FROM batches WHERE id = ?", (batch,))
-            c.execute("COMMIT")
-        except BaseException:
-            rollback(c)
-            raise
 
     def abort(self, batch: int) -> None:
         """The store did not delete: the batch is forgotten, the old rows stay."""
-        with _txn(self._conn):
+        with write_transaction(self._conn):
             self._conn.execute("DELETE FROM pending WHERE batch = ?", (batch,))
             self._conn.execute("DELETE FROM batches WHERE id = ?", (batch,))
 
     def drop(self, ids: Iterable[int]) -> int:
         """Forget the rows of memories that were deleted; returns how many went."""
         arr = np.asarray(list(ids) if not isinstance(ids, np.ndarray) else ids, np.int64)
-        with _txn(self._conn):
+        with write_transaction(self._conn):
             return _delete_reps(self._conn, arr)
 
     def recover(self, store: Store) -> dict[str, int]:
@@ -180,20 +170,6 @@ def _delete_reps(conn: sqlite3.Connection, ids: np.ndarray) -> int:
         cur = conn.execute(f"DELETE FROM groups WHERE rep IN ({','.join('?' * len(chunk))})", chunk)
         n += max(cur.rowcount, 0)
     return n
-
-
-class _txn:
-    def __init__(self, conn: sqlite3.Connection) -> None:
-        self.conn = conn
-
-    def __enter__(self) -> None:
-        self.conn.execute("BEGIN IMMEDIATE")
-
-    def __exit__(self, exc_type: object, *_: object) -> None:
-        if exc_type is not None:
-            rollback(self.conn)
-        else:
-            self.conn.execute("COMMIT")
 
 
 class GroupView:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..fsio import rollback
+from ..fsio import write_transaction
 from ..types import MAX_ANGLE, MAX_COORD, Filter, MemoryRecord, Pose
 from ._common import POSE_COLUMNS, RECORD_COLUMNS, norm_text, pose_values, record_from, record_values
 
@@ -120,8 +120,7 @@ def insert(
 ) -> None:
     """Insert a batch in one transaction: all of it is durable on return, or none of it.
     `meta` keys are set in the same transaction (a bulk import's progress marker)."""
-    conn.execute("BEGIN IMMEDIATE")
-    try:
+    with write_transaction(conn):
         conn.executemany(
             f"INSERT INTO memories ({COLS}) VALUES ({', '.join('?' * (1 + len(RECORD_COLUMNS)))})",
             [record_row(i, r) for i, r in zip(ids, records, strict=True)],
@@ -135,10 +134,6 @@ def insert(
         )
         if meta:
             conn.executemany("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", list(meta.items()))
-        conn.execute("COMMIT")
-    except BaseException:
-        rollback(conn)
-        raise
 
 
 def set_poses(
@@ -147,8 +142,7 @@ def set_poses(
     """New poses for stored memories, and `meta`, in one transaction; KeyError (and nothing
     changed) when an id is not stored."""
     sets = ", ".join(f"{c} = ?" for c in POSE_COLUMNS)
-    conn.execute("BEGIN IMMEDIATE")
-    try:
+    with write_transaction(conn):
         n = 0
         for i, p in zip(ids, poses, strict=True):
             cur = conn.execute(f"UPDATE memories SET {sets} WHERE id = ?", (*pose_values(p), int(i)))
@@ -156,10 +150,6 @@ def set_poses(
                 raise KeyError(f"unknown memory id: {i}")
             n += 1
         conn.executemany("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)", list(meta.items()))
-        conn.execute("COMMIT")
-    except BaseException:
-        conn.execute("ROLLBACK")
-        raise
     return n
 
 
@@ -167,13 +157,8 @@ def delete(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
     """Delete the memories among `ids` (sorted, unique) in one transaction: rows, vectors,
     OCR index entries, and a line each in the deletion log that tells the index caches what
     to drop on open. Returns the ids that existed (and are now gone)."""
-    conn.execute("BEGIN IMMEDIATE")
-    try:
+    with write_transaction(conn):
         gone = _delete_rows(conn, ids)
-        conn.execute("COMMIT")
-    except BaseException:
-        rollback(conn)
-        raise
     return gone
 
 
@@ -224,8 +209,7 @@ def damaged(conn: sqlite3.Connection) -> np.ndarray:
 def set_aside(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
     """Move damaged rows (with their vectors) into the `memories_aside` table and delete them
     as `delete` does, in one transaction; returns the ids moved."""
-    conn.execute("BEGIN IMMEDIATE")
-    try:
+    with write_transaction(conn):
         conn.execute(
             f"CREATE TABLE IF NOT EXISTS {ASIDE} AS SELECT *, NULL AS v, NULL AS set_aside FROM memories WHERE 0"
         )
@@ -239,18 +223,13 @@ def set_aside(conn: sqlite3.Connection, ids: np.ndarray) -> np.ndarray:
                 [time.time(), *chunk],
             )
         gone = _delete_rows(conn, ids)
-        conn.execute("COMMIT")
-    except BaseException:
-        rollback(conn)
-        raise
     return gone
 
 
 def set_ocr_text(conn: sqlite3.Connection, ids: Sequence[int], texts: Sequence[str]) -> int:
     """Replace the OCR text of the memories among `ids` in one transaction, the FTS index
     with it; returns how many exist."""
-    conn.execute("BEGIN IMMEDIATE")
-    try:
+    with write_transaction(conn):
         n = 0
         for i, text in zip(ids, texts, strict=True):
             row = conn.execute("SELECT ocr_text FROM memories WHERE id = ?", (int(i),)).fetchone()
@@ -265,10 +244,6 @@ def set_ocr_text(conn: sqlite3.Connection, ids: Sequence[int], texts: Sequence[s
             if text:
                 conn.execute("INSERT INTO ocr (rowid, folded) VALUES (?, ?)", (int(i), norm_text(text)))
             n += 1
-        conn.execute("COMMIT")
-    except BaseException:
-        conn.execute("ROLLBACK")
-        raise
     return n
 
 

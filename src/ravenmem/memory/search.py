@@ -84,7 +84,21 @@ class Search(Core):
         k = check_k(k)
         self._require_nonempty()
         filt = self.make_filter(None, None, None)
-        return [self._text_hits("", q, k, filt, False, diverse) for q in vecs]
+        if diverse:
+            return [self._text_hits("", q, k, filt, False, diverse) for q in vecs]
+        # every query's k best as `_fused` ranks them, the records read once for all queries
+        ranked = [
+            sorted(
+                ((float(sc), i) for i, sc in dict(self.store.search_vector(q, k, filt)).items()),
+                key=lambda p: (-p[0], p[1]),
+            )[:k]
+            for q in vecs
+        ]
+        recs = {r.id: r for r in self.stored(sorted({i for rows in ranked for _, i in rows}))}
+        return [
+            self.grouped([Hit(memory=recs[i], score=sc, ocr_match=False) for sc, i in rows if i in recs])
+            for rows in ranked
+        ]
 
     def _text_hits(
         self, query: str, q: np.ndarray, k: int, filt: Filter, use_ocr: bool, diverse: bool = True

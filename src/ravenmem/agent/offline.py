@@ -21,15 +21,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import hashlib
 import json
 import re
+import threading
 import time
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -211,6 +214,31 @@ def ocr_overlap(words: Sequence[str], text: str) -> float:
     return hit / len(words)
 
 
+# the decoys' text vectors per embedder object: they depend on the embedder alone, not on the
+# memory, so a process embeds them once (a live memory recalibrates as it grows: searches only)
+_DECOY_VECTORS: weakref.WeakKeyDictionary[Any, tuple[tuple[str, ...], np.ndarray]] = (
+    weakref.WeakKeyDictionary()
+)
+_DECOY_LOCK = threading.Lock()
+
+
+def decoy_vectors(embedder: Any, texts: list[str]) -> np.ndarray:
+    """`embedder.embed_texts(texts)` (the decoys' paraphrases, one batch as ever), kept for the
+    embedder's life; an embedder that cannot be weakly referenced is asked every time."""
+    key = tuple(texts)
+    with _DECOY_LOCK:
+        try:
+            kept = _DECOY_VECTORS.get(embedder)
+        except TypeError:
+            kept = None
+        if kept is not None and kept[0] == key:
+            return kept[1]
+        vecs = np.asarray(embedder.embed_texts(texts))
+        with contextlib.suppress(TypeError):
+            _DECOY_VECTORS[embedder] = (key, vecs)
+        return vecs
+
+
 class OfflineReasoner:
     """Answers position / time / duration / binary / text questions without any model."""
 
@@ -293,6 +321,16 @@ class OfflineReasoner:
         vals = [v for name, v in self._decoy_support.items() if not re.search(rf"\b{re.escape(name)}\b", low)]
         return float(np.quantile(vals, self.s.decoy_quantile))
 
+    def adopt_calibration(self, other: OfflineReasoner) -> bool:
+        """Take `other`'s decoy calibration when it was made on the same memory with the same
+        settings (a served memory's one `support.Judge` lends its own to each question, so `ask`
+        and the search verdicts decline by one threshold and a question does not recalibrate);
+        False, keeping its own, otherwise."""
+        if other.memory is not self.memory or other.s != self.s or other._decoy_support is None:
+            return False
+        self._decoy_support = other._decoy_support
+        return True
+
     def _calibration_key(self) -> str:
         emb = self.memory.embedder.name
         t0, t1 = self.memory.time_span()
@@ -320,7 +358,13 @@ class OfflineReasoner:
     def _calibrate(self) -> dict[str, float]:
         pool = max(1, min(self.memory.count(), self.s.pool))
         groups = [_paraphrases(d) for d in DECOYS]
-        results = iter(self._search_many([q for g in groups for q in g], pool))
+        flat = [q for g in groups for q in g]
+        search_vectors = getattr(self.memory, "search_vectors", None)
+        if search_vectors is not None:  # the decoys embedded once per embedder (`decoy_vectors`)
+            hits = search_vectors(decoy_vectors(self.memory.embedder, flat), k=pool, diverse=False)
+            results = iter([[(h.memory, float(h.score or 0.0)) for h in g] for g in hits])
+        else:
+            results = iter(self._search_many(flat, pool))
         out: dict[str, float] = {}
         for name, g in zip(DECOYS, groups, strict=True):
             table = [{r.id: (r, sc) for r, sc in next(results)} for _ in g]

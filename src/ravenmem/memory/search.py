@@ -74,6 +74,32 @@ class Search(Core):
         vecs = self.embedder.embed_texts(list(queries))
         return [self._text_hits(query, q, k, filt, use_ocr, diverse) for query, q in zip(queries, vecs)]
 
+    def search_vectors(self, vectors: np.ndarray, k: int = 5, diverse: bool = True) -> list[list[Hit]]:
+        """`search_texts(texts, k, ocr=False, diverse=diverse)` for texts already embedded by this
+        memory's embedder (one row each): the offline reasoner keeps its decoys' vectors, so a
+        recalibration is only the searches."""
+        vecs = np.asarray(vectors)  # as given: the rows `search_texts` would search
+        if vecs.ndim != 2 or vecs.shape[0] == 0:
+            raise InputError("search_vectors: expected a non-empty 2-D array of query vectors")
+        k = check_k(k)
+        self._require_nonempty()
+        filt = self.make_filter(None, None, None)
+        if diverse:
+            return [self._text_hits("", q, k, filt, False, diverse) for q in vecs]
+        # every query's k best as `_fused` ranks them, the records read once for all queries
+        ranked = [
+            sorted(
+                ((float(sc), i) for i, sc in dict(self.store.search_vector(q, k, filt)).items()),
+                key=lambda p: (-p[0], p[1]),
+            )[:k]
+            for q in vecs
+        ]
+        recs = {r.id: r for r in self.stored(sorted({i for rows in ranked for _, i in rows}))}
+        return [
+            self.grouped([Hit(memory=recs[i], score=sc, ocr_match=False) for sc, i in rows if i in recs])
+            for rows in ranked
+        ]
+
     def _text_hits(
         self, query: str, q: np.ndarray, k: int, filt: Filter, use_ocr: bool, diverse: bool = True
     ) -> list[Hit]:

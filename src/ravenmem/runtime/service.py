@@ -188,9 +188,15 @@ class Service:
         query = getattr(args, "query", None)
         if tool.key != "text" or not query:
             return hits
-        if self._judge is None:
-            self._judge = Judge(self.mem)
-        return self._judge.mark(query, hits)
+        return self.judge().mark(query, hits)
+
+    def judge(self) -> Judge:
+        """The memory's one `Judge`: its decoy calibration serves the search verdicts and the
+        offline questions alike (`ask`), made again only when the memory has doubled or halved."""
+        with self._traj_lock:
+            if self._judge is None:
+                self._judge = Judge(self.mem)
+            return self._judge
 
     def rows(self, hits: list[Hit], image_url: ImageUrl) -> list[dict[str, Any]]:
         """Hits in the `--json` shape of the CLI, images as URLs."""
@@ -347,6 +353,8 @@ class Service:
                 progress(ev)
 
         method = build_method(self.mem, opts)
+        if self.mem.count() > 0:
+            self.judge().lend(method)  # an offline question: the searches' calibration, not a new one
         watch(method, step)
         result = agent_ask(
             self.mem, AskRequest(args.question, opts, image, plan, args.allow_unsupported), method

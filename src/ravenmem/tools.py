@@ -65,7 +65,7 @@ def check_time_arg(v: Any) -> Any:
 class ToolArgs(BaseModel):
     """Filters every tool takes: a time window."""
 
-    model_config = ConfigDict(extra="forbid", defer_build=True)
+    model_config = ConfigDict(extra="forbid")
     after: TimeArg | None = Field(None, description=f"only memories at or after this time ({_TIME_DOC})")
     before: TimeArg | None = Field(None, description="only memories at or before this time")
 

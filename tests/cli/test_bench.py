@@ -4,22 +4,61 @@ consistency are checked (days per GB follow from the printed bytes and rate), ne
 from __future__ import annotations
 
 import json
+import os
 import re
+import subprocess
+import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
-from tests.cli.helpers import assert_one_line_error, make_memory, run_cli
+from tests.cli.helpers import REPO, assert_one_line_error, make_memory, run_cli
 
 
 def _days(bytes_per_memory: float, rate: float) -> float:
     return 1e9 / (bytes_per_memory * rate * 86_400)
 
 
-def test_bench_json_on_a_synthetic_store_is_consistent() -> None:
-    r = run_cli("bench", "--json", "--rate", "0.5", "--synthetic", "3000", "--seconds", "0.5", timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
-    doc = json.loads(r.stdout)
+@dataclass(frozen=True)
+class Run:
+    """One `ravenmem bench --json --rate 0.5 --synthetic 3000 --seconds 0.5`, read as it ran:
+    its first stderr line, whether it was still running then, the rest, stdout, the exit code."""
+
+    first: str
+    running: bool
+    rest: str
+    out: str
+    returncode: int
+
+
+@pytest.fixture(scope="module")
+def synthetic_run() -> Run:
+    """The synthetic bench, run once for the tests of its report and of its progress lines
+    (a bench run is a minute of CPU)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src"), str(REPO)]))
+    argv = ["bench", "--json", "--rate", "0.5", "--synthetic", "3000", "--seconds", "0.5"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ravenmem.cli.main", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        assert proc.stderr is not None
+        first = proc.stderr.readline()
+        running = proc.poll() is None  # the first step was announced, not reported at the end
+        out, rest = proc.communicate(timeout=600)
+    finally:
+        proc.kill()
+    return Run(first, running, rest, out, proc.returncode)
+
+
+def test_bench_json_on_a_synthetic_store_is_consistent(synthetic_run: Run) -> None:
+    r = synthetic_run
+    assert r.returncode == 0, (r.first + r.rest)[-3000:]
+    doc = json.loads(r.out)
     assert doc["rate"] == 0.5
     st = doc["store"]
     assert st["synthetic"] is True and st["memories"] == 3000 and st["dim"] == 384 and st["errors"] == {}
@@ -83,31 +122,15 @@ def test_bench_bad_input_is_one_line(args: list[str], match: str) -> None:
     assert match in line
 
 
-def test_bench_says_each_step_as_it_goes() -> None:
+def test_bench_says_each_step_as_it_goes(synthetic_run: Run) -> None:
     """Progress on stderr while it runs (the first line comes before the work it announces is
     done), each step numbered, the synthetic store's build counted; stdout keeps the JSON."""
-    import os
-    import subprocess
-    import sys
-
-    from tests.cli.helpers import REPO
-
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src"), str(REPO)]))
-    argv = ["bench", "--json", "--synthetic", "3000", "--seconds", "0.5"]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ravenmem.cli.main", *argv],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
+    first, running, rest, out = (
+        synthetic_run.first,
+        synthetic_run.running,
+        synthetic_run.rest,
+        synthetic_run.out,
     )
-    try:
-        assert proc.stderr is not None
-        first = proc.stderr.readline()
-        running = proc.poll() is None  # the first step was announced, not reported at the end
-        out, rest = proc.communicate(timeout=600)
-    finally:
-        proc.kill()
     assert running and re.match(r"\[1/\d\] embedder offline: loading", first), first
     lines = [first.rstrip("\n"), *rest.splitlines()]
     steps = [ln for ln in lines if ln.startswith("[")]
@@ -116,4 +139,4 @@ def test_bench_says_each_step_as_it_goes() -> None:
         f"[{i}/{total}" for i in range(1, total + 1)
     ]
     assert any(re.search(r"store: building a synthetic one: 3000/3000 \(100%\)", ln) for ln in lines), lines
-    assert proc.returncode == 0 and json.loads(out)["store"]["memories"] == 3000
+    assert synthetic_run.returncode == 0 and json.loads(out)["store"]["memories"] == 3000

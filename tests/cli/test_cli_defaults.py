@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from ravenmem.cli.commands import COMMANDS
 from tests.cli.helpers import run_cli
 from tests.conftest import TUM, tum_data
 
@@ -72,11 +73,26 @@ def test_search_is_diverse_unless_no_diverse(every_frame: Path) -> None:
     assert len(json.loads(r.stdout)["results"]) == 3
 
 
+# the modules of the other commands (ask, eval, serve, nav...) and what only they use
+OTHER_COMMANDS = {f"ravenmem.cli.{m}" for m, _ in COMMANDS.values()} | {"ravenmem.eval", "openai", "fastapi"}
+
+
 def test_commands_load_only_what_they_need(every_frame: Path) -> None:
     for args in (["info"], ["search", "--time", "+0.1s"]):
         r = rm(*args, "-m", str(every_frame), importtime=True)
         assert r.returncode == 0, r.stderr
         assert "torch" not in imported(r.stderr), args  # no model at all for these
+        assert not OTHER_COMMANDS & imported(r.stderr), args  # nor another command's code
+    r = rm("info", "-m", str(every_frame), importtime=True)
+    assert r.returncode == 0 and "ravenmem.agent" not in imported(r.stderr)  # info asks nothing
+    for args in (["--help"], ["search", "--help"], ["info", "-h"]):
+        r = rm(*args, importtime=True)
+        assert r.returncode == 0 and "Usage: ravenmem" in r.stdout, r.stderr
+        assert not OTHER_COMMANDS & imported(r.stderr) and "ravenmem.agent" not in imported(r.stderr), args
+    r = rm("ask", "--help", importtime=True)  # a command of another module loads that module only
+    mods = imported(r.stderr)
+    assert r.returncode == 0 and "--allow-unsupported" in r.stdout, r.stderr
+    assert "ravenmem.cli.agent" in mods and not {"ravenmem.cli.eval", "ravenmem.cli.serve"} & mods
     r = rm("search", "-m", str(every_frame), "a computer keyboard", importtime=True)
     assert r.returncode == 0, r.stderr
     mods = imported(r.stderr)
@@ -102,3 +118,33 @@ def test_ingest_default_on_real_tum_sparsifies(tmp_path: Path) -> None:
     assert out["keyframe_ratio"] == pytest.approx(723 / out["kept"], abs=1e-3)
     assert out["skipped"]["similar to last keyframe"] >= 1  # the novelty rule did its part
     assert out["compression_vs_raw"] > 500
+
+
+def test_the_command_table_is_what_the_modules_register() -> None:
+    """`ravenmem --help` lists the other modules' commands from `cli.commands` without importing
+    them: the table names each command's module, in the order of the full command tree, with
+    the first paragraph of its help (what the listing shortens)."""
+    import typer
+
+    from ravenmem.cli.main import LazyGroup, _extension, every_command
+
+    group = typer.main.get_command(every_command())
+    assert isinstance(group, LazyGroup)
+    core = ["ingest", "search", "info", "name"]
+    assert list(group.commands) == core + list(COMMANDS)  # every command, in the listed order
+    for name, (module, text) in COMMANDS.items():
+        sub = _extension(module)
+        names = [c.name for c in sub.registered_commands] + [g.name for g in sub.registered_groups]
+        assert name in names, (name, module)
+        first = (group.commands[name].help or "").split("\n\n")[0]
+        assert " ".join(text.split()) == " ".join(first.split()), name
+
+
+def test_unknown_and_misspelt_commands_are_named_as_before() -> None:
+    """A misspelt command is suggested from every command, the lazily loaded ones included."""
+    r = rm("consolidat")
+    line = r.stderr.strip()
+    assert r.returncode == 2 and line.startswith("error: No such command 'consolidat'"), r.stderr
+    assert "consolidate" in line and "Traceback" not in r.stderr
+    r = rm("eval", "stdy")
+    assert r.returncode == 2 and "No such command 'stdy'" in r.stderr and "study" in r.stderr

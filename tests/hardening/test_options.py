@@ -56,3 +56,17 @@ def test_the_option_model_is_checked_before_the_command_runs() -> None:
     assert model is not None and {"k", "like", "radius", "sheet"} <= set(model.model_fields)
     with pytest.raises(InputError, match=r"^--k: expected a whole number from 1 to 1000, got 0$"):
         search(memory=Path("/nonexistent.mem"), text="red", k=0)  # refused before the memory is opened
+
+
+@pytest.mark.parametrize("name,func", _commands(), ids=lambda v: v if isinstance(v, str) else "")
+def test_every_commands_option_model_builds(name: str, func: typing.Any) -> None:
+    """The models are built when a command first runs (not at start): a declaration they
+    cannot take must still fail here, not in a user's first run."""
+    assert getattr(func, "__checked__", False), name  # wrapped by check_commands
+    model = options_model(func.__wrapped__)
+    kinds = [
+        p
+        for p, hint in typing.get_type_hints(func.__wrapped__, include_extras=True).items()
+        if any(isinstance(m, Kind) for m in _plain(hint)[1])
+    ]
+    assert (model is None) == (not kinds) and set(kinds) <= set(model.model_fields if model else ()), name

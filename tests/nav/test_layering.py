@@ -118,13 +118,14 @@ def test_the_checker_sees_relative_and_lazy_imports() -> None:
 
 
 def test_importing_a_package_pulls_in_no_higher_floor() -> None:
-    # `import ravenmem` itself loads the memory facade; on top of that, importing the simulator
+    # the base: the memory facade (`import ravenmem` loads it on first use of `ravenmem.open`,
+    # so it is imported here explicitly); on top of that, importing the simulator
     # must load no navigation, and navigation no simulator, robot, agent or ingest code.
     code = (
         "import importlib, json, sys\n"
         "def floors(mods):\n"
         "    return sorted({m.split('.')[1] for m in mods if m.startswith('ravenmem.')})\n"
-        "import ravenmem\n"
+        "import ravenmem, ravenmem.memory\n"
         "base = set(sys.modules)\n"
         "out = {'ravenmem': floors(base)}\n"
         "for pkg, mods in (('sim', ('vizdoom', 'synthetic', 'control', 'groundtruth', 'queries')),\n"

@@ -9,7 +9,6 @@ Other areas (agent, nav, eval) add their commands through a `register(app)` in t
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import json
 import math
 import os
@@ -19,6 +18,8 @@ from typing import Annotated, Any
 
 import typer
 from rich.table import Table
+from typer import _click as click
+from typer.core import TyperCommand, TyperGroup
 
 from ..errors import InputError, RavenmemError
 from ..fsio import disk_full, size_text
@@ -26,6 +27,7 @@ from ..threads import share_cores
 from ..timeparse import fmt_time
 from ..tools import TextArgs
 from ._console import esc, out_console, print_error, print_warning
+from .commands import COMMANDS
 from .options import (
     BATCH,
     DEPTH_SCALE,
@@ -51,8 +53,67 @@ os.environ.setdefault("TRANSFORMERS_VERBOSITY", "error")
 # Downloads are allowed (`--embedder hf:openai/clip-vit-base-patch32` fetches the model once);
 # set HF_HUB_OFFLINE=1 yourself to forbid them.
 
+
+class LazyGroup(TyperGroup):
+    """The root command: the other modules' commands (`cli.commands.COMMANDS`) are imported
+    when one of them runs or shows its help, not on every start; `ravenmem --help` lists
+    them from the table. Help, errors and suggestions are those of the eager command tree."""
+
+    def _load(self, module: str) -> None:
+        sub = _extension(module)
+        for info in sub.registered_commands:
+            cmd = typer.main.get_command_from_info(
+                info,
+                pretty_exceptions_short=root.pretty_exceptions_short,
+                rich_markup_mode=root.rich_markup_mode,
+            )
+            self.commands[cmd.name or ""] = cmd
+        for group in sub.registered_groups:
+            grp = typer.main.get_group_from_info(
+                group,
+                pretty_exceptions_short=root.pretty_exceptions_short,
+                rich_markup_mode=root.rich_markup_mode,
+                suggest_commands=self.suggest_commands,
+            )
+            self.commands[grp.name or ""] = grp
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        own = [n for n in self.commands if n not in COMMANDS]
+        return own + list(COMMANDS)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in self.commands and cmd_name in COMMANDS:
+            self._load(COMMANDS[cmd_name][0])
+        return self.commands.get(cmd_name)
+
+    def resolve_command(
+        self, ctx: click.Context, args: list[str]
+    ) -> tuple[str | None, click.Command | None, list[str]]:
+        if args and args[0] not in self.commands and args[0] not in COMMANDS:
+            for module in dict.fromkeys(m for m, _ in COMMANDS.values()):  # "did you mean" sees all
+                if not any(n in self.commands for n, (m, _) in COMMANDS.items() if m == module):
+                    self._load(module)
+        return super().resolve_command(ctx, args)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The command list of `ravenmem --help`: commands not imported yet by their table entry."""
+        for name, (_, text) in COMMANDS.items():
+            if name not in self.commands:
+                self.commands[name] = _Listed(name, help=text)
+        try:
+            super().format_commands(ctx, formatter)
+        finally:
+            for name in [n for n, c in self.commands.items() if isinstance(c, _Listed)]:
+                del self.commands[name]
+
+
+class _Listed(TyperCommand):
+    """A command of the table while `ravenmem --help` lists it (its help, nothing to run)."""
+
+
 PROG = "ravenmem"
-app = typer.Typer(
+root = typer.Typer(
+    cls=LazyGroup,
     add_completion=False,
     no_args_is_help=True,
     help="ravenmem: a long-term visual memory for robots.",
@@ -102,7 +163,7 @@ def _version(value: bool) -> None:
         raise typer.Exit(0)
 
 
-@app.callback()
+@root.callback()
 def _root(
     version: Annotated[
         bool,
@@ -127,7 +188,7 @@ MAP_ID_HELP = (
 )
 
 
-@app.command()
+@root.command()
 def ingest(
     source: Annotated[
         str,
@@ -319,7 +380,7 @@ def _mapper(memory: Path, src: Any, intrinsics: str | None) -> Any:
     return MapBuilder(memory, intr, getattr(src, "camera_extrinsic", None))
 
 
-@app.command()
+@root.command()
 def search(
     memory: MemoryOrServerOpt = None,
     text: Annotated[str | None, typer.Argument(metavar="TEXT", help="text query")] = None,
@@ -449,7 +510,7 @@ def _render_hits(rows: list[dict[str, Any]], tool: Any, call: Any, mode: str, la
         )
 
 
-@app.command()
+@root.command()
 def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: JsonOpt = False) -> None:
     """Counts, time span, extent, embedder, bytes per memory and compression of a memory."""
     from .source import open_source
@@ -463,7 +524,7 @@ def info(memory: MemoryOrServerOpt = None, server: ServerOpt = None, json_out: J
         console.print(f"{label:>12}  {esc(value)}", highlight=False)
 
 
-@app.command("name")
+@root.command("name")
 def name_cmd(
     memory: MemoryOpt,
     new: Annotated[
@@ -599,20 +660,38 @@ def info_lines(data: dict[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
-def _register_extensions() -> None:
-    """Let the agent / nav / eval areas add their commands when their modules are present."""
-    for mod in ("agent", "nav", "eval", "store", "serve", "lifelong", "viz", "bench", "align", "ros"):
-        try:
-            module = importlib.import_module(f"ravenmem.cli.{mod}")
-        except ModuleNotFoundError as e:
-            if e.name == f"ravenmem.cli.{mod}":
-                continue
-            raise
-        module.register(app)
+def _extension(module: str) -> typer.Typer:
+    """The commands `ravenmem.cli.<module>` adds, registered on an app of their own and checked
+    by their option models (as every command is: `check_commands`)."""
+    sub = typer.Typer()
+    # (`__import__`, not `importlib.import_module`: `python -X importtime` lists what it loads)
+    __import__(f"ravenmem.cli.{module}", fromlist=["register"]).register(sub)
+    check_commands(sub)
+    return sub
 
 
-_register_extensions()
-check_commands(app)  # every command's options, checked once by its option model (cli.options)
+def every_command() -> typer.Typer:
+    """The root app with every module's commands registered on it, as `app` (the command
+    reference, tests that walk the tree): imports them all."""
+    if not _every:
+        for module in dict.fromkeys(m for m, _ in COMMANDS.values()):
+            sub = _extension(module)
+            root.registered_commands += sub.registered_commands
+            root.registered_groups += sub.registered_groups
+        _every.append(True)
+    return root
+
+
+_every: list[bool] = []
+
+
+def __getattr__(name: str) -> Any:
+    if name == "app":  # the whole command tree, every module's commands registered
+        return every_command()
+    raise AttributeError(name)
+
+
+check_commands(root)  # every command's options, checked once by its option model (cli.options)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -631,7 +710,7 @@ def main(argv: list[str] | None = None) -> None:
         if reconfigure is not None:
             reconfigure(errors="backslashreplace")
     try:
-        rc = app(args=argv, prog_name=PROG, standalone_mode=False)
+        rc = root(args=argv, prog_name=PROG, standalone_mode=False)
     except RavenmemError as e:
         print_error(e)
         sys.exit(2)

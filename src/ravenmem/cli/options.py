@@ -289,15 +289,21 @@ def options_model(func: Callable[..., Any]) -> type[BaseModel] | None:
 
 def checked(func: Callable[..., Any]) -> Callable[..., Any]:
     """`func` with its options validated by its option model before it runs (see the module
-    docstring); a command with no annotated option is returned as it is."""
-    model = options_model(func)
-    if model is None or getattr(func, "__checked__", False):
+    docstring). The model is built when the command first runs, not when the command line is
+    built: `ravenmem search` does not pay for the models of options it was not given."""
+    if getattr(func, "__checked__", False):
         return func
-    kinds = _kinds(func)
     sig = inspect.signature(func)
+
+    @functools.cache
+    def model_and_kinds() -> tuple[type[BaseModel] | None, dict[str, tuple[Any, Kind, str]]]:
+        return options_model(func), _kinds(func)
 
     @functools.wraps(func)
     def run(*args: Any, **kwargs: Any) -> Any:
+        model, kinds = model_and_kinds()
+        if model is None:  # a command with no annotated option runs as it is
+            return func(*args, **kwargs)
         bound = sig.bind_partial(*args, **kwargs)
         given = {n: bound.arguments.get(n) for n in kinds}
         try:

@@ -10,12 +10,14 @@ from __future__ import annotations
 import base64
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import InputError
 from ..fsio import MAX_IMAGE, read_bounded
-from ..runtime.ask import AskArgs
 from ..tools import Tool, ToolArgs
+
+if TYPE_CHECKING:  # (the agent is imported only by a command that asks)
+    from ..runtime.ask import AskArgs
 
 ENV_SERVER = "RAVENMEM_SERVER"
 ENV_TOKEN = "RAVENMEM_TOKEN"

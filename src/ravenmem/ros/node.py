@@ -466,8 +466,6 @@ def main(argv: list[str] | None = None) -> None:
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from ..server.run import warm_up
-
     with _stderr_held() as said:  # rcl logs a bad argument itself before raising
         try:  # a malformed --ros-args (rcl parses it) is the user's input: one line, exit 2
             rclpy.init(args=["ravenmem", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
@@ -488,7 +486,7 @@ def main(argv: list[str] | None = None) -> None:
         service = _open_service(args.memory, args.create, settings)
         ros_node = RavenmemNode(node, settings, service)
         service.attach(ros_node)
-        warm_up(service)  # the embedder loaded and run once: the first search is as fast as the next
+        service.warm_up()  # the embedder loaded and run once: the first search is as fast as the next
         executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         node.get_logger().info(f"ravenmem: {args.memory} ({service.mem.count()} memories), ready")

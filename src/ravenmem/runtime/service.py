@@ -154,6 +154,14 @@ class Service:
         """End the open event streams (the server is stopping; listeners reconnect elsewhere)."""
         self.bus.close()
 
+    def warm_up(self) -> None:
+        """Load the embedder and run it once, so the first question is as fast as the next
+        (every front end that serves calls it before it says it is ready)."""
+        emb = self.mem.embedder
+        emb.embed_texts(["warm up"])
+        if self.cfg.writable:
+            emb.embed_images([np.zeros((32, 32, 3), np.uint8)])
+
     def close(self) -> None:
         """Store what is queued, note the live counts in the manifest, end the streams, close."""
         for link in self._links:

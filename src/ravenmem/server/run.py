@@ -44,16 +44,6 @@ def listen(host: str, port: int) -> socket.socket:
     return sock
 
 
-def warm_up(service: Service) -> None:
-    """Load the embedder and run it once, so the first question is as fast as the next."""
-    import numpy as np
-
-    emb = service.mem.embedder
-    emb.embed_texts(["warm up"])
-    if service.cfg.writable:
-        emb.embed_images([np.zeros((32, 32, 3), np.uint8)])
-
-
 def serve(
     memory: Path,
     host: str = "127.0.0.1",
@@ -108,7 +98,7 @@ def serve(
                 mem.close()
                 raise
         service = Service(mem, cfg)
-        warm_up(service)
+        service.warm_up()
         try:
             for start_link in links:
                 start_link(service)

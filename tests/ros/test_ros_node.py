@@ -60,6 +60,17 @@ def _diag(box: list[Any]) -> dict[str, str]:
     return {kv.key: kv.value for kv in box[-1].status[0].values}
 
 
+def _ask_by_action(action: Any, goal: Any) -> tuple[Any, list[Any]]:
+    """Send one question to the question action and wait until it is accepted and answered:
+    (the result response, with .status and .result; the feedback messages received)."""
+    feedback: list[Any] = []
+    accepted = action.send_goal_async(goal, feedback_callback=feedback.append)
+    wait_for(lambda: accepted.done(), 60, "the action to accept the goal")
+    ended = accepted.result().get_result_async()
+    wait_for(lambda: ended.done(), 120, "the action's result")
+    return ended.result(), feedback
+
+
 def _ingest(mem: Path) -> dict[str, Any]:
     manifest = json.loads((mem / "memory.json").read_text())
     return next(r for r in manifest["ingests"] if r.get("source") == "ros")
@@ -232,14 +243,8 @@ def test_compressed_tf_params_file_sim_time_navigate_to_pose(ros: Path, tmp_path
 
         action = ActionClient(client.node, AskAction, "/ravenmem/ask_action")
         assert action.wait_for_server(timeout_sec=30)
-        feedback: list[Any] = []
-        sent_goal = action.send_goal_async(
-            AskAction.Goal(question="where is the desk?"), feedback_callback=feedback.append
-        )
-        wait_for(lambda: sent_goal.done(), 60, "the action to accept the goal")
-        result = sent_goal.result().get_result_async()
-        wait_for(lambda: result.done(), 120, "the action's result")
-        assert result.result().result.found and result.result().result.goal.header.frame_id == ""
+        done, _ = _ask_by_action(action, AskAction.Goal(question="where is the desk?"))
+        assert done.result.found and done.result.goal.header.frame_id == ""
         assert len(got) == 1  # an action without navigate drives nowhere
 
         # canceled while the robot drives there: the question ends canceled, and so does the drive
@@ -338,14 +343,8 @@ def test_images_lost_in_a_burst_are_counted_and_the_action_reports_each_tool_cal
 
             action = ActionClient(client.node, AskAction, "/ravenmem/ask_action")
             assert action.wait_for_server(timeout_sec=30)
-            feedback: list[Any] = []
-            accepted = action.send_goal_async(
-                AskAction.Goal(question="where is the desk?"), feedback_callback=feedback.append
-            )
-            wait_for(lambda: accepted.done(), 60, "the action to accept the goal")
-            ended = accepted.result().get_result_async()
-            wait_for(lambda: ended.done(), 120, "the action's result")
-            result = ended.result().result
+            done, feedback = _ask_by_action(action, AskAction.Goal(question="where is the desk?"))
+            result = done.result
         finally:
             client.close()
             text = stop(node, log)

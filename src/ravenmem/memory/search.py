@@ -87,13 +87,7 @@ class Search(Core):
         if diverse:
             return [self._text_hits("", q, k, filt, False, diverse) for q in vecs]
         # every query's k best as `_fused` ranks them, the records read once for all queries
-        ranked = [
-            sorted(
-                ((float(sc), i) for i, sc in dict(self.store.search_vector(q, k, filt)).items()),
-                key=lambda p: (-p[0], p[1]),
-            )[:k]
-            for q in vecs
-        ]
+        ranked = [_ranked(dict(self.store.search_vector(q, k, filt)), k) for q in vecs]
         recs = {r.id: r for r in self.stored(sorted({i for rows in ranked for _, i in rows}))}
         return [
             self.grouped([Hit(memory=recs[i], score=sc, ocr_match=False) for sc, i in rows if i in recs])
@@ -113,11 +107,7 @@ class Search(Core):
             for r in self.store.get(missing, with_embeddings=True):
                 assert r.embedding is not None
                 scored[r.id] = float(np.dot(r.embedding, q))
-        # best first; equal scores: the earlier memory first, however many candidates were fetched
-        fused = sorted(
-            ((s + OCR_WEIGHT * ocr.get(i, 0.0), i) for i, s in scored.items()), key=lambda p: (-p[0], p[1])
-        )[:k]
-        hits = self._hits([(i, s) for s, i in fused])
+        hits = self._hits([(i, s) for s, i in _ranked(scored, k, ocr)])
         for h in hits:
             h.ocr_match = h.memory.id in ocr
         return hits
@@ -233,3 +223,13 @@ class Search(Core):
             if len(hits) >= k or len(scored) < want or want >= MAX_K:
                 return hits[:k]
             want = min(MAX_K, 4 * want)
+
+
+def _ranked(scored: dict[int, float], k: int, ocr: dict[int, float] | None = None) -> list[tuple[float, int]]:
+    """(score, id) of the k best, an OCR match's weight added: best first; equal scores put the
+    earlier memory first, however many candidates were fetched."""
+    bonus = ocr or {}
+    return sorted(
+        ((float(s) + OCR_WEIGHT * bonus.get(i, 0.0), i) for i, s in scored.items()),
+        key=lambda p: (-p[0], p[1]),
+    )[:k]

@@ -12,21 +12,35 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ..agent.progress import ToolStep
 from .convert import fill, to_dict
-from .services import ask_reply
+from .services import ServiceBackend, ask_reply
 
 if TYPE_CHECKING:
-    from .node import RavenmemNode
+    from .navigate import Navigator
 
 HEARTBEAT_S = 1.0  # a feedback at least this often while the answer runs
 POLL_S = 0.1  # how soon a cancel request is noticed
 
 
+class Host(Protocol):
+    """What the action uses of the node that serves it (`ros.node.RavenmemNode`)."""
+
+    node: Any
+    backend: ServiceBackend
+    navigator: Navigator | None
+
+    def stamp(self) -> Any: ...
+
+    def drop_answers_on_this_thread(self, canceled: Callable[[], bool] | None) -> None:
+        """While `canceled()` is true, answers given on this thread publish nothing."""
+
+
 class AskAction:
-    def __init__(self, owner: RavenmemNode, group: Any) -> None:
+    def __init__(self, owner: Host, group: Any) -> None:
         from ravenmem_msgs.action import Ask
         from rclpy.action import ActionServer, CancelResponse
 
@@ -49,11 +63,11 @@ class AskAction:
         dropped = threading.Event()  # set once canceled (the handle's own flag clears when it ends)
 
         def work() -> None:
-            self.owner._local.canceled = lambda: dropped.is_set() or handle.is_cancel_requested
+            self.owner.drop_answers_on_this_thread(lambda: dropped.is_set() or handle.is_cancel_requested)
             try:
                 box["reply"] = ask_reply(self.owner.backend, request, steps.put)
             finally:
-                self.owner._local.canceled = None
+                self.owner.drop_answers_on_this_thread(None)
                 steps.put(None)
 
         threading.Thread(target=work, name="ravenmem-ask-action", daemon=True).start()

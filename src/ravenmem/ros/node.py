@@ -32,7 +32,7 @@ import signal
 import sys
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -294,6 +294,11 @@ class RavenmemNode:
 
     def stamp(self) -> Any:
         return self.node.get_clock().now().to_msg()
+
+    def drop_answers_on_this_thread(self, canceled: Callable[[], bool] | None) -> None:
+        """While `canceled()` is true, `on_answer` publishes nothing for answers given on the
+        calling thread (a canceled question action's; None ends it)."""
+        self._local.canceled = canceled
 
     def _on_camera_info(self, msg: Any) -> None:
         why = self.intake.camera_info_ok(msg)

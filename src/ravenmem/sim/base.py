@@ -96,7 +96,7 @@ class Environment(Protocol):
 ENVIRONMENTS: Registry[Environment] = Registry(
     "environment",
     "ravenmem.environments",
-    {"vizdoom": "ravenmem.sim.vizdoom", "synthetic": "ravenmem.sim.synthetic"},
+    {"vizdoom": "ravenmem.sim.vizdoom", "synthetic": "ravenmem.sim.worlds"},
 )
 
 

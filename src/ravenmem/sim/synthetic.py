@@ -3,7 +3,8 @@
 It needs no simulator package, so the whole explore -> remember -> navigate loop can be tested
 anywhere. Walls are vertical segments `wall_height` tall, objects are square boxes with a class
 name, flat-shaded (an image embedder recognises little there) or with a photograph printed on
-each side (`Box.photo`: the `gallery` world, real pictures an ImageNet embedder knows).
+each side (`Box.photo`: the `gallery` world, real pictures an ImageNet embedder knows). The
+worlds themselves and the `synthetic:NAME` environments are `ravenmem.sim.worlds`.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..types import Intrinsics, Pose
-from .base import ENVIRONMENTS, Observation, RobotSpec, SceneObject
+from .base import Observation, RobotSpec, SceneObject
 
 
 @dataclass(frozen=True)
@@ -55,15 +56,6 @@ def rooms_world() -> World:
         Box("GreenBox", 14.0, 4.8, half=0.4, height=1.0, color=(40, 170, 60)),
     ]
     return World(np.asarray(walls, np.float64), boxes, start=(2.0, 1.5, 0.5))
-
-
-def _gallery() -> World:
-    from .gallery import gallery_world
-
-    return gallery_world()
-
-
-WORLDS = {"rooms": rooms_world, "gallery": _gallery}
 
 
 class SyntheticEnv:
@@ -322,11 +314,3 @@ def photo(name: str) -> np.ndarray:
         raise InputError(f"synthetic world: no photo {name!r} in {path.parent}")
     with Image.open(path) as im:
         return np.asarray(im.convert("RGB"), dtype=np.float64)
-
-
-@ENVIRONMENTS.register("synthetic")
-def _make_synthetic(spec: str = "", **kwargs: object) -> SyntheticEnv:
-    name = spec or "rooms"
-    if name not in WORLDS:
-        raise InputError(f"synthetic:{name}: unknown world; choose one of: {', '.join(sorted(WORLDS))}")
-    return SyntheticEnv(WORLDS[name](), name=f"synthetic:{name}", **kwargs)  # type: ignore[arg-type]

@@ -7,6 +7,12 @@ moved halfway, a kettle taken away at 80 %, a plant that never moves). For each 
 p90 of `search_text("mug", k=5)` and of `last_seen("mug")` over alternating calls, their ratio
 (p50 over p50), and whether the latest mode's verdicts are right. `--keep DIR` keeps the built
 memories there and reuses them on the next run (a million memories take minutes to build).
+
+`--phases` also prints where a question's time goes (the latest mode's steps and the store calls
+under them, wrapped with a clock: the sum of steps is the question). `--ram-vectors` measures a
+store that reads vectors at RAM speed, as a memory-mapped vector file beside SQLite would: every
+vector is loaded into RAM first and the store's exact re-scoring reads them from there; both
+tools are timed again on it, side by side, so the ratio says whether such a file closes the gap.
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +35,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_changes import Labels, build_patrol, patrol, timings, verdicts  # noqa: E402
 
 import ravenmem  # noqa: E402
+from ravenmem.memory import changes  # noqa: E402
+from ravenmem.store import _sql, local  # noqa: E402
+
+STEPS = ("_search", "seen_index", "_recent", "group_sightings", "grow", "merge", "revisits", "_judge")
+STORE_CALLS = ("search_vector", "_rescore", "_records", "by_time", "select")
 
 
 def open_or_build(folder: Path, n: int, dim: int) -> tuple[ravenmem.Memory, float]:
@@ -41,12 +53,76 @@ def open_or_build(folder: Path, n: int, dim: int) -> tuple[ravenmem.Memory, floa
     return mem, time.perf_counter() - t
 
 
+def phases(mem: ravenmem.Memory, reps: int) -> None:
+    """Mean ms per question of each step of `Changes.last_seen` and of the store calls."""
+    spent: dict[str, float] = {}
+    calls: dict[str, int] = {}
+    saved: list[tuple[object, str, object]] = [(changes, n, getattr(changes, n)) for n in STEPS]
+    saved += [(local.LocalStore, n, getattr(local.LocalStore, n)) for n in STORE_CALLS]
+
+    def clocked(name: str, fn: object) -> object:
+        def run(*a: object, **kw: object) -> object:
+            t = time.perf_counter()
+            try:
+                return fn(*a, **kw)  # type: ignore[operator]
+            finally:
+                spent[name] = spent.get(name, 0.0) + time.perf_counter() - t
+                calls[name] = calls.get(name, 0) + 1
+
+        return run
+
+    for owner, name, fn in saved:
+        setattr(owner, name, clocked(("store." if owner is local.LocalStore else "") + name, fn))
+    try:
+        t = time.perf_counter()
+        for _ in range(reps):
+            mem.last_seen("mug")
+        total = (time.perf_counter() - t) / reps
+    finally:
+        for owner, name, fn in saved:
+            setattr(owner, name, fn)
+    print(
+        f"  where a question's {1000 * total:.1f} ms go (mean of {reps}; steps, then store calls under them):"
+    )
+    for name, sec in sorted(spent.items(), key=lambda kv: (kv[0].startswith("store."), -kv[1])):
+        print(f"    {name:<22} {1000 * sec / reps:6.1f} ms  {calls[name] / reps:5.0f} calls")
+
+
+def ram_vectors(mem: ravenmem.Memory) -> None:
+    """Re-score from every vector held in RAM (as a memory-mapped vector file would serve them)."""
+    store = mem.store
+    assert isinstance(store, local.LocalStore)
+    top = int(store.select()[-1])
+    table = np.zeros((top + 1, store.dim), np.float32)
+    for ids, vecs in _sql.read_vectors(store._conn, 0, top):
+        table[ids] = vecs
+
+    def rescore(self: local.LocalStore, q: np.ndarray, ids: Sequence[int], k: int) -> list[tuple[int, float]]:
+        got = np.asarray(ids, np.int64)
+        return local._top(got, table[got] @ q[0], k) if len(got) else []
+
+    local.LocalStore._rescore = rescore  # type: ignore[method-assign]
+
+
+def report(mem: ravenmem.Memory, n: int, build: float, reps: int, label: str = "") -> None:
+    st, ls = timings(mem, reps)
+    checks = verdicts(mem)
+    p = lambda xs, q: 1000 * float(np.percentile(xs, q))  # noqa: E731
+    print(
+        f"{n:>9} {build:>8.1f} | {p(st, 50):>11.1f} {p(st, 90):>6.1f} | {p(ls, 50):>9.1f} "
+        f"{p(ls, 90):>6.1f} | {p(ls, 50) / p(st, 50):>4.1f}x | " + "; ".join(checks) + label,
+        flush=True,
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="100000,1000000")
     ap.add_argument("--dim", type=int, default=384)
     ap.add_argument("--reps", type=int, default=20)
     ap.add_argument("--keep", type=Path, default=None, help="build the memories here and reuse them")
+    ap.add_argument("--phases", action="store_true", help="where a question's time goes, step by step")
+    ap.add_argument("--ram-vectors", action="store_true", help="again with every vector read from RAM")
     args = ap.parse_args()
     folder = args.keep or Path(tempfile.mkdtemp(prefix="bench-last-seen-"))
     folder.mkdir(parents=True, exist_ok=True)
@@ -58,15 +134,16 @@ def main() -> None:
         for n in [int(s) for s in args.sizes.split(",") if s]:
             mem, build = open_or_build(folder, n, args.dim)
             mem.last_seen("mug")  # warm: the first call reads the index and pages from disk
-            st, ls = timings(mem, args.reps)
-            checks = verdicts(mem)
+            report(mem, n, build, args.reps)
+            if args.phases:
+                phases(mem, args.reps)
+            if args.ram_vectors:
+                ram_vectors(mem)
+                mem.last_seen("mug")
+                report(mem, n, 0.0, args.reps, " (vectors read from RAM)")
+                if args.phases:
+                    phases(mem, args.reps)
             mem.close()
-            p = lambda xs, q: 1000 * float(np.percentile(xs, q))  # noqa: E731
-            print(
-                f"{n:>9} {build:>8.1f} | {p(st, 50):>11.1f} {p(st, 90):>6.1f} | {p(ls, 50):>9.1f} "
-                f"{p(ls, 90):>6.1f} | {p(ls, 50) / p(st, 50):>4.1f}x | " + "; ".join(checks),
-                flush=True,
-            )
     finally:
         if args.keep is None:
             shutil.rmtree(folder, ignore_errors=True)

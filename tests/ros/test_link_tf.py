@@ -148,9 +148,15 @@ def test_nearest_matching_on_tf() -> None:
         lk.pose("tf", w.tf(t))
     lk.image("cam", w.image(10.06, w.picture(0)))  # 10.05 is 0.01 s away
     lk.image("cam", w.image(10.1, w.picture(1)))  # 0.05 s from both
-    assert lk.stats.skipped == {GAP: 1} and lk.stats.stored == 1
+    lk.image("cam", w.image(9.9, w.picture(2)))  # 0.05 s before the first
+    assert lk.stats.skipped == {GAP: 1, TOO_OLD: 1} and lk.stats.stored == 1
     assert_pose(sink.frames[0][1], *w.motion(10.05))
     assert sink.frames[0][2] == pytest.approx(10.06)
+    lk.image("cam", w.image(10.76, w.picture(3)))  # after the newest: waits for a later pose
+    assert lk.waiting == 1
+    lk.flush()  # none came: the newest, 0.01 s away, is the nearest
+    assert lk.stats.stored == 2 and sink.frames[1][2] == pytest.approx(10.76)
+    assert_pose(sink.frames[1][1], *w.motion(POSE_TIMES[-1]))
 
 
 def test_tf_refusals_and_notes() -> None:

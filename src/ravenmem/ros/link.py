@@ -238,7 +238,8 @@ class PoseHistory:
     when unset), so both resolve a pose alike: each moving transform interpolated at the stamp,
     refused as `tf.TOO_OLD` or `tf.GAP` in the node's words, and an image newer than the newest
     pose counted `SKIP_NO_POSE`; a message costs O(1) to add and a lookup O(log n) however long
-    the link runs (no track is rebuilt)."""
+    the link runs (no track is rebuilt). Thread-safe: the link's worker feeds it while the
+    services ask for `latest_xy` (one lock, held for microseconds)."""
 
     def __init__(self, cfg: LinkConfig) -> None:
         self.cfg = cfg
@@ -253,8 +254,13 @@ class PoseHistory:
         self.child = norm_frame(cfg.tf_child)
         self.parent = norm_frame(cfg.tf_parent) if cfg.tf_parent else None
         self.frame: str | None = None
+        self._lock = threading.RLock()
 
     def add(self, sample: msgs.Sample, frame: str = "") -> None:
+        with self._lock:
+            self._add(sample, frame)
+
+    def _add(self, sample: msgs.Sample, frame: str) -> None:
         if self.frame is None:
             self.frame = norm_frame(frame) or "map"
         i = bisect.bisect_left(self._t, sample.t)
@@ -272,7 +278,8 @@ class PoseHistory:
     def add_tf(self, tf: msgs.TfSample, static: bool) -> bool:
         """One transform into the buffer; False when refused (`tf.REFUSED`)."""
         assert self.tf is not None
-        return self.tf.add(tf.parent, tf.child, tf.t, tf.xyz, tf.quat, static)
+        with self._lock:
+            return self.tf.add(tf.parent, tf.child, tf.t, tf.xyz, tf.quat, static)
 
     def track(self) -> PoseTrack | None:
         """The pose topic's poses known now as a track (rebuilt after new samples), or None."""
@@ -296,6 +303,10 @@ class PoseHistory:
 
     @property
     def newest(self) -> float | None:
+        with self._lock:
+            return self._newest()
+
+    def _newest(self) -> float | None:
         if self.tf is None:
             tr = self.track()
             return None if tr is None else tr.span[1]
@@ -313,14 +324,19 @@ class PoseHistory:
 
     def latest_xy(self) -> tuple[float, float] | None:
         """Where the robot was at the newest pose (x, y in its frame), or None."""
-        t = self.newest
-        p = None if t is None else self.lookup(t)
+        with self._lock:
+            t = self._newest()
+            p = None if t is None else self._lookup(t)
         return None if p is None or isinstance(p, str) else (p.x, p.y)
 
     def lookup(self, t: float) -> Pose | str:
         """The pose at t, or why there is none: with a pose topic `SKIP_OUTSIDE`, `SKIP_GAP`; with
         TF the node's reasons (`tf.TOO_OLD`, `tf.GAP`, no transform); `SKIP_NO_POSE` for none yet,
         or none as new as t."""
+        with self._lock:
+            return self._lookup(t)
+
+    def _lookup(self, t: float) -> Pose | str:
         nearest = self.cfg.pose_match == "nearest"
         if self.tf is None:
             tr = self.track()

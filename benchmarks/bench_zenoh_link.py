@@ -1,12 +1,17 @@
 """Throughput of the robot link (not a test; prints numbers).
 
-Run: python benchmarks/bench_zenoh_link.py [--frames 300]
+Run: python benchmarks/bench_zenoh_link.py [--frames 300] [--tf]
 Measures, for 640x480 camera frames with odometry at 50 Hz and a sink that only counts (the
 embedder and the store are measured elsewhere):
 1. the link's own work per frame (CDR decode, pose pairing, image conversion), raw rgb8 and JPEG;
 2. the same over Zenoh on loopback (a publishing peer and the link in one process, tcp/127.0.0.1),
    frames published at a camera's rate (30 and 100 frames/s): how many reach the sink, how many
-   the link dropped because its queue was full, and the delay from publishing to the sink.
+   the link dropped because its queue was full, and the delay from publishing to the sink;
+3. (`--tf` alone) the link's cost per /tf message, before and after its TF path moved to the
+   node's bounded `TfBuffer`, on one stream: 100 Hz odom -> base_link under a static map -> odom,
+   30 s of history, an image waiting (so each message asks for the newest pose, as a camera
+   slightly ahead of odometry makes it). Before: `TfTree`, pruned to the history and its whole
+   pose track rebuilt per message (the link's code until then, kept here to measure it).
 A camera at 30 fps needs 30 frames/s; ROS image topics are usually 15 to 30 Hz.
 """
 
@@ -17,6 +22,7 @@ import io
 import json
 import math
 import socket
+import statistics
 import time
 from typing import Any
 
@@ -24,7 +30,8 @@ import numpy as np
 from PIL import Image
 
 from ravenmem.ros import msgs as rosmsg
-from ravenmem.ros.link import LinkConfig, RosLink
+from ravenmem.ros.link import LinkConfig, PoseHistory, RosLink
+from ravenmem.ros.tf import TfTree
 from ravenmem.ros.zenoh import ZenohEndpoints, ZenohLink
 from ravenmem.types import Pose
 
@@ -152,10 +159,136 @@ def over_zenoh(msgs: list[bytes], poses: list[bytes], label: str, rate: float) -
     )
 
 
+# ----------------------------------------------------------------------------- /tf, before and after
+
+
+def tf_message(parts: list[tuple[float, str, str, float]]) -> bytes:
+    """A TFMessage of (stamp, parent, child, x) transforms, turning with x."""
+    transforms = [
+        T["geometry_msgs/msg/TransformStamped"](
+            header=header(t, parent),
+            child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=x, y=0.0, z=0.0),
+                rotation=T["geometry_msgs/msg/Quaternion"](
+                    x=0.0, y=0.0, z=math.sin(x / 2), w=math.cos(x / 2)
+                ),
+            ),
+        )
+        for t, parent, child, x in parts
+    ]
+    return rosmsg.serialize(T[rosmsg.TF](transforms=transforms), rosmsg.TF)
+
+
+class TreePath:
+    """The link's TF path before `TfBuffer`: every transform into a `TfTree`, the moving edges
+    pruned to the history (the rule `TfTree.prune` had), and the pose track rebuilt to answer
+    the newest pose."""
+
+    def __init__(self, history: float) -> None:
+        self.tree, self.history = TfTree(), history
+
+    def add(self, samples: list[rosmsg.TfSample], static: bool) -> None:
+        for s in samples:
+            self.tree.add(s.parent, s.child, s.t, s.xyz, s.quat, static=static)
+            if not static:
+                self.prune(s.t - self.history)
+
+    def prune(self, before: float) -> None:
+        for e in self.tree.edges.values():
+            if e.static or not e.t or e.t[0] >= before:
+                continue
+            order = np.argsort(np.asarray(e.t), kind="stable")
+            ts = np.asarray(e.t)[order]
+            keep = order[max(int(np.searchsorted(ts, before, side="right")) - 1, 0) :]
+            e.t, e.xyz, e.quat = [e.t[i] for i in keep], [e.xyz[i] for i in keep], [e.quat[i] for i in keep]
+
+    @property
+    def newest(self) -> float | None:
+        return self.tree.track("map", "base_link").span[1]
+
+    def kept(self) -> int:
+        return sum(len(e.t) for e in self.tree.edges.values() if not e.static)
+
+
+def tf_costs(seconds: float = 40.0, history: float = 30.0, rate: float = 100.0) -> None:
+    """Per /tf message, on the messages after the history has filled: decoding, the TF path
+    before and after (no decoding), and the whole `RosLink.pose` after (decode + path + pairing)."""
+    t0 = 1_700_000_000.0
+    static = tf_message([(t0, "map", "odom", 1.0)])
+    stream = [
+        tf_message([(t0 + k / rate, "odom", "base_link", math.sin(k / 100))])
+        for k in range(int(seconds * rate))
+    ]
+    cfg = LinkConfig.from_spec(f"image=cam,pose=tf,history={history:g}")
+    before, after = TreePath(history), PoseHistory(cfg)
+    link = RosLink(cfg, Count(), monotonic=lambda: 0.0)  # its clock stands still: the image waits
+    far = T[rosmsg.IMAGE](  # newer than every pose: it waits, and each message asks for the newest
+        header=header(t0 + 1e6, "cam"),
+        height=1,
+        width=1,
+        encoding="rgb8",
+        is_bigendian=0,
+        step=3,
+        data=np.zeros(3, np.uint8),
+    )
+    for i, payload in enumerate([static, *stream]):
+        samples = list(rosmsg.tf_samples(rosmsg.deserialize(payload, rosmsg.TF), 0.0))
+        before.add(samples, static=i == 0)
+        for s in samples:
+            after.add_tf(s, static=i == 0)
+        link.pose("tf_static" if i == 0 else "tf", payload)
+        if i == int(history * rate):
+            break
+    link.image("cam", rosmsg.serialize(far, rosmsg.IMAGE))
+    assert link.waiting == 1
+    cost: dict[str, list[float]] = {"decode": [], "before": [], "after": [], "link": []}
+    window = stream[int(history * rate) :]
+    for payload in window:  # after (and decoding), then before: one's garbage not in the other's times
+        a = time.perf_counter()
+        samples = list(rosmsg.tf_samples(rosmsg.deserialize(payload, rosmsg.TF), 0.0))
+        b = time.perf_counter()
+        for s in samples:
+            after.add_tf(s, static=False)
+        assert after.newest is not None
+        c = time.perf_counter()
+        link.pose("tf", payload)
+        d = time.perf_counter()
+        for k, dt in (("decode", b - a), ("after", c - b), ("link", d - c)):
+            cost[k].append(dt * 1e3)
+    for payload in window:
+        samples = list(rosmsg.tf_samples(rosmsg.deserialize(payload, rosmsg.TF), 0.0))
+        a = time.perf_counter()
+        before.add(samples, static=False)
+        assert before.newest is not None
+        cost["before"].append((time.perf_counter() - a) * 1e3)
+    assert link.waiting == 1 and after.tf is not None and link.poses.tf is not None
+    n = len(cost["after"])
+
+    def line(name: str, ms: list[float]) -> str:
+        q = statistics.quantiles(ms, n=100)
+        return f"{name}: p50 {statistics.median(ms):.4f} ms, p99 {q[98]:.4f} ms, max {max(ms):.3f} ms"
+
+    print(
+        f"/tf at {rate:g} Hz, {history:g} s of history, {n} messages timed after it filled, an image waiting:"
+    )
+    print("  " + line("CDR decode (both)", cost["decode"]))
+    print(
+        "  " + line(f"before, TfTree (prune + track rebuild), {before.kept()} samples kept", cost["before"])
+    )
+    print("  " + line(f"after, TfBuffer (the node's), {len(after.tf)} samples kept", cost["after"]))
+    print("  " + line("after, the whole RosLink.pose (decode + TfBuffer + pairing)", cost["link"]))
+    print(f"  before/after p50: {statistics.median(cost['before']) / statistics.median(cost['after']):.0f}x")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--frames", type=int, default=150)
+    ap.add_argument("--tf", action="store_true", help="only the /tf cost, before and after")
     args = ap.parse_args()
+    if args.tf:
+        tf_costs()
+        return
     n = args.frames
     poses = [odom(0.9 + k / 50) for k in range(int((n / 30 + 0.3) * 50))]
     for jpeg in (False, True):

@@ -8,7 +8,8 @@ bytes on a key named after the topic (`/camera/color/image_raw` on `camera/color
 one pose key (nav_msgs/Odometry, geometry_msgs/PoseStamped or PoseWithCovarianceStamped, or /tf
 plus /tf_static), decodes the CDR with `rosbags` through the same converters as the bag source
 (`ros.msgs`), poses each image at its stamp from the recent poses (interpolated, or the nearest
-within a gap, as `ingest.poses.PoseTrack` does for bags) and hands (RGB, pose, time) to a sink:
+within a gap: a pose topic as `ingest.poses.PoseTrack` does for bags, TF through the bounded
+`ros.tf.TfBuffer` of the rclpy node) and hands (RGB, pose, time) to a sink:
 the service's one writer, which runs the online keyframe rule and stores. Every frame that does
 not become a memory is counted with its reason.
 
@@ -47,7 +48,7 @@ from ..spec import pairs
 from ..stamps import sec_nanosec
 from ..types import Pose
 from . import msgs
-from .tf import TIME_SOURCES, TfTree, check_time_source, norm_frame
+from .tf import MAX_GAP, REFUSED, TIME_SOURCES, TOO_NEW, TfBuffer, check_time_source, norm_frame
 
 if TYPE_CHECKING:
     from ..agent.ask import PlanLike
@@ -75,9 +76,10 @@ class LinkConfig(BaseModel):
     tf_static: key of /tf_static (default `tf_static` when the pose key carries TF).
     tf_parent / tf_child: TF frames; tf_parent None picks map, odom or world, the first that is
     an ancestor of tf_child. pose_match / max_gap: as the bag source (interpolate, or nearest
-    within max_gap s; 0.05 s by default with nearest). time_source: `header` (header.stamp,
-    receive time when zero) or `receive`. wait: seconds an image waits for a later pose;
-    max_pending: images that may wait at once; history: seconds of poses kept. goal: key of the
+    within max_gap s; 0.05 s by default with nearest; with TF, interpolation across at most 1 s
+    by default, as the node). time_source: `header` (header.stamp, receive time when zero) or
+    `receive`. wait: seconds an image waits for a later pose; max_pending: images that may wait
+    at once; history: seconds of poses kept (per TF frame). goal: key of the
     goal PoseStamped published after an answer with a plan (in the memory's frame). source: the
     memories' source name. services: the name under which `ravenmem_msgs/srv/Ask` and `Search`
     are served (`/ravenmem/ask`, `/ravenmem/search`; empty: none); domain: the ROS domain id of
@@ -229,21 +231,36 @@ class MessageTypes:
 
 class PoseHistory:
     """The robot's recent poses, from a pose topic or the TF tree, looked up at an image's stamp.
-    `frame` is the frame they are in, once known (the TF parent, or the messages' frame_id)."""
+    `frame` is the frame they are in, once known (the TF parent, or the messages' frame_id).
+
+    A pose topic is kept as a short `PoseTrack` (its `history` seconds). TF goes into the same
+    bounded `tf.TfBuffer` the rclpy node uses (`history` seconds, `max_gap`, or the node's 1 s
+    when unset), so both resolve a pose alike: each moving transform interpolated at the stamp,
+    refused as `tf.TOO_OLD` or `tf.GAP` in the node's words, and an image newer than the newest
+    pose counted `SKIP_NO_POSE`; a message costs O(1) to add and a lookup O(log n) however long
+    the link runs (no track is rebuilt). Thread-safe: the link's worker feeds it while the
+    services ask for `latest_xy` (one lock, held for microseconds)."""
 
     def __init__(self, cfg: LinkConfig) -> None:
         self.cfg = cfg
         self._t: list[float] = []
         self._xyz: list[tuple[float, float, float]] = []
         self._quat: list[tuple[float, float, float, float]] = []
-        self.tree: TfTree | None = TfTree() if cfg.tf else None
+        gap = MAX_GAP if cfg.max_gap is None else cfg.max_gap
+        self.tf: TfBuffer | None = TfBuffer(cfg.history, max_gap=gap) if cfg.tf else None
         self._track: PoseTrack | None = None
         self._dirty = False
         self.tf_note = ""
+        self.child = norm_frame(cfg.tf_child)
         self.parent = norm_frame(cfg.tf_parent) if cfg.tf_parent else None
         self.frame: str | None = None
+        self._lock = threading.RLock()
 
     def add(self, sample: msgs.Sample, frame: str = "") -> None:
+        with self._lock:
+            self._add(sample, frame)
+
+    def _add(self, sample: msgs.Sample, frame: str) -> None:
         if self.frame is None:
             self.frame = norm_frame(frame) or "map"
         i = bisect.bisect_left(self._t, sample.t)
@@ -258,58 +275,81 @@ class PoseHistory:
             del self._t[:cut], self._xyz[:cut], self._quat[:cut]
         self._dirty = True
 
-    def add_tf(self, tf: msgs.TfSample, static: bool) -> None:
-        assert self.tree is not None
-        self.tree.add(tf.parent, tf.child, tf.t, tf.xyz, tf.quat, static=static)
-        if not static:
-            self.tree.prune(tf.t - self.cfg.history)
-        self._dirty = True
+    def add_tf(self, tf: msgs.TfSample, static: bool) -> bool:
+        """One transform into the buffer; False when refused (`tf.REFUSED`)."""
+        assert self.tf is not None
+        with self._lock:
+            return self.tf.add(tf.parent, tf.child, tf.t, tf.xyz, tf.quat, static)
 
     def track(self) -> PoseTrack | None:
-        """The poses known now as a track (rebuilt after new samples), or None when none yet."""
-        if not self._dirty:
-            return self._track
-        self._dirty = False
-        self._track = None
-        if self.tree is None:
-            if self._t:
-                self._track = PoseTrack(self._t, self._xyz, self._quat, name=self.cfg.pose)
-            return self._track
-        child = norm_frame(self.cfg.tf_child)
-        parent = self.parent or self.tree.default_parent(child)
-        if parent is None:
-            self.tf_note = f"no map/odom/world ancestor of {child!r} in tf yet"
-            return None
-        try:
-            self._track = self.tree.track(parent, child, name="tf")
-        except InputError as e:  # not connected yet, or the moving edges do not overlap yet
-            self.tf_note = str(e)
-            return None
-        if self.parent is None:  # chosen once: every memory of a run is in the same frame
-            self.parent = parent
-            log.info("robot link: poses of %s in %s (from tf)", child, parent)
-        self.frame = self.parent
+        """The pose topic's poses known now as a track (rebuilt after new samples), or None."""
+        if self._dirty:
+            self._dirty = False
+            self._track = PoseTrack(self._t, self._xyz, self._quat, name=self.cfg.pose) if self._t else None
         return self._track
+
+    def _tf_parent(self) -> str | None:
+        """The TF parent: the given one, else the first of map, odom, world that /tf links to
+        the child, chosen once (every memory of a run is in the same frame)."""
+        assert self.tf is not None
+        if self.parent is None:
+            self.parent = self.tf.default_parent(self.child)
+            if self.parent is None:
+                self.tf_note = f"no map/odom/world ancestor of {self.child!r} in tf yet"
+                return None
+            log.info("robot link: poses of %s in %s (from tf)", self.child, self.parent)
+        self.frame = self.parent
+        return self.parent
 
     @property
     def newest(self) -> float | None:
-        tr = self.track()
-        return None if tr is None else tr.span[1]
+        with self._lock:
+            return self._newest()
+
+    def _newest(self) -> float | None:
+        if self.tf is None:
+            tr = self.track()
+            return None if tr is None else tr.span[1]
+        parent = self._tf_parent()
+        if parent is None:
+            return None
+        t = self.tf.newest(parent, self.child)
+        if t is not None:
+            self.tf_note = ""
+        elif self.tf.chain(parent, self.child) is None:
+            self.tf_note = f"no transform from {parent!r} to {self.child!r} in tf yet"
+        else:
+            self.tf_note = f"{parent} -> {self.child} only has static transforms in tf so far"
+        return t
 
     def latest_xy(self) -> tuple[float, float] | None:
         """Where the robot was at the newest pose (x, y in its frame), or None."""
-        tr = self.track()
-        if tr is None:
-            return None
-        p = tr.match(tr.span[1], "nearest", 0.0)
-        return None if isinstance(p, str) else (p.x, p.y)
+        with self._lock:
+            t = self._newest()
+            p = None if t is None else self._lookup(t)
+        return None if p is None or isinstance(p, str) else (p.x, p.y)
 
     def lookup(self, t: float) -> Pose | str:
-        """The pose at t, or why there is none (`SKIP_OUTSIDE`, `SKIP_GAP`, `SKIP_NO_POSE`)."""
-        tr = self.track()
-        if tr is None:
+        """The pose at t, or why there is none: with a pose topic `SKIP_OUTSIDE`, `SKIP_GAP`; with
+        TF the node's reasons (`tf.TOO_OLD`, `tf.GAP`, no transform); `SKIP_NO_POSE` for none yet,
+        or none as new as t."""
+        with self._lock:
+            return self._lookup(t)
+
+    def _lookup(self, t: float) -> Pose | str:
+        nearest = self.cfg.pose_match == "nearest"
+        if self.tf is None:
+            tr = self.track()
+            mode = check_match_mode(self.cfg.pose_match)
+            return SKIP_NO_POSE if tr is None else tr.match(t, mode, self.cfg.max_gap)
+        parent = self._tf_parent()
+        if parent is None:
             return SKIP_NO_POSE
-        return tr.match(t, check_match_mode(self.cfg.pose_match), self.cfg.max_gap)
+        got = self.tf.lookup(parent, self.child, t, nearest)
+        if isinstance(got, str):
+            return SKIP_NO_POSE if got == TOO_NEW else got  # as the node's intake
+        (x, y, z), q = got
+        return Pose.from_quaternion(x, y, z, *q)
 
 
 @dataclass
@@ -412,16 +452,17 @@ class RosLink:
         msg, msgtype = got
         recv = self.clock() if recv_t is None else recv_t
         if msgtype == msgs.TF:
-            if self.poses.tree is None:
+            if self.poses.tf is None:
                 self.stats.skip(
                     f"tf message on {key} but the pose key carries {self.cfg.pose_type or 'poses'}"
                 )
                 return
             static = self.cfg.tf_static_key is not None and key == self.cfg.tf_static_key
             for tf in msgs.tf_samples(msg, recv, self._header):
-                self.poses.add_tf(tf, static)
+                if not self.poses.add_tf(tf, static):
+                    self.stats.skip(REFUSED)
         else:
-            if self.poses.tree is not None:
+            if self.poses.tf is not None:
                 self.stats.skip(f"pose message on {key} but the pose key carries tf")
                 return
             pq = msgs.pose_of(msg, msgtype)

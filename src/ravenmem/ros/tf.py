@@ -1,9 +1,12 @@
-"""Resolve a pose track from a TF tree: parent -> child through any chain of transforms.
+"""Poses from a TF tree: parent -> child through any chain of transforms.
 
-Each (parent, child) edge is a time series of transforms (or one static transform from
-/tf_static). The pose of `child` in `parent` is found through their common ancestor,
+Two ways, for two kinds of input. `TfTree` reads a whole recording (ros/bag.py) and answers a
+pose track: each (parent, child) edge is a time series of transforms (or one static transform
+from /tf_static), and the pose of `child` in `parent` is found through their common ancestor,
 T_parent_child = inv(T_anc_parent) * T_anc_child, with every moving edge interpolated at the
-union of the moving edges' sample times (within the span they all cover).
+union of the moving edges' sample times (within the span they all cover). `TfBuffer` serves a
+live stream, the rclpy node's (ros/intake.py) and the Zenoh link's (ros/link.py) alike: a
+bounded window of recent samples per frame, each lookup one pose at one time (see below).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ class Edge:
 
 
 TIME_SOURCES = ("header", "receive")
+CANDIDATE_PARENTS = ("map", "odom", "world")  # REP 105: the first linked to the child is the poses' frame
 
 
 def norm_frame(name: str) -> str:
@@ -67,19 +71,6 @@ class TfTree:
         e.quat.append(quat)
         self.parent_of.setdefault(child, parent)
 
-    def prune(self, before: float) -> None:
-        """Forget moving samples older than `before`, keeping the last one before it on each edge
-        (so a lookup at `before` still interpolates). A live stream keeps bounded memory this way."""
-        for e in self.edges.values():
-            if e.static or not e.t or e.t[0] >= before:
-                continue
-            order = np.argsort(np.asarray(e.t), kind="stable")
-            ts = np.asarray(e.t)[order]
-            keep = order[max(int(np.searchsorted(ts, before, side="right")) - 1, 0) :]
-            e.t = [e.t[i] for i in keep]
-            e.xyz = [e.xyz[i] for i in keep]
-            e.quat = [e.quat[i] for i in keep]
-
     @property
     def frames(self) -> list[str]:
         return sorted({f for edge in self.edges for f in edge})
@@ -90,9 +81,7 @@ class TfTree:
             chain.append(self.parent_of[chain[-1]])
         return chain
 
-    def default_parent(
-        self, child: str, candidates: tuple[str, ...] = ("map", "odom", "world")
-    ) -> str | None:
+    def default_parent(self, child: str, candidates: tuple[str, ...] = CANDIDATE_PARENTS) -> str | None:
         """The first of `candidates` that is an ancestor of child."""
         up = self._up(norm_frame(child))
         return next((c for c in candidates if c in up[1:]), None)
@@ -160,13 +149,15 @@ NO_POSE = "no pose yet"
 TOO_OLD = "older than the pose history"
 TOO_NEW = "newer than the newest pose"
 GAP = "pose gap too long"
+REFUSED = "tf frame refused (a second parent, or too many frames)"
+MAX_GAP = 1.0  # seconds: the longest gap between two samples of a moving transform interpolated across
 
 
 class PoseBuffer:
     """The recent samples of one moving transform, at most `size` and `history` seconds back.
     Samples come mostly in time order; a late one is inserted in place."""
 
-    def __init__(self, history: float = 30.0, size: int = 10_000, max_gap: float = 1.0) -> None:
+    def __init__(self, history: float = 30.0, size: int = 10_000, max_gap: float = MAX_GAP) -> None:
         self.history = history
         self.size = size
         self.max_gap = max_gap
@@ -199,10 +190,15 @@ class PoseBuffer:
     def __len__(self) -> int:
         return len(self.t)
 
-    def at(self, t: float) -> tuple[tuple[float, float, float], tuple[float, float, float, float]] | str:
-        """The transform at t (linear position, spherical rotation), or why there is none."""
+    def at(
+        self, t: float, nearest: bool = False
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]] | str:
+        """The transform at t (linear position, spherical rotation), or why there is none;
+        `nearest`: the sample nearest t instead, when within `max_gap`."""
         if not self.t:
             return NO_POSE
+        if nearest:
+            return self._nearest(t)
         if t > self.t[-1]:
             return TOO_NEW
         if t < self.t[0]:
@@ -217,6 +213,18 @@ class PoseBuffer:
         (p0, q0), (p1, q1) = self.v[i - 1], self.v[i]
         xyz = (p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1]), p0[2] + a * (p1[2] - p0[2]))
         return xyz, _slerp(q0, q1, a)
+
+    def _nearest(
+        self, t: float
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]] | str:
+        """As `ingest.poses.PoseTrack.nearest`: the earlier sample on a tie."""
+        if t > self.t[-1] + self.max_gap:
+            return TOO_NEW
+        if t < self.t[0] - self.max_gap:
+            return TOO_OLD
+        i = bisect.bisect_left(self.t, t)
+        j = min((k for k in (i - 1, i) if 0 <= k < len(self.t)), key=lambda k: abs(self.t[k] - t))
+        return self.v[j] if abs(self.t[j] - t) <= self.max_gap else GAP
 
 
 def _slerp(
@@ -249,10 +257,14 @@ def _compose(
 
 class TfBuffer:
     """/tf and /tf_static, bounded: each child frame has one parent and either one static
-    transform or a `PoseBuffer`. `lookup(parent, child, t)` walks up from child to parent."""
+    transform or a `PoseBuffer` (at most `size` samples and `history` seconds, gaps up to
+    `max_gap` interpolated), at most `max_frames` frames. `lookup(parent, child, t)` walks up
+    from child to parent, each moving transform interpolated at t, as tf2 does."""
 
-    def __init__(self, history: float = 30.0, size: int = 10_000, max_frames: int = 1000) -> None:
-        self.history, self.size, self.max_frames = history, size, max_frames
+    def __init__(
+        self, history: float = 30.0, size: int = 10_000, max_frames: int = 1000, max_gap: float = MAX_GAP
+    ) -> None:
+        self.history, self.size, self.max_frames, self.max_gap = history, size, max_frames, max_gap
         self.parent_of: dict[str, str] = {}
         self.static: dict[str, tuple[tuple[float, float, float], tuple[float, float, float, float]]] = {}
         self.moving: dict[str, PoseBuffer] = {}
@@ -278,8 +290,19 @@ class TfBuffer:
         if static:
             self.static[child] = (xyz, quat)
         else:
-            self.moving.setdefault(child, PoseBuffer(self.history, self.size)).add(t, xyz, quat)
+            buf = self.moving.get(child)
+            if buf is None:
+                buf = self.moving[child] = PoseBuffer(self.history, self.size, self.max_gap)
+            buf.add(t, xyz, quat)
         return True
+
+    def __len__(self) -> int:
+        """The moving samples kept, all frames together (bounded: see the class docstring)."""
+        return sum(len(b) for b in self.moving.values())
+
+    def default_parent(self, child: str, candidates: tuple[str, ...] = CANDIDATE_PARENTS) -> str | None:
+        """The first of `candidates` that /tf links to `child` so far (None: none yet)."""
+        return next((f for f in candidates if f and self.chain(f, child) is not None), None)
 
     def chain(self, parent: str, child: str) -> list[str] | None:
         """Frames from child up to parent (child first, parent excluded), None when not connected."""
@@ -303,8 +326,10 @@ class TfBuffer:
         return min(known) if known else None
 
     def lookup(
-        self, parent: str, child: str, t: float
+        self, parent: str, child: str, t: float, nearest: bool = False
     ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]] | str:
+        """T_parent_child at t, or why there is none (`NO_POSE`, `TOO_OLD`, `TOO_NEW`, `GAP`, no
+        transform); `nearest`: each moving transform's sample nearest t (within `max_gap`)."""
         chain = self.chain(parent, child)
         if chain is None:
             return f"no transform from {parent!r} to {child!r} in tf yet"
@@ -314,7 +339,7 @@ class TfBuffer:
         )
         for f in reversed(chain):  # from the parent's side down to the child
             if f in self.moving:
-                step = self.moving[f].at(t)
+                step = self.moving[f].at(t, nearest)
                 if isinstance(step, str):
                     return step
             else:

@@ -119,6 +119,21 @@ def test_the_link_and_the_node_pose_the_same_tf_stream_alike_in_bounded_memory()
     assert len(lk.poses.tf) == len(intake.tf) and buf.t == intake.tf.moving["base_footprint"].t
 
 
+@pytest.mark.parametrize(("max_gap", "posed"), [(0.5, False), (2.0, True)])
+def test_the_nodes_tf_path_interpolates_across_gaps_up_to_its_max_gap(max_gap: float, posed: bool) -> None:
+    """The node's `max_gap` parameter holds for /tf as for odometry: the stream's 1.2 s gap is
+    refused under the default 0.5 s and interpolated across under 2 s."""
+    writer = NodeWriter()
+    settings = NodeSettings(odom_topic="", history=30.0, pose_wait=60.0, max_gap=max_gap)
+    intake = FrameIntake(writer, settings)  # type: ignore[arg-type]
+    for key, payload in stream():
+        intake.transforms(rosmsg.deserialize(payload, rosmsg.TF), 5000.0, static=key == "tf_static")
+    intake.image(rosmsg.deserialize(w.image(19.0, w.picture(0)), rosmsg.IMAGE), rosmsg.IMAGE, 5000.0)
+    intake.settle(flush=True)
+    assert [t for _, t in writer.frames] == ([19.0] if posed else [])
+    assert intake.counts.skipped == ({} if posed else {GAP: 1})
+
+
 @pytest.mark.parametrize("history", [1.0, 4.0])
 def test_a_long_tf_stream_keeps_the_configured_history(history: float) -> None:
     """100 Hz /tf for 40 s: the link keeps `history` seconds of samples (the node's rule), and

@@ -181,7 +181,7 @@ class FrameIntake:
         self.log = log
         self.counts = Counts()
         self.waiting: deque[_Waiting] = deque()
-        self.tf: TfBuffer | None = None if settings.odom_topic else TfBuffer(settings.history)
+        self.tf: TfBuffer | None = None if settings.odom_topic else TfBuffer(settings.history, max_gap=settings.max_gap)
         self.odom = PoseBuffer(settings.history, max_gap=settings.max_gap)
         self.frame: str | None = None  # the poses' frame, once known
         self._refused: dict[str, str | None] = {}
@@ -268,10 +268,7 @@ class FrameIntake:
         """The frame poses are in: the map frame when /tf links it to the base, else odom."""
         if self.frame is not None or self.tf is None:
             return self.frame
-        for f in (self.s.map_frame, self.s.odom_frame):
-            if f and self.tf.chain(f, self.s.base_frame) is not None:
-                return f
-        return None
+        return self.tf.default_parent(self.s.base_frame, (self.s.map_frame, self.s.odom_frame))
 
     def newest(self) -> float | None:
         if self.tf is None:

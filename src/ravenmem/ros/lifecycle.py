@@ -65,7 +65,9 @@ LINGER_S = 0.5  # after the shutdown transition: its reply reaches the caller be
 class Made:
     """The rclpy entities a node made since this was taken, so that a transition can undo what
     the one before it made (configure and cleanup, activate and deactivate). The entities seen
-    at the start are held, so no new one can be mistaken for one of them."""
+    at the start are held, so no new one can be mistaken for one of them. A subscription to
+    /clock is rclpy's own (its time source makes one when `use_sim_time` is set at run time),
+    never the node's: it is kept."""
 
     KINDS = ("subscriptions", "timers", "publishers", "services", "clients", "waitables")
 
@@ -78,13 +80,17 @@ class Made:
         n = 0
         for kind in kinds or self.KINDS:
             old = {id(e) for e in self.before[kind]}
-            for e in [e for e in getattr(self.node, kind) if id(e) not in old]:
+            for e in [e for e in getattr(self.node, kind) if id(e) not in old and not _clock(e)]:
                 if kind == "waitables":  # an action server or client
                     e.destroy()
                 else:
                     getattr(self.node, f"destroy_{kind[:-1]}")(e)
                 n += 1
         return n
+
+
+def _clock(entity: Any) -> bool:
+    return getattr(entity, "topic_name", None) == "/clock"
 
 
 class ManagedBackend(ServiceBackend):
@@ -142,13 +148,14 @@ class Managed:
         ros = self._configured()
         inputs = Made(self.node)
         ros.intake.gaps = SequenceGaps()  # new subscriptions: what was sent before is not a loss
+        ros.intake.stopping = False
         try:
             ros.subscribe_inputs()
         except BaseException:
+            ros.intake.stopping = True
             inputs.destroy()
             raise
         self._inputs = inputs
-        ros.intake.stopping = False
         self.active = True
         self._say("active: taking frames")
 

@@ -15,7 +15,8 @@ sequence numbers). Outputs: services `~/ask` and `~/search` (`ravenmem_msgs`, th
 replies of `ros.services`), the action `~/ask_action` (a feedback per tool call, cancellable), a
 goal on `goal_topic` (or through Nav2's NavigateToPose when `navigate_action` is set) only for a
 question that asks to navigate, MarkerArrays on `~/markers`. SIGINT and SIGTERM stop the intake,
-store what was queued and exit 0.
+store what was queued and exit 0. `--lifecycle`: the same node as a managed (lifecycle) node,
+brought up through configure and activate (`ros.lifecycle`).
 
 `NodeLogic` is the older transport-free form over `ros.link.RosLink` (CDR in, CDR out), kept for
 the front ends' comparison test.

@@ -7,6 +7,7 @@ stored only while active, and cleanup leaves a closed memory another process may
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -98,6 +99,14 @@ class Camera:
     def matched(self) -> bool:
         return bool(self.images.get_subscription_count() and self.odom.get_subscription_count())
 
+    def wait_matched(self, what: str) -> None:
+        """Until the node's subscriptions matched these publishers, and a second more (both
+        ends have matched: as tests/ros/ros_pub.py waits)."""
+        import time
+
+        wait_for(self.matched, 60, what)
+        time.sleep(1.0)
+
     def send(self, first: int, n: int) -> None:
         """Frames first..first+n-1, each after the poses up to 50 ms past it, at about 30 Hz."""
         import time
@@ -158,7 +167,7 @@ def test_configure_activate_deactivate_cleanup_then_shutdown(recording: Path, tm
         assert _change(client, T.TRANSITION_CONFIGURE)
         assert _state(client) == "inactive" and is_memory(mem)
         assert _change(client, T.TRANSITION_ACTIVATE) and _state(client) == "active"
-        wait_for(cam.matched, 60, "the node to subscribe to the camera and odometry")
+        cam.wait_matched("the node to subscribe to the camera and odometry")
         cam.send(0, 20)
         d = _settled(diag, 20)
         first = int(d["stored"])
@@ -178,7 +187,7 @@ def test_configure_activate_deactivate_cleanup_then_shutdown(recording: Path, tm
 
         # active again, the same publisher: the 10 images sent meanwhile are not "lost"
         assert _change(client, T.TRANSITION_ACTIVATE)
-        wait_for(cam.matched, 60, "the node to subscribe again")
+        cam.wait_matched("the node to subscribe again")
         cam.send(30, 10)
         d = _settled(diag, 30)
         stored = int(d["stored"])
@@ -208,25 +217,45 @@ def test_configure_activate_deactivate_cleanup_then_shutdown(recording: Path, tm
         client.close()
         text = stop(node, log)
     assert node.returncode == 0, text[-3000:]
-    assert "Traceback" not in text and "failed" not in text, text[-3000:]
+    assert "Traceback" not in text and " failed: " not in text, text[-3000:]
     with ravenmem.open(mem, writable=True) as m:
         assert m.count() == stored
 
 
-def test_a_memory_that_cannot_be_opened_fails_configure_in_one_line(ros: None, tmp_path: Path) -> None:
+def test_a_failed_configure_is_one_line_and_the_node_stays_unconfigured(ros: None, tmp_path: Path) -> None:
     from lifecycle_msgs.msg import Transition as T
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
 
     mem, log = tmp_path / "missing.mem", tmp_path / "node.log"
-    node = _launch(mem, log, create=False)
+    node = _launch(mem, log, "-p", "image_transport:=jpeg", create=False)
     client = Client(DOMAIN)
+
+    def failures() -> list[str]:
+        return [ln for ln in log.read_text().splitlines() if "] [ravenmem]: configure failed" in ln]
+
     try:
         assert _state(client) == "unconfigured"
+        # a parameter the node cannot use: set right (declared before configure), tried again
+        assert not _change(client, T.TRANSITION_CONFIGURE)
+        assert "configure failed: image_transport: one of auto, raw, compressed, got 'jpeg'" in failures()[0]
+        raw = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="raw")
+        request = SetParameters.Request(parameters=[Parameter(name="image_transport", value=raw)])
+        assert client.call(SetParameters, f"{NODE}/set_parameters", request).results[0].successful  # type: ignore[attr-defined]
         assert not _change(client, T.TRANSITION_CONFIGURE)
         assert _state(client) == "unconfigured"
-        said = [ln for ln in log.read_text().splitlines() if "failed" in ln]
-        assert len(said) == 1 and f"configure failed: no memory at {mem}" in said[0], said
-        # the memory appears: configured again, the node opens it
-        ravenmem.create(mem).close()
+        said = failures()
+        assert len(said) == 2 and f"configure failed: no memory at {mem}" in said[1], said
+        # the memory appears, but this process writes it: refused too, in one line
+        held = ravenmem.create(mem)  # holds the writer lock
+        try:
+            assert not _change(client, T.TRANSITION_CONFIGURE)
+            assert _state(client) == "unconfigured"
+        finally:
+            held.close()
+        said = failures()
+        assert len(said) == 3 and "configure failed:" in said[2] and f"pid {os.getpid()}" in said[2], said
+        # free: configured again, the node opens it
         assert _change(client, T.TRANSITION_CONFIGURE) and _state(client) == "inactive"
     finally:
         client.close()

@@ -436,6 +436,8 @@ class RavenmemNode:
 
 
 def open_service(memory: Path, create: bool, s: NodeSettings) -> Service:
+    """The running service over the memory (created when missing with `create`), its writer
+    lock held."""
     import ravenmem
 
     from ..agent.config import VLMConfig
@@ -446,12 +448,16 @@ def open_service(memory: Path, create: bool, s: NodeSettings) -> Service:
 
     if not is_memory(memory) and not create:
         raise InputError(f"no memory at {memory} (give --create to start one)")
-    mem = ravenmem.open(memory) if is_memory(memory) else ravenmem.create(memory)
     vlm = VLMConfig.resolve(base_url=s.base_url or None, model=s.model or None)
     cfg = ServiceConfig(
         keyframes=KeyframeConfig.from_spec(s.keyframes or None), method=s.method or None, vlm=vlm
-    )
-    return Service(mem, cfg).start()
+    )  # checked before the memory is touched
+    mem = ravenmem.open(memory) if is_memory(memory) else ravenmem.create(memory)
+    try:
+        return Service(mem, cfg).start()
+    except BaseException:  # another writer holds it: closed again (a managed node may retry)
+        mem.close()
+        raise
 
 
 @contextlib.contextmanager

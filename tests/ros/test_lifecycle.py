@@ -161,7 +161,7 @@ def test_configure_activate_deactivate_cleanup_then_shutdown(recording: Path, tm
     client = Client(DOMAIN)
     try:
         diag = client.collect(DiagnosticArray, "/diagnostics")
-        cam = Camera(client.node, 40)
+        cam = Camera(client.node, 50)
         assert _state(client) == "unconfigured"
         assert not mem.exists()  # nothing is opened before configure
         assert _change(client, T.TRANSITION_CONFIGURE)
@@ -209,17 +209,25 @@ def test_configure_activate_deactivate_cleanup_then_shutdown(recording: Path, tm
         assert counts["received"] == 30 and counts["stored"] == stored and counts["lost_in_transport"] == 0
         assert counts["pending"] == 0 and counts["in_writer"] == 0
 
-        # it may be configured again (the memory reopens); shutdown then ends the process
-        assert _change(client, T.TRANSITION_CONFIGURE) and _state(client) == "inactive"
-        assert _change(client, T.TRANSITION_INACTIVE_SHUTDOWN)
+        # configured again (the memory reopens) and active; shut down as soon as the frames
+        # arrived: the ones it took are stored before the process exits
+        assert _change(client, T.TRANSITION_CONFIGURE) and _change(client, T.TRANSITION_ACTIVATE)
+        cam.wait_matched("the node to subscribe after configuring again")
+        cam.send(40, 10)
+        wait_for(lambda: _diag(diag).get("received") == "10", 60, "the node to take 10 frames")
+        assert _change(client, T.TRANSITION_ACTIVE_SHUTDOWN)
         node.wait(60)
     finally:
         client.close()
         text = stop(node, log)
     assert node.returncode == 0, text[-3000:]
     assert "Traceback" not in text and " failed: " not in text, text[-3000:]
+    runs = [r for r in json.loads((mem / "memory.json").read_text())["ingests"] if r.get("source") == "ros"]
+    again = runs[1]["counts"]
+    assert len(runs) == 2 and again["received"] == 10 and again["stored"] >= 1, again
+    assert again["stored"] + sum(again["skipped"].values()) == 10 and again["in_writer"] == 0, again
     with ravenmem.open(mem, writable=True) as m:
-        assert m.count() == stored
+        assert m.count() == stored + again["stored"]
 
 
 def test_a_failed_configure_is_one_line_and_the_node_stays_unconfigured(ros: None, tmp_path: Path) -> None:

@@ -204,9 +204,10 @@ class Managed:
 
 class ManagedNode(LifecycleNode):
     """The lifecycle node `ravenmem`: rclpy's state machine and its services
-    (`~/change_state`, `~/get_state`, ...), each transition handed to `Managed`. A transition
-    that fails says why in one line and leaves the node in the state it was in; a cleanup or
-    shutdown that fails is an error, after which whatever is open is closed (unconfigured)."""
+    (`~/change_state`, `~/get_state`, ...), each transition handed to `Managed`. A configure
+    or activate that fails says why in one line and leaves the node in the state it was in (what
+    it had made undone); a deactivate, cleanup or shutdown cannot be undone half-way, so its
+    failure is an error, after which whatever is open is closed (unconfigured)."""
 
     def __init__(self, memory: Path, create: bool, stop: threading.Event) -> None:
         super().__init__("ravenmem")
@@ -237,7 +238,7 @@ class ManagedNode(LifecycleNode):
         return self._run("activate", self.work.activate, TransitionCallbackReturn.FAILURE)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        return self._run("deactivate", self.work.deactivate, TransitionCallbackReturn.FAILURE)
+        return self._run("deactivate", self.work.deactivate, TransitionCallbackReturn.ERROR)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         return self._run("cleanup", self.work.cleanup, TransitionCallbackReturn.ERROR)
@@ -249,7 +250,8 @@ class ManagedNode(LifecycleNode):
         return done
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """After a failed cleanup or shutdown: close what is still open, then unconfigured."""
+        """After a failed deactivate, cleanup or shutdown: close what is still open, then
+        unconfigured."""
         self._run("error processing", self.work.shutdown, TransitionCallbackReturn.SUCCESS)
         self.work.ros, self.work.active = None, False
         return TransitionCallbackReturn.SUCCESS

@@ -15,7 +15,7 @@ Nav2 stack brings up its own (`nav2_lifecycle_manager`, `ros2 lifecycle set`, or
   stored.
 - deactivate: the subscriptions go (an inactive node takes no bandwidth); an image already
   delivered is counted skipped (`node inactive`); the images waiting for their pose and those
-  queued for the writer are stored before the transition ends.
+  queued for the writer are stored (or skipped with their reason) before the transition ends.
 - cleanup: the run's counts noted in the manifest, the memory closed (everything written is on
   disk, the writer lock released: `ravenmem info` or another writer may open it), the
   publishers, services and action gone.

@@ -52,12 +52,23 @@ def run(
     ctx: typer.Context,
     memory: MemoryOpt,
     create: Annotated[bool, typer.Option("--create", help="create the memory when missing")] = False,
+    lifecycle: Annotated[
+        bool,
+        typer.Option(
+            "--lifecycle",
+            help="a managed node: the memory opens at configure, frames are taken while active "
+            "(lifecycle_msgs ChangeState, e.g. from nav2_lifecycle_manager)",
+        ),
+    ] = False,
 ) -> None:
     """Run the ravenmem node until SIGINT/SIGTERM. Every setting is a ROS parameter: give them
     after --ros-args (-p image_topic:=/camera/image_raw, --params-file f.yaml, -r __ns:=/bot1)."""
     from ..ros.node import main as node_main
 
-    argv = ["--memory", str(memory)] + (["--create"] if create else []) + list(ctx.args)
+    own = (
+        ["--memory", str(memory)] + (["--create"] if create else []) + (["--lifecycle"] if lifecycle else [])
+    )
+    argv = own + list(ctx.args)
     node_main(argv)
 
 

@@ -187,6 +187,7 @@ class FrameIntake:
         self._refused: dict[str, str | None] = {}
         self.gaps = SequenceGaps()
         self.stopping = False
+        self.stop_reason = SKIP_STOPPING  # why images are not taken while `stopping`
         self._lock = threading.RLock()
 
     # ---------------------------------------------------------------- input
@@ -213,7 +214,7 @@ class FrameIntake:
             c.received += 1
             c.last_frame = time.monotonic()
         if self.stopping:
-            self._skip(SKIP_STOPPING)
+            self._skip(self.stop_reason)
             return
         t = msgs.stamp(msg, now)
         if kind == msgs.IMAGE:  # checked (encoding, size, data) and copied out now: cheap

@@ -15,7 +15,8 @@ sequence numbers). Outputs: services `~/ask` and `~/search` (`ravenmem_msgs`, th
 replies of `ros.services`), the action `~/ask_action` (a feedback per tool call, cancellable), a
 goal on `goal_topic` (or through Nav2's NavigateToPose when `navigate_action` is set) only for a
 question that asks to navigate, MarkerArrays on `~/markers`. SIGINT and SIGTERM stop the intake,
-store what was queued and exit 0.
+store what was queued and exit 0. `--lifecycle`: the same node as a managed (lifecycle) node,
+brought up through configure and activate (`ros.lifecycle`).
 
 `NodeLogic` is the older transport-free form over `ros.link.RosLink` (CDR in, CDR out), kept for
 the front ends' comparison test.
@@ -105,16 +106,27 @@ class RavenmemNode:
     callbacks run one at a time (one mutually exclusive group), each camera's images in a group
     of its own (the intake takes its own lock), so an image is never queued behind the poses
     and the subscription's history does not fill up; services, the action and NavigateToPose
-    waits run in a reentrant group on the executor's other threads."""
+    waits run in a reentrant group on the executor's other threads.
 
-    def __init__(self, node: Any, settings: NodeSettings, service: Service) -> None:
+    A managed node (`ros.lifecycle`) makes it at `configure` with `subscribe` False (the inputs
+    come at `activate`) and its own `sensors` group, the one its transitions run in, so that no
+    pose callback or settling tick runs during a transition."""
+
+    def __init__(
+        self,
+        node: Any,
+        settings: NodeSettings,
+        service: Service,
+        subscribe: bool = True,
+        sensors: Any = None,
+    ) -> None:
         from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 
         assert service.writer is not None
         self.node, self.s, self.service = node, settings, service
         self.log = RateLimitedLog(node.get_logger().warning)
         self.intake = FrameIntake(service.writer, settings, service.frame_check, self.log)
-        self.sensors = MutuallyExclusiveCallbackGroup()
+        self.sensors = sensors if sensors is not None else MutuallyExclusiveCallbackGroup()
         self.answers = ReentrantCallbackGroup()
         self.camera_info: dict[str, Any] | None = None
         self.image_subs: list[Any] = []
@@ -129,7 +141,8 @@ class RavenmemNode:
             self.navigator = Navigator(node, settings.navigate_action, self.answers)
         drive = self.navigator.drive if self.navigator is not None else None
         self.backend = ServiceBackend(service, self.intake.latest_xy, drive)
-        self._subscribe()
+        if subscribe:
+            self.subscribe_inputs()
         self._publish_and_serve()
 
     # ---------------------------------------------------------------- wiring
@@ -158,7 +171,8 @@ class RavenmemNode:
             depth=depth, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
         )
 
-    def _subscribe(self) -> None:
+    def subscribe_inputs(self) -> None:
+        """The inputs: poses, camera info, map, the cameras (now, or once discovered), the tick."""
         from nav_msgs.msg import OccupancyGrid, Odometry
         from sensor_msgs.msg import CameraInfo
 
@@ -396,6 +410,15 @@ class RavenmemNode:
         self.intake.stopping = True  # images still delivered are counted as SKIP_STOPPING
         self.intake.settle(flush=True)
 
+    def finish(self) -> None:
+        """Stop taking frames, store what was queued, note the run in the manifest and close the
+        memory (its writer lock released)."""
+        self.stop_intake()
+        assert self.service.writer is not None
+        self.service.writer.close()  # stores what was queued
+        self.record()
+        self.service.close()
+
     def close(self) -> None:
         """Called by `Service.close` before the writer closes: flush, note the run in the
         manifest (the counts, the CameraInfo)."""
@@ -412,7 +435,9 @@ class RavenmemNode:
             self.node.get_logger().error("could not note the run in the memory's manifest")
 
 
-def _open_service(memory: Path, create: bool, s: NodeSettings) -> Service:
+def open_service(memory: Path, create: bool, s: NodeSettings) -> Service:
+    """The running service over the memory (created when missing with `create`), its writer
+    lock held."""
     import ravenmem
 
     from ..agent.config import VLMConfig
@@ -423,12 +448,16 @@ def _open_service(memory: Path, create: bool, s: NodeSettings) -> Service:
 
     if not is_memory(memory) and not create:
         raise InputError(f"no memory at {memory} (give --create to start one)")
-    mem = ravenmem.open(memory) if is_memory(memory) else ravenmem.create(memory)
     vlm = VLMConfig.resolve(base_url=s.base_url or None, model=s.model or None)
     cfg = ServiceConfig(
         keyframes=KeyframeConfig.from_spec(s.keyframes or None), method=s.method or None, vlm=vlm
-    )
-    return Service(mem, cfg).start()
+    )  # checked before the memory is touched
+    mem = ravenmem.open(memory) if is_memory(memory) else ravenmem.create(memory)
+    try:
+        return Service(mem, cfg).start()
+    except BaseException:  # another writer holds it: closed again (a managed node may retry)
+        mem.close()
+        raise
 
 
 @contextlib.contextmanager
@@ -459,12 +488,25 @@ def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
     return argv, []
 
 
+def made_node(make: Callable[[], Any]) -> Any:
+    """The node `make()` makes; an invalid remapped name or namespace is a one-line
+    `InputError` (and rclpy is shut down)."""
+    import rclpy
+
+    try:
+        return make()
+    except Exception as e:
+        rclpy.shutdown()
+        raise InputError(f"--ros-args: {' '.join(str(e).split())}") from None
+
+
 def main(argv: list[str] | None = None) -> None:
     """Run the node until SIGINT/SIGTERM, then store what was queued and return (exit 0)."""
     own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
     ap = argparse.ArgumentParser(prog="ravenmem ros run", description="ravenmem as a ROS 2 node")
     ap.add_argument("--memory", "-m", required=True, type=Path, help="memory folder")
     ap.add_argument("--create", action="store_true", help="create the memory when missing")
+    ap.add_argument("--lifecycle", action="store_true", help="a managed node (ros.lifecycle)")
     args = ap.parse_args(own)
     share_cores()  # before torch or FAISS loads (ravenmem.threads)
     rclpy = _ros()
@@ -480,15 +522,16 @@ def main(argv: list[str] | None = None) -> None:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    try:
-        node = rclpy.create_node("ravenmem")
-    except Exception as e:  # an invalid remapped name or namespace
-        rclpy.shutdown()
-        raise InputError(f"--ros-args: {' '.join(str(e).split())}") from None
+    if args.lifecycle:
+        from .lifecycle import run_managed
+
+        run_managed(args.memory, args.create, stop)
+        return
+    node = made_node(lambda: rclpy.create_node("ravenmem"))
     service = None
     try:
         settings = NodeSettings.declare(node)
-        service = _open_service(args.memory, args.create, settings)
+        service = open_service(args.memory, args.create, settings)
         ros_node = RavenmemNode(node, settings, service)
         service.attach(ros_node)
         service.warm_up()  # the embedder loaded and run once: the first search is as fast as the next
@@ -500,10 +543,7 @@ def main(argv: list[str] | None = None) -> None:
         node.get_logger().info("stopping: storing the frames already taken")
         ros_node.stop_intake()
         executor.shutdown(timeout_sec=1.0)
-        assert service.writer is not None
-        service.writer.close()  # stores what was queued
-        ros_node.record()
-        service.close()
+        ros_node.finish()  # stores what was queued, notes the run, closes the memory
         service = None
     finally:
         if service is not None:

@@ -53,22 +53,38 @@ class NodeSettings:
     @classmethod
     def declare(cls, node: Any) -> NodeSettings:
         """Declare every field as a ROS parameter (its default here) and read them back."""
-        from rcl_interfaces.msg import ParameterDescriptor
+        cls.declare_all(node)
+        return cls.read(node)
 
-        values: dict[str, Any] = {}
-        from rclpy.exceptions import ParameterUninitializedException
+    @classmethod
+    def declare_all(cls, node: Any) -> None:
+        """Declare every field not declared yet (a managed node declares them when it is made,
+        so `ros2 param set` works before `configure`, and reads them at each `configure`)."""
+        from rcl_interfaces.msg import ParameterDescriptor
         from rclpy.parameter import Parameter
 
         for f in fields(cls):
+            if node.has_parameter(f.name):
+                continue
             if f.name == "image_topics":  # a string array (an empty default has no type)
                 node.declare_parameter(f.name, Parameter.Type.STRING_ARRAY)
+            else:  # dynamic typing: `-p pose_wait:=2` (an integer) is as good as 2.0
+                node.declare_parameter(f.name, f.default, ParameterDescriptor(dynamic_typing=True))
+
+    @classmethod
+    def read(cls, node: Any) -> NodeSettings:
+        """The declared parameters' values, checked (a one-line `InputError` naming the first
+        one the node cannot use)."""
+        from rclpy.exceptions import ParameterUninitializedException
+
+        values: dict[str, Any] = {}
+        for f in fields(cls):
+            if f.name == "image_topics":
                 try:
                     values[f.name] = tuple(str(t) for t in node.get_parameter(f.name).value or ())
                 except ParameterUninitializedException:
                     values[f.name] = ()
                 continue
-            # dynamic typing: `-p pose_wait:=2` (an integer) is as good as 2.0
-            node.declare_parameter(f.name, f.default, ParameterDescriptor(dynamic_typing=True))
             v = node.get_parameter(f.name).value
             kind: type = type(f.default)
             try:

@@ -63,7 +63,7 @@ def run(
 ) -> None:
     """Run the ravenmem node until SIGINT/SIGTERM. Every setting is a ROS parameter: give them
     after --ros-args (-p image_topic:=/camera/image_raw, --params-file f.yaml, -r __ns:=/bot1)."""
-    from ..ros.node import main as node_main
+    from ..ros.run import main as node_main
 
     own = (
         ["--memory", str(memory)] + (["--create"] if create else []) + (["--lifecycle"] if lifecycle else [])

@@ -181,7 +181,9 @@ class FrameIntake:
         self.log = log
         self.counts = Counts()
         self.waiting: deque[_Waiting] = deque()
-        self.tf: TfBuffer | None = None if settings.odom_topic else TfBuffer(settings.history, max_gap=settings.max_gap)
+        self.tf: TfBuffer | None = (
+            None if settings.odom_topic else TfBuffer(settings.history, max_gap=settings.max_gap)
+        )
         self.odom = PoseBuffer(settings.history, max_gap=settings.max_gap)
         self.frame: str | None = None  # the poses' frame, once known
         self._refused: dict[str, str | None] = {}

@@ -176,8 +176,12 @@ def session(root: Path) -> Iterator[Run]:
     mem = make_cli_memory(root / "cli.mem")
     (root / "tmp").mkdir(exist_ok=True)
     make_served_memory(root / "served.mem").close()
-    proc, url = serve_subprocess(root / "served.mem")
-    driver = Driver()
+    driver = Driver()  # it loads the commands while the service starts
+    try:
+        proc, url = serve_subprocess(root / "served.mem")
+    except BaseException:
+        driver.close()
+        raise
     try:
         imported = driver.run(["map", "-m", str(mem), "--import-nav2", str(files / "map-ok.yaml")])
         assert imported["rc"] == 0, imported  # navigate's cases then reach their options

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.cli.helpers import REPO, assert_one_line_error, make_memory, run_cli
+from tests.cli.helpers import REPO, ForkedCli, assert_one_line_error, make_memory, run_cli
 
 
 def _days(bytes_per_memory: float, rate: float) -> float:
@@ -117,8 +117,8 @@ def test_bench_text_on_a_memory_reads_it_only_and_reports_what_cannot_run(tmp_pa
         (["-m", "/nonexistent/x.mem"], "not a ravenmem memory"),
     ],
 )
-def test_bench_bad_input_is_one_line(args: list[str], match: str) -> None:
-    line = assert_one_line_error(run_cli("bench", *args, timeout=120))
+def test_bench_bad_input_is_one_line(forked_cli: ForkedCli, args: list[str], match: str) -> None:
+    line = assert_one_line_error(forked_cli("bench", *args, timeout=120))
     assert match in line
 
 

@@ -127,7 +127,7 @@ class Driver:
         env = {k: v for k, v in os.environ.items() if not k.startswith(("RAVENMEM_", "OPENAI_"))}
         env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src"), str(REPO)])
         self.proc = subprocess.Popen(
-            [sys.executable, str(REPO / "tests" / "hardening" / "forkrun.py")],
+            [sys.executable, str(REPO / "tests" / "hardening" / "forkrun.py"), "--test-color"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,

@@ -11,19 +11,17 @@ from pathlib import Path
 
 import pytest
 
-from tests.agent.conftest import VLM_ENV, color_plugin  # noqa: F401
-from tests.cli.helpers import ForkedCli, assert_one_line_error
+from tests.agent.conftest import color_plugin, forked_plugin_cli  # noqa: F401
+from tests.cli.helpers import assert_one_line_error
 from tests.ingest.bags import write_bag
 
 IMAGES = "/camera/image_raw"
 
 
 @pytest.fixture
-def cli(color_plugin, tmp_path, forked_cli: ForkedCli):  # noqa: F811
-    """`ravenmem` as `tests.agent.conftest.run_cli` runs it (the colour embedder's plugin site,
-    no VLM settings, config home in the test's folder), each command forked by one driver."""
-    env = {"XDG_CONFIG_HOME": str(tmp_path / "home"), "COLUMNS": "200"}
-    return lambda *args: forked_cli(*args, env=env, unset=VLM_ENV, paths=(color_plugin,), timeout=120)
+def cli(forked_plugin_cli):  # noqa: F811
+    """`ravenmem` with the colour embedder's plugin site, each command forked by one driver."""
+    return forked_plugin_cli
 
 
 def test_ingest_records_frame_and_map_and_refuses_another(cli, tmp_path: Path) -> None:

@@ -22,7 +22,7 @@ import os
 import statistics
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -258,11 +258,12 @@ def measure(
     synthetic_n: int = SYNTHETIC_N,
     embedder_seconds: float = SECONDS_PER_EMBEDDER,
     say: Callable[[str], None] | None = None,
+    embedders: Sequence[str] | None = None,
 ) -> Capacity:
     """Run every measurement (see the module docstring). `memory` is opened read-only. `say`
-    gets a line as each step starts and ends (a minute of silence reads as a hang)."""
-    import importlib.util
-
+    gets a line as each step starts and ends (a minute of silence reads as a hang).
+    `embedders`: the specs to measure after the memory's own embedder (default: `offline`, and
+    `offline:runtime=torch` where torch is installed)."""
     import ravenmem
 
     from .embed.base import default_threads
@@ -274,15 +275,14 @@ def measure(
     if mem_path is not None:
         with ravenmem.open(mem_path) as m:
             specs.append(m.manifest.embedder)
-    if "offline" not in specs and not any(s.startswith("offline:") for s in specs):
-        specs.append("offline")
-    if importlib.util.find_spec("torch") is not None:
-        specs.append("offline:runtime=torch")
-    embedders = []
+    specs += [
+        s for s in dict.fromkeys(_default_specs(specs) if embedders is None else embedders) if s not in specs
+    ]
+    figures = []
     for i, spec in enumerate(specs, 1):
         say(f"[{i}/{len(specs) + 3}] embedder {spec}: loading, then embedding for {embedder_seconds:g} s")
-        embedders.append(measure_embedder(spec, embedder_seconds))
-        e = embedders[-1]
+        figures.append(measure_embedder(spec, embedder_seconds))
+        e = figures[-1]
         say(f"  {e.error or f'{e.frames_per_s:.1f} frames/s'}")
     say(f"[{len(specs) + 1}/{len(specs) + 3}] OCR: reading a rendered sign for 2 s")
     ocr = measure_ocr()
@@ -313,12 +313,12 @@ def measure(
             store = StoreFigure(n, mem_path is None, int(info["dim"]), build_s, tools, errors)
     with_thumbs = mem_path is not None and bool(info.get("thumb_bytes"))
     disk = float(info["bytes_per_memory_with_thumbs"] if with_thumbs else info["bytes_per_memory"] or 0.0)
-    sizing = next((e for e in embedders if e.frames_per_s), None)
+    sizing = next((e for e in figures if e.frames_per_s), None)
     kf = sizing.frames_per_s if sizing else None
     kf_ocr = 1.0 / (1.0 / kf + 1.0 / ocr) if kf and ocr else None
     return Capacity(
         machine=_machine(default_threads()),
-        embedders=embedders,
+        embedders=figures,
         ocr_frames_per_s=ocr,
         store=store,
         bytes_per_memory_disk=disk,
@@ -332,6 +332,17 @@ def measure(
         days_per_gb_ram=days_per_gb(ram, rate) if ram else None,
         seconds=time.perf_counter() - start,
     )
+
+
+def _default_specs(first: list[str]) -> list[str]:
+    """The offline embedder (unless the memory's is one), and its torch runtime where torch is
+    installed."""
+    import importlib.util
+
+    out = [] if any(s == "offline" or s.startswith("offline:") for s in first) else ["offline"]
+    if importlib.util.find_spec("torch") is not None:
+        out.append("offline:runtime=torch")
+    return out
 
 
 def _ram_per_memory(path: Path) -> float | None:

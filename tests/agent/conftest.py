@@ -6,8 +6,9 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -15,6 +16,7 @@ import ravenmem
 from ravenmem.agent import VLMClient, VLMConfig
 from ravenmem.types import Frame, Pose
 from tests.agent.scripted_server import ScriptedModel
+from tests.cli.helpers import ForkedCli
 from tests.conftest import ColorEmbedder, solid
 
 REPO = Path(__file__).resolve().parents[2]
@@ -123,3 +125,12 @@ def run_cli(
         env=base,
         timeout=timeout,
     )
+
+
+@pytest.fixture
+def forked_plugin_cli(color_plugin: Path, tmp_path: Path, forked_cli: ForkedCli) -> Callable[..., Any]:
+    """`run_cli` above (the colour embedder's plugin site, no VLM settings, config home in the
+    test's folder, COLUMNS=200), each command forked by the test process's driver (`ForkedCli`):
+    for the many short refusals; `run_cli` stays the fresh-interpreter path."""
+    env = {"XDG_CONFIG_HOME": str(tmp_path / "home"), "COLUMNS": "200"}
+    return lambda *args: forked_cli(*args, env=env, unset=VLM_ENV, paths=(color_plugin,), timeout=120)

@@ -1,5 +1,6 @@
 """`ravenmem ask` / `ravenmem caption` as users run them: the real command in a subprocess, a
-memory on disk, a scripted VLM over HTTP."""
+memory on disk, a scripted VLM over HTTP (the one-line refusals forked by one driver:
+`forked_plugin_cli`)."""
 
 from __future__ import annotations
 
@@ -37,8 +38,8 @@ def test_ask_offline_prints_the_answer_card(cli, mem_path):
 
 
 @pytest.mark.parametrize("method", ["raven", "vlm-only", "caption"])
-def test_vlm_methods_without_a_model_fail_with_one_line(cli, mem_path, method):
-    r = cli("ask", "Where is the magenta box?", "-m", str(mem_path), "--method", method)
+def test_vlm_methods_without_a_model_fail_with_one_line(forked_plugin_cli, mem_path, method):
+    r = forked_plugin_cli("ask", "Where is the magenta box?", "-m", str(mem_path), "--method", method)
     err = r.stderr.strip()
     assert r.returncode == 2 and r.stdout == "" and "Traceback" not in r.stderr
     assert len(err.splitlines()) == 1, err
@@ -46,8 +47,8 @@ def test_vlm_methods_without_a_model_fail_with_one_line(cli, mem_path, method):
     assert "--model" in err and "RAVENMEM_VLM_MODEL" in err and "--offline" in err
 
 
-def test_caption_without_a_model_fails_with_one_line(cli, mem_path):
-    r = cli("caption", "-m", str(mem_path))
+def test_caption_without_a_model_fails_with_one_line(forked_plugin_cli, mem_path):
+    r = forked_plugin_cli("caption", "-m", str(mem_path))
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "needs a VLM" in r.stderr
 
 
@@ -170,7 +171,7 @@ def test_caption_command(cli, mem_path, server, monkeypatch):
     ] == [4] * 3
 
 
-def test_bad_flags_are_one_line_errors(cli, mem_path):
+def test_bad_flags_are_one_line_errors(forked_plugin_cli, mem_path):
     for args, msg in (
         (["--preset", "dory"], "unknown preset 'dory'"),
         (["--top-k", "time=lots", "--offline"], "--top-k"),
@@ -201,7 +202,7 @@ def test_bad_flags_are_one_line_errors(cli, mem_path):
             "time_mode",
         ),
     ):
-        r = cli("ask", "Where?", "-m", str(mem_path), *args)
+        r = forked_plugin_cli("ask", "Where?", "-m", str(mem_path), *args)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
 
 

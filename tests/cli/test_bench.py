@@ -3,6 +3,7 @@ consistency are checked (days per GB follow from the printed bytes and rate), ne
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import re
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.cli.helpers import REPO, assert_one_line_error, make_memory, run_cli
+from tests.cli.helpers import REPO, ForkedCli, assert_one_line_error, make_memory, run_cli
 
 
 def _days(bytes_per_memory: float, rate: float) -> float:
@@ -67,6 +68,8 @@ def test_bench_json_on_a_synthetic_store_is_consistent(synthetic_run: Run) -> No
         assert 0 < t["p50_ms"] <= t["p99_ms"], tool
     offline = [e for e in doc["embedders"] if e["spec"] == "offline"]
     assert len(offline) == 1 and offline[0]["error"] is None and offline[0]["frames_per_s"] > 0
+    torch = importlib.util.find_spec("torch") is not None  # the default set: its runtime too where installed
+    assert [e["spec"] for e in doc["embedders"]] == ["offline", *(["offline:runtime=torch"] if torch else [])]
     assert offline[0]["name"].startswith("offline:effnet-lite0+minilm:")
     # the sizing follows from the measured figures
     assert doc["sizing_embedder"] == doc["embedders"][0]["name"]
@@ -83,17 +86,20 @@ def test_bench_json_on_a_synthetic_store_is_consistent(synthetic_run: Run) -> No
 
 def test_bench_text_on_a_memory_reads_it_only_and_reports_what_cannot_run(tmp_path: Path) -> None:
     """A memory whose embedder is not installed here (the tests' colour embedder): the text tool
-    and that embedder are reported as failed, the rest is measured, nothing in the memory changes."""
+    and that embedder are reported as failed, the rest is measured, nothing in the memory changes.
+    `--embedder offline`: that one after the memory's (the default set, torch's runtime too, is
+    the synthetic run's)."""
     mem = make_memory(tmp_path / "m.mem", n=40)
     # any reader leaves the store's derived caches (columns.cache) behind once; bench adds nothing
     assert run_cli("search", "--time", "+0s", "-m", str(mem)).returncode == 0
     before = {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in mem.rglob("*") if p.is_file()}
-    r = run_cli("bench", "-m", str(mem), "--seconds", "0.5", timeout=600)
+    r = run_cli("bench", "-m", str(mem), "--seconds", "0.5", "--embedder", "offline", timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     out = r.stdout
     after = {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in mem.rglob("*") if p.is_file()}
     assert after == before  # read-only
-    assert re.search(r"test-color: unavailable \(", out), out
+    assert re.search(r"test-color: unavailable \(", out), out  # the memory's own embedder, then --embedder's
+    assert "runtime=torch" not in out and len(re.findall(r"^  offline:", out, re.M)) == 1, out
     assert re.search(r"store: 40 memories \(this memory, dim 4\)", out), out
     assert re.search(r"^  text +failed \(", out, re.M), out
     for tool in ("image", "time", "position"):
@@ -117,8 +123,8 @@ def test_bench_text_on_a_memory_reads_it_only_and_reports_what_cannot_run(tmp_pa
         (["-m", "/nonexistent/x.mem"], "not a ravenmem memory"),
     ],
 )
-def test_bench_bad_input_is_one_line(args: list[str], match: str) -> None:
-    line = assert_one_line_error(run_cli("bench", *args, timeout=120))
+def test_bench_bad_input_is_one_line(forked_cli: ForkedCli, args: list[str], match: str) -> None:
+    line = assert_one_line_error(forked_cli("bench", *args, timeout=120))
     assert match in line
 
 

@@ -20,7 +20,7 @@ from PIL import Image
 import ravenmem
 from ravenmem.embed.base import create_embedder
 from tests.agent.scripted_server import ScriptedModel, answer
-from tests.cli.helpers import assert_one_line_error, make_memory, run_cli
+from tests.cli.helpers import ForkedCli, assert_one_line_error, make_memory, run_cli
 
 
 def tree(folder: Path) -> dict[str, str]:
@@ -74,7 +74,7 @@ def test_ingest_never_writes_into_a_folder_that_is_not_a_memory(tmp_path: Path, 
     assert tree(other) == before and journal_mode(db) == "delete"
 
 
-def test_a_foreign_store_sqlite_is_refused_unchanged(tmp_path: Path, frames: Path):
+def test_a_foreign_store_sqlite_is_refused_unchanged(forked_cli: ForkedCli, tmp_path: Path, frames: Path):
     mem = make_memory(tmp_path / "m.mem", n=2)
     db = mem / "store.sqlite"
     db.unlink()
@@ -86,7 +86,7 @@ def test_a_foreign_store_sqlite_is_refused_unchanged(tmp_path: Path, frames: Pat
     mf.write_text(json.dumps(json.loads(mf.read_text()) | {"embedder": offline.name, "dim": offline.dim}))
     before = tree(mem)
     for args in (["info"], ["search", "--time", "0"], ["ingest", str(frames), "--no-ocr"]):
-        line = assert_one_line_error(run_cli(*args, "-m", str(mem)))
+        line = assert_one_line_error(forked_cli(*args, "-m", str(mem)))
         assert "store.sqlite" in line and "not a ravenmem store" in line
     assert tree(mem) == before and journal_mode(db) == "delete"  # no WAL switch, no -wal/-shm files
 
@@ -99,11 +99,11 @@ def test_a_store_sqlite_that_is_no_database_is_refused(tmp_path: Path):
     assert "not a SQLite database" in line and tree(mem) == before
 
 
-def test_memory_pointing_at_a_database_file(tmp_path: Path, frames: Path):
+def test_memory_pointing_at_a_database_file(forked_cli: ForkedCli, tmp_path: Path, frames: Path):
     db = foreign_db(tmp_path / "shop.sqlite")
     before = db.read_bytes()
-    assert "not a ravenmem memory" in assert_one_line_error(run_cli("info", "-m", str(db)))
-    assert "not a folder" in assert_one_line_error(run_cli("ingest", str(frames), "-m", str(db)))
+    assert "not a ravenmem memory" in assert_one_line_error(forked_cli("info", "-m", str(db)))
+    assert "not a folder" in assert_one_line_error(forked_cli("ingest", str(frames), "-m", str(db)))
     assert db.read_bytes() == before and journal_mode(db) == "delete"
     assert sorted(os.listdir(tmp_path)) == ["frames", "shop.sqlite"]
 
@@ -123,7 +123,9 @@ def test_memory_pointing_at_a_database_file(tmp_path: Path, frames: Path):
         (b"{not json", "not valid JSON"),
     ],
 )
-def test_a_bad_manifest_is_one_line_and_nothing_is_written(tmp_path: Path, edit: object, needle: str):
+def test_a_bad_manifest_is_one_line_and_nothing_is_written(
+    forked_cli: ForkedCli, tmp_path: Path, edit: object, needle: str
+):
     mem = make_memory(tmp_path / "m.mem", n=2)
     mf = mem / "memory.json"
     if isinstance(edit, bytes):
@@ -131,7 +133,7 @@ def test_a_bad_manifest_is_one_line_and_nothing_is_written(tmp_path: Path, edit:
     else:
         mf.write_text(json.dumps(json.loads(mf.read_text()) | edit))  # type: ignore[operator]
     before = tree(mem)
-    line = assert_one_line_error(run_cli("search", "--time", "0", "-m", str(mem)))
+    line = assert_one_line_error(forked_cli("search", "--time", "0", "-m", str(mem)))
     assert needle in line and "memory.json" in line
     assert tree(mem) == before
 
@@ -147,7 +149,9 @@ def test_a_bad_manifest_is_one_line_and_nothing_is_written(tmp_path: Path, edit:
         "../up",
     ],
 )
-def test_the_manifest_store_cannot_point_outside_the_folder(tmp_path: Path, frames: Path, store: str):
+def test_the_manifest_store_cannot_point_outside_the_folder(
+    forked_cli: ForkedCli, tmp_path: Path, frames: Path, store: str
+):
     mem = make_memory(tmp_path / "m.mem", n=2)
     elsewhere = tmp_path / "elsewhere"
     mf = mem / "memory.json"
@@ -156,7 +160,7 @@ def test_the_manifest_store_cannot_point_outside_the_folder(tmp_path: Path, fram
     )
     commands = [["info"], ["ingest", str(frames), "--no-ocr"]] if store == "ELSEWHERE" else [["info"]]
     for args in commands:
-        line = assert_one_line_error(run_cli(*args, "-m", str(mem)))
+        line = assert_one_line_error(forked_cli(*args, "-m", str(mem)))
         assert "store" in line
     assert not elsewhere.exists() and not (tmp_path / "x.db").exists() and not (tmp_path / "up").exists()
 
@@ -294,15 +298,19 @@ def test_ingest_again_with_default_flags_appends(tmp_path: Path, frames: Path):
         assert json.loads(r.stdout)["memories_total"] == total
 
 
-def test_appending_the_same_recording_again_does_not_inflate_the_counts(tmp_path: Path, frames: Path):
+def test_appending_the_same_recording_again_does_not_inflate_the_counts(
+    forked_cli: ForkedCli, tmp_path: Path, frames: Path
+):
     """A second run of the same recording sees the same frames: `info` counts them once, so the
-    frames seen, the keyframe ratio and the compression figure stay what one run gave."""
+    frames seen, the keyframe ratio and the compression figure stay what one run gave. (The first
+    ingest in a fresh interpreter, the rest forked by one driver: `ForkedCli`.)"""
     mem = tmp_path / "m.mem"
     infos = []
-    for _ in range(3):
-        r = run_cli("ingest", str(frames), "-m", str(mem), "--no-ocr", "--keyframes", "all", "--json")
+    for i in range(3):
+        cli = run_cli if i == 0 else forked_cli
+        r = cli("ingest", str(frames), "-m", str(mem), "--no-ocr", "--keyframes", "all", "--json")
         assert r.returncode == 0, r.stderr
-        infos.append(json.loads(run_cli("info", "-m", str(mem), "--json").stdout))
+        infos.append(json.loads(forked_cli("info", "-m", str(mem), "--json").stdout))
         # the ingest report's figure is the one `info` gives (the memory at rest)
         assert json.loads(r.stdout)["compression_vs_raw"] == infos[-1]["compression_vs_raw"]
     assert [len(i["ingests"]) for i in infos] == [1, 2, 3]
@@ -367,7 +375,9 @@ def test_an_unreachable_milvus_server_is_one_line(tmp_path: Path, frames: Path):
         assert "cannot connect" in line
 
 
-def test_a_manifest_cannot_choose_a_server_the_user_never_gave(tmp_path: Path, frames: Path):
+def test_a_manifest_cannot_choose_a_server_the_user_never_gave(
+    forked_cli: ForkedCli, tmp_path: Path, frames: Path
+):
     """An edited or copied memory.json naming a Milvus server is refused before any connection;
     the user's own trust (create --store, or RAVENMEM_TRUSTED_STORES) lets it through."""
     import socket
@@ -382,7 +392,7 @@ def test_a_manifest_cannot_choose_a_server_the_user_never_gave(tmp_path: Path, f
         mf.write_text(json.dumps(json.loads(mf.read_text()) | {"store": uri}))
         home = {"XDG_CONFIG_HOME": str(tmp_path / "home"), "RAVENMEM_TRUSTED_STORES": "milvus://other:1"}
         for args in (["info"], ["search", "--time", "0"], ["ingest", str(frames), "--no-ocr"]):
-            line = assert_one_line_error(run_cli(*args, "-m", str(mem), env=home))
+            line = assert_one_line_error(forked_cli(*args, "-m", str(mem), env=home))
             assert "never gave ravenmem" in line and "RAVENMEM_TRUSTED_STORES" in line
         with pytest.raises(TimeoutError):
             listener.accept()  # nobody connected
@@ -391,7 +401,7 @@ def test_a_manifest_cannot_choose_a_server_the_user_never_gave(tmp_path: Path, f
     f = tmp_path / "home" / "ravenmem" / "stores.json"
     f.parent.mkdir(parents=True)
     f.write_text(json.dumps({"trusted": [uri]}))
-    line = assert_one_line_error(run_cli("info", "-m", str(mem), env=home))
+    line = assert_one_line_error(forked_cli("info", "-m", str(mem), env=home))
     assert "cannot connect" in line
 
 
@@ -403,8 +413,10 @@ def test_a_manifest_cannot_choose_a_server_the_user_never_gave(tmp_path: Path, f
         (["--batch-size", "0"], "--batch-size: expected a whole number from 1"),
     ],
 )
-def test_nonsense_ingest_numbers_are_one_line(tmp_path: Path, frames: Path, opts: list[str], needle: str):
+def test_nonsense_ingest_numbers_are_one_line(
+    forked_cli: ForkedCli, tmp_path: Path, frames: Path, opts: list[str], needle: str
+):
     new = tmp_path / "m.mem"
-    line = assert_one_line_error(run_cli("ingest", str(frames), "-m", str(new), "--no-ocr", *opts))
+    line = assert_one_line_error(forked_cli("ingest", str(frames), "-m", str(new), "--no-ocr", *opts))
     assert needle in line
     assert not new.exists()

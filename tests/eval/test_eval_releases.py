@@ -22,6 +22,7 @@ from ravenmem.eval.metrics import bootstrap_ci, score_row, seed_accuracy
 from ravenmem.eval.runner import build_row
 from ravenmem.eval.types import Episode, Question, Truth
 from tests.agent.scripted_server import ScriptedModel
+from tests.cli.helpers import ForkedCli
 from tests.eval.eval_helpers import no_vlm_env, plugin_site, rm
 from tests.eval.release_layouts import (
     NAV_QUESTIONS,
@@ -234,7 +235,9 @@ def _group(summary: dict[str, Any]) -> dict[str, Any]:
     return g
 
 
-def test_cli_navqa_raven_repository_scores_records_and_replays(tmp_path: Path) -> None:
+def test_cli_navqa_raven_repository_scores_records_and_replays(tmp_path: Path, forked_cli: ForkedCli) -> None:
+    """Run and report in fresh interpreters; the replays (and the replay's report) forked by one
+    driver (`ForkedCli`), each still the whole command."""
     repo = write_raven_navqa(tmp_path / "RAVEN")
     site = plugin_site(tmp_path)
     run = tmp_path / "run"
@@ -274,25 +277,31 @@ def test_cli_navqa_raven_repository_scores_records_and_replays(tmp_path: Path) -
     # replayed with no model anywhere: the same numbers, the same report
     env = no_vlm_env(tmp_path)
     again = _summary(
-        rm("eval", "--replay", str(run), "--out", str(tmp_path / "re"), "--json", site=site, env=env)
+        forked_cli(
+            "eval", "--replay", str(run), "--out", str(tmp_path / "re"), "--json", paths=(site,), env=env
+        )
     )
     first = json.loads((run / "summary.json").read_text())
     assert again["groups"] == first["groups"]
     assert (
-        rm(
-            "eval", "report", str(tmp_path / "re"), "--out", str(tmp_path / "b" / "report.md"), site=site
+        forked_cli(
+            "eval", "report", str(tmp_path / "re"), "--out", str(tmp_path / "b" / "report.md"), paths=(site,)
         ).returncode
         == 0
     )
     assert (tmp_path / "b" / "report.md").read_text() == report
-    r = rm("eval", "--replay", str(run), "--top-k", "9", site=site, env=env)
+    r = forked_cli("eval", "--replay", str(run), "--top-k", "9", paths=(site,), env=env)
     assert (
         r.returncode == 2 and "--top-k (None -> 9) changed; those answers need new model replies" in r.stderr
     )
-    r = rm("eval", "--replay", str(run), "--embedder", "offline", site=site, env=env)
+    r = forked_cli("eval", "--replay", str(run), "--embedder", "offline", paths=(site,), env=env)
     assert r.returncode == 2 and "--embedder (test-color-eval -> offline) changed" in r.stderr
     stricter = _group(
-        _summary(rm("eval", "--replay", str(run), "--pos-threshold", "0.5", "--json", site=site, env=env))
+        _summary(
+            forked_cli(
+                "eval", "--replay", str(run), "--pos-threshold", "0.5", "--json", paths=(site,), env=env
+            )
+        )
     )
     assert stricter["by"]["type"]["position"]["accuracy"]["mean"] < 1.0  # re-scored, no model asked
 

@@ -17,6 +17,7 @@ from ravenmem.eval.retrieval import embedder_study
 from ravenmem.eval.runner import Runner, read_rows
 from ravenmem.eval.studies import compression_study, coverage_cut, coverage_study, keyframe_spec, option_study
 from ravenmem.ingest.keyframes import KeyframeConfig
+from tests.cli.helpers import ForkedCli
 from tests.eval.eval_helpers import (
     TARGETS,
     CountingColorEmbedder,
@@ -263,8 +264,11 @@ def test_top_k_option() -> None:
         parse_top_k("time=lots")
 
 
-def test_eval_command_run_report_study_and_errors(scoring_root: Path, tmp_path: Path) -> None:
-    """The real command, in a subprocess, with the colour embedder installed as a plugin."""
+def test_eval_command_run_report_study_and_errors(
+    scoring_root: Path, tmp_path: Path, forked_cli: ForkedCli
+) -> None:
+    """The real command, in a subprocess, with the colour embedder installed as a plugin (the
+    refusals, each a one-line check, in forked processes of one driver: `ForkedCli`)."""
     site = plugin_site(tmp_path)
     common = [
         "--dataset",
@@ -333,14 +337,14 @@ def test_eval_command_run_report_study_and_errors(scoring_root: Path, tmp_path: 
     r = rm("eval", "report", str(study), "--out", str(study / "report.md"), site=site)
     assert r.returncode == 0 and (study / "report_figs" / "study_tool-calls_0.png").exists()
     # without a VLM, the methods that need one stop before any question: one line, exit 2
-    r = rm(
+    r = forked_cli(
         "eval",
         *common,
         "--method",
         "offline,raven",
         "--out",
         str(tmp_path / "novlm"),
-        site=site,
+        paths=(site,),
         env=no_vlm_env(tmp_path),
     )
     assert r.returncode == 2 and "Traceback" not in r.stderr
@@ -367,7 +371,7 @@ def test_eval_command_run_report_study_and_errors(scoring_root: Path, tmp_path: 
         ([*common, "--method", "offline", "--scoring", "strict"], "--scoring: one of paper, release"),
         ([*common, "--method", "offline", "--time-mode", "sideways"], "--time-mode: one of forward, centred"),
     ):
-        r = rm("eval", *args, "--out", str(tmp_path / "bad"), site=site)
+        r = forked_cli("eval", *args, "--out", str(tmp_path / "bad"), paths=(site,))
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
 
 

@@ -127,7 +127,7 @@ class Driver:
         env = {k: v for k, v in os.environ.items() if not k.startswith(("RAVENMEM_", "OPENAI_"))}
         env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src"), str(REPO)])
         self.proc = subprocess.Popen(
-            [sys.executable, str(REPO / "tests" / "hardening" / "forkrun.py")],
+            [sys.executable, str(REPO / "tests" / "hardening" / "forkrun.py"), "--test-color"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -176,8 +176,12 @@ def session(root: Path) -> Iterator[Run]:
     mem = make_cli_memory(root / "cli.mem")
     (root / "tmp").mkdir(exist_ok=True)
     make_served_memory(root / "served.mem").close()
-    proc, url = serve_subprocess(root / "served.mem")
-    driver = Driver()
+    driver = Driver()  # it loads the commands while the service starts
+    try:
+        proc, url = serve_subprocess(root / "served.mem")
+    except BaseException:
+        driver.close()
+        raise
     try:
         imported = driver.run(["map", "-m", str(mem), "--import-nav2", str(files / "map-ok.yaml")])
         assert imported["rc"] == 0, imported  # navigate's cases then reach their options

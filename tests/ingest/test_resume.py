@@ -28,7 +28,8 @@ from PIL import Image
 from ravenmem.fsio import is_temp_file
 from ravenmem.ingest.keyframes import KeyframeConfig, Keyframer
 from ravenmem.ingest.tum import TumSource
-from tests.cli.helpers import run_cli
+from ravenmem.types import Frame
+from tests.cli.helpers import ForkedCli, run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
@@ -94,17 +95,26 @@ def wait_for(cond, proc: subprocess.Popen[str], what: str, limit: float = 300) -
         time.sleep(0.05)
 
 
-def all_memories(mem: Path) -> list[dict]:  # type: ignore[type-arg]
-    r = rm("search", "--time", "start", "-k", "1000", "--memory", str(mem), "--json")
+def all_memories(cli: ForkedCli, mem: Path) -> list[dict]:  # type: ignore[type-arg]
+    """Every memory, as `search --time start --json` lists them (forked by the test's driver)."""
+    r = cli("search", "--time", "start", "-k", "1000", "--memory", str(mem), "--json", timeout=600)
     assert r.returncode == 0, r.stderr
     return json.loads(r.stdout)["results"]
 
 
 def expected_frames(tum: Path, spec: str) -> list[int]:
     """The frame indices one uninterrupted run keeps: the posed frames the keyframe rules pass
-    (the novelty threshold of 1.0 drops none of these distinct camera images)."""
-    kf = Keyframer(KeyframeConfig.from_spec(spec))
-    return [f.index for f in TumSource(tum) if f.pose is not None and kf.pre(f) is None]
+    (the novelty threshold of 1.0 drops none of these distinct camera images). The poses are
+    matched as the source matches them; the images are not decoded (the cheap rules never look
+    at them, and every image of the recording reads: 720 decodes took ~3 s a call)."""
+    src, kf = TumSource(tum), Keyframer(KeyframeConfig.from_spec(spec))
+    blank = np.zeros((1, 1, 3), np.uint8)
+    out = []
+    for i, (t, _) in enumerate(src.entries):
+        pose = src.track.match(t, src.pose_match, src.max_gap)
+        if not isinstance(pose, str) and kf.pre(Frame(image=blank, t=t, pose=pose, index=i)) is None:
+            out.append(i)
+    return out
 
 
 def assert_clean(mem: Path, memories: list[dict]) -> None:  # type: ignore[type-arg]
@@ -119,7 +129,9 @@ def assert_clean(mem: Path, memories: list[dict]) -> None:  # type: ignore[type-
         assert conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
 
 
-def test_kill_9_then_same_command_stores_every_frame_once(tmp_path: Path, tum_path: Path) -> None:
+def test_kill_9_then_same_command_stores_every_frame_once(
+    tmp_path: Path, tum_path: Path, forked_cli: ForkedCli
+) -> None:
     mem = tmp_path / "desk.mem"
     seed = random.randrange(10**6)
     rng = random.Random(seed)
@@ -143,7 +155,7 @@ def test_kill_9_then_same_command_stores_every_frame_once(tmp_path: Path, tum_pa
     assert rep["skipped"]["already in memory"] == before, f"seed {seed}"
     assert rep["kept"] == len(want) - before and rep["memories_total"] == len(want)
 
-    memories = all_memories(mem)
+    memories = all_memories(forked_cli, mem)
     counts = Counter((m["source"], m["frame_index"]) for m in memories)
     assert len({s for s, _ in counts}) == 1 and next(iter(counts))[0].startswith("tum:tum_fr1_rpy@")
     assert sorted(i for _, i in counts) == want, f"seed {seed}: {target} stored + {delay:.2f} s"
@@ -151,7 +163,9 @@ def test_kill_9_then_same_command_stores_every_frame_once(tmp_path: Path, tum_pa
     assert_clean(mem, memories)
 
 
-def test_thumbnails_of_a_batch_killed_before_commit_are_removed(tmp_path: Path, tum_path: Path) -> None:
+def test_thumbnails_of_a_batch_killed_before_commit_are_removed(
+    tmp_path: Path, tum_path: Path, forked_cli: ForkedCli
+) -> None:
     """Deterministic: the writer dies inside the store's add, after writing the thumbnails."""
     mem = tmp_path / "m.mem"
     spec = "stride=60"
@@ -170,7 +184,7 @@ def test_thumbnails_of_a_batch_killed_before_commit_are_removed(tmp_path: Path, 
 
     r = rm(*args)
     assert r.returncode == 0, r.stderr
-    memories = all_memories(mem)
+    memories = all_memories(forked_cli, mem)
     assert sorted(m["frame_index"] for m in memories) == expected_frames(tum_path, spec)
     assert_clean(mem, memories)
     assert not list(mem.glob("pending-thumbs-*.json"))

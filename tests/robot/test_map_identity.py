@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.agent.conftest import color_plugin, run_cli  # noqa: F401
+from tests.agent.conftest import color_plugin, forked_plugin_cli  # noqa: F401
 from tests.cli.helpers import assert_one_line_error
 from tests.ingest.bags import write_bag
 
@@ -19,9 +19,9 @@ IMAGES = "/camera/image_raw"
 
 
 @pytest.fixture
-def cli(color_plugin, tmp_path):  # noqa: F811
-    home = tmp_path / "home"
-    return lambda *args, **kw: run_cli(*args, site=color_plugin, home=home, **kw)
+def cli(forked_plugin_cli):  # noqa: F811
+    """`ravenmem` with the colour embedder's plugin site, each command forked by one driver."""
+    return forked_plugin_cli
 
 
 def test_ingest_records_frame_and_map_and_refuses_another(cli, tmp_path: Path) -> None:

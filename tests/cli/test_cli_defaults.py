@@ -106,6 +106,7 @@ def test_commands_load_only_what_they_need(every_frame: Path) -> None:
     assert "ravenmem.embed._bert_onnx" in mods  # the text encoder ran ...
     assert not {"torch", "sentence_transformers", "transformers"} & mods  # ... without these
     assert "ravenmem.embed._effnet_onnx" not in mods  # and the image network was never built
+    assert "scipy.spatial" not in mods  # the position tool's k-d tree: only when it is asked
 
 
 @pytest.mark.slow

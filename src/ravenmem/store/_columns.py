@@ -19,12 +19,15 @@ from __future__ import annotations
 import struct
 import zlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..fsio import atomic_open
 from ..types import Filter, Region
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 _MAGIC = b"RVMCOLS1"
 _HEADER = struct.Struct("<8sqqqI4x16s")  # magic, n, max id covered, deletions reflected, crc, store uid
@@ -283,6 +286,8 @@ class Columns:
             # a damaged row (an infinite position: set aside by the next writer) is put far
             # away rather than stopping the tree from being built
             pts = np.nan_to_num(self._points(planar, slice(0, self.n)), nan=_FAR, posinf=_FAR, neginf=-_FAR)
+            from scipy.spatial import cKDTree  # here: half a second of imports a text search never needs
+
             built = (cKDTree(pts), self.n)
             self._trees[planar] = built
         return built

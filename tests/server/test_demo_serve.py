@@ -20,7 +20,7 @@ def test_the_demo_says_how_to_serve_its_memory_and_serve_opens_it(tmp_path: Path
     cfg = DemoConfig(
         maps=["synthetic:rooms"],
         out=str(tmp_path / "demo"),
-        steps=600,
+        steps=200,
         embedder=ColorEmbedder(),
         text_method="embedder-only",
         keyframe_dist=1.0,

@@ -276,7 +276,7 @@ def measure(
         with ravenmem.open(mem_path) as m:
             specs.append(m.manifest.embedder)
     specs += [
-        s for s in dict.fromkeys(_default_specs(specs) if embedders is None else embedders) if s not in specs
+        s for s in dict.fromkeys(default_specs(specs) if embedders is None else embedders) if s not in specs
     ]
     figures = []
     for i, spec in enumerate(specs, 1):
@@ -334,9 +334,9 @@ def measure(
     )
 
 
-def _default_specs(first: list[str]) -> list[str]:
-    """The offline embedder (unless the memory's is one), and its torch runtime where torch is
-    installed."""
+def default_specs(first: list[str]) -> list[str]:
+    """What `ravenmem bench` measures after `first` (the memory's embedder) unless told: the
+    offline embedder (unless the memory's is one), and its torch runtime where torch is installed."""
     import importlib.util
 
     out = [] if any(s == "offline" or s.startswith("offline:") for s in first) else ["offline"]

@@ -23,7 +23,8 @@ def _days(bytes_per_memory: float, rate: float) -> float:
 
 @dataclass(frozen=True)
 class Run:
-    """One `ravenmem bench --json --rate 0.5 --synthetic 3000 --seconds 0.5`, read as it ran:
+    """One `ravenmem bench --json --rate 0.5 --synthetic 3000 --seconds 0.5 --embedder offline`
+    (the default set adds the torch runtime where installed: `test_the_default_embedders`), read as it ran:
     its first stderr line, whether it was still running then, the rest, stdout, the exit code."""
 
     first: str
@@ -38,7 +39,18 @@ def synthetic_run() -> Run:
     """The synthetic bench, run once for the tests of its report and of its progress lines
     (a bench run is a minute of CPU)."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src"), str(REPO)]))
-    argv = ["bench", "--json", "--rate", "0.5", "--synthetic", "3000", "--seconds", "0.5"]
+    argv = [
+        "bench",
+        "--json",
+        "--rate",
+        "0.5",
+        "--synthetic",
+        "3000",
+        "--seconds",
+        "0.5",
+        "--embedder",
+        "offline",
+    ]
     proc = subprocess.Popen(
         [sys.executable, "-m", "ravenmem.cli.main", *argv],
         stdout=subprocess.PIPE,
@@ -68,8 +80,7 @@ def test_bench_json_on_a_synthetic_store_is_consistent(synthetic_run: Run) -> No
         assert 0 < t["p50_ms"] <= t["p99_ms"], tool
     offline = [e for e in doc["embedders"] if e["spec"] == "offline"]
     assert len(offline) == 1 and offline[0]["error"] is None and offline[0]["frames_per_s"] > 0
-    torch = importlib.util.find_spec("torch") is not None  # the default set: its runtime too where installed
-    assert [e["spec"] for e in doc["embedders"]] == ["offline", *(["offline:runtime=torch"] if torch else [])]
+    assert [e["spec"] for e in doc["embedders"]] == ["offline"]  # as asked: --embedder offline
     assert offline[0]["name"].startswith("offline:effnet-lite0+minilm:")
     # the sizing follows from the measured figures
     assert doc["sizing_embedder"] == doc["embedders"][0]["name"]
@@ -111,6 +122,17 @@ def test_bench_text_on_a_memory_reads_it_only_and_reports_what_cannot_run(tmp_pa
     lo, hi = (_days(float(m.group(1).replace(",", "")) + d, 0.12) for d in (0.5, -0.5))  # bytes rounded
     assert lo - 0.05 <= printed <= hi + 0.05, (printed, lo, hi)
     assert re.search(r"sustainable: [\d.]+ keyframes/s", out), out  # from the offline embedder
+
+
+def test_the_default_embedders() -> None:
+    """Without --embedder: the offline embedder (unless the memory's is one) and its torch
+    runtime where torch is installed, after the memory's own."""
+    from ravenmem.capacity import default_specs
+
+    torch = ["offline:runtime=torch"] if importlib.util.find_spec("torch") is not None else []
+    assert default_specs([]) == ["offline", *torch]
+    assert default_specs(["test-color"]) == ["offline", *torch]
+    assert default_specs(["offline:effnet-lite0+minilm:x"]) == torch
 
 
 @pytest.mark.parametrize(

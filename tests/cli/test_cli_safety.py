@@ -319,7 +319,10 @@ def test_appending_the_same_recording_again_does_not_inflate_the_counts(
 
 
 # ---------------------------------------------------------------- nothing kept, store unreachable
-def test_an_ingest_that_keeps_nothing_fails_and_leaves_no_empty_memory(tmp_path: Path, frames: Path):
+def test_an_ingest_that_keeps_nothing_fails_and_leaves_no_empty_memory(
+    forked_cli: ForkedCli, tmp_path: Path, frames: Path
+):
+    """(The first ingest of each kind in a fresh interpreter, the repeats forked: `ForkedCli`.)"""
     posed = frames
     stamped = tmp_path / "stamped"  # images named by their time, and a pose track that covers none
     stamped.mkdir()
@@ -336,13 +339,13 @@ def test_an_ingest_that_keeps_nothing_fails_and_leaves_no_empty_memory(tmp_path:
     assert not new.exists()
     # every frame already stored is a finished resume, not a failure
     mem = tmp_path / "m.mem"
-    for _ in range(2):
-        r = run_cli("ingest", str(posed), "-m", str(mem), "--no-ocr", "--json")
+    for cli in (run_cli, forked_cli):
+        r = cli("ingest", str(posed), "-m", str(mem), "--no-ocr", "--json")
         assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["kept"] == 0 and json.loads(r.stdout)["skipped"]["already in memory"] >= 1
     # into a memory that holds memories: the same failure, and its memories are untouched
     before = {k: v for k, v in tree(mem).items() if k != "memory.json"}
-    r = run_cli("ingest", str(frames), "-m", str(mem), "--no-ocr", "--poses", str(off))
+    r = forked_cli("ingest", str(frames), "-m", str(mem), "--no-ocr", "--poses", str(off))
     line = assert_one_line_error(r, warnings=True)
     assert (
         "names no map: taken to be in the memory's" in r.stderr

@@ -102,9 +102,8 @@ def test_the_link_and_the_node_pose_the_same_tf_stream_alike_in_bounded_memory()
     assert lk.stats.skipped == intake.counts.skipped == {TOO_OLD: 1, GAP: 1, SKIP_NO_POSE: 1}
     assert TOO_OLD == "older than the pose history" and GAP == "pose gap too long"
     # the same poses, interpolated at each stamp through the chain map -> odom -> base_footprint -> base_link
-    assert [t for _, _, t in sink.frames] == [t for _, t in writer.frames] == [
-        18.05, 18.111, 18.2, 18.37, 19.7, 19.93
-    ]  # fmt: skip
+    posed = [18.05, 18.111, 18.2, 18.37, 19.7, 19.93]
+    assert [t for _, _, t in sink.frames] == [t for _, t in writer.frames] == posed
     for (_, got, t), (want, _) in zip(sink.frames, writer.frames, strict=True):
         assert (got.x, got.y, got.z, got.yaw) == pytest.approx((want.x, want.y, want.z, want.yaw), abs=1e-12)
         assert got.quat == pytest.approx(want.quat, abs=1e-12)

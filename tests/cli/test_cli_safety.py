@@ -21,6 +21,7 @@ import ravenmem
 from ravenmem.embed.base import create_embedder
 from tests.agent.scripted_server import ScriptedModel, answer
 from tests.cli.helpers import ForkedCli, assert_one_line_error, make_memory, run_cli
+from tests.cli.test_cli_defaults import imported
 
 
 def tree(folder: Path) -> dict[str, str]:
@@ -259,6 +260,19 @@ def test_a_model_that_cannot_be_downloaded_leaves_nothing_behind(tmp_path: Path,
     )
     assert "cannot load 'openai/clip-vit-base-patch32'" in line
     assert not (tmp_path / "new").exists()
+    # refused before torch and transformers are imported (seconds of imports for nothing)
+    traced = run_cli(
+        "ingest",
+        str(frames),
+        "-m",
+        str(new),
+        "--embedder",
+        "hf:openai/clip-vit-base-patch32",
+        env=env,
+        python_flags=("-X", "importtime"),
+    )
+    packages = {m.split(".")[0] for m in imported(traced.stderr)}
+    assert traced.returncode == 2 and not {"torch", "transformers"} & packages
     empty = tmp_path / "empty.mem"  # a folder that existed before is kept, and left empty
     empty.mkdir()
     assert_one_line_error(

@@ -64,7 +64,21 @@ class HFEmbedder(LazyTorchEmbedder):
     def name(self) -> str:
         return f"hf:{self.source}"
 
+    def _reachable(self) -> None:
+        """A hub name's config is fetched (or found in the cache) before torch and transformers
+        are imported: a model that cannot be had (unknown, no network, offline and not cached)
+        is one `InputError` in a fraction of a second, not after seconds of imports."""
+        if Path(self.source).is_dir():
+            return
+        hub: Any = require("huggingface_hub", "hf")
+        try:
+            hub.hf_hub_download(self.source, "config.json")
+        except Exception as e:  # not found, no network, offline without a cached copy
+            reason = " ".join(str(e).split()) or type(e).__name__
+            raise InputError(f"hf embedder: cannot load {self.source!r}: {reason}") from None
+
     def _load_model(self) -> int:
+        self._reachable()
         torch: Any = require("torch", "hf")  # before transformers: it installs without torch
         tf: Any = require("transformers", "hf")
 

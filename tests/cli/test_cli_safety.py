@@ -271,8 +271,7 @@ def test_a_model_that_cannot_be_downloaded_leaves_nothing_behind(tmp_path: Path,
         env=env,
         python_flags=("-X", "importtime"),
     )
-    packages = {m.split(".")[0] for m in imported(traced.stderr)}
-    assert traced.returncode == 2 and not {"torch", "transformers"} & packages
+    assert traced.returncode == 2 and not {"torch", "transformers"} & imported(traced.stderr)
     empty = tmp_path / "empty.mem"  # a folder that existed before is kept, and left empty
     empty.mkdir()
     assert_one_line_error(

@@ -74,8 +74,12 @@ class HFEmbedder(LazyTorchEmbedder):
         try:
             hub.hf_hub_download(self.source, "config.json")
         except Exception as e:  # not found, no network, offline without a cached copy
-            reason = " ".join(str(e).split()) or type(e).__name__
-            raise InputError(f"hf embedder: cannot load {self.source!r}: {reason}") from None
+            raise self._cannot_load(e) from None
+
+    def _cannot_load(self, e: Exception) -> InputError:
+        """The one-line error for a model that could not be had, with the library's reason."""
+        reason = " ".join(str(e).split()) or type(e).__name__
+        return InputError(f"hf embedder: cannot load {self.source!r}: {reason}")
 
     def _load_model(self) -> int:
         self._reachable()
@@ -91,8 +95,7 @@ class HFEmbedder(LazyTorchEmbedder):
                 )
             self._processor = tf.AutoProcessor.from_pretrained(self.source)
         except (OSError, ValueError) as e:  # not found, no network (downloads retry first), bad folder
-            reason = " ".join(str(e).split()) or type(e).__name__
-            raise InputError(f"hf embedder: cannot load {self.source!r}: {reason}") from None
+            raise self._cannot_load(e) from None
         self._model = model.to(device).eval()
         self.device = device
         return int(self._encode_texts(["a"]).shape[-1])

@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import InputError
 from ..types import Pose
 from . import msgs
-from .tf import TOO_NEW, PoseBuffer, TfBuffer, norm_frame
+from .tf import REFUSED, TOO_NEW, PoseBuffer, TfBuffer, norm_frame
 
 if TYPE_CHECKING:
     from ..runtime.live import AddResult, LiveWriter
@@ -262,7 +262,7 @@ class FrameIntake:
             q = (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
             t = msgs.stamp(tfm, now)
             if not self.tf.add(tfm.header.frame_id, tfm.child_frame_id, t, xyz, q, static):
-                self._bad("tf frame refused (a second parent, or too many frames)")
+                self._bad(REFUSED)
         self.counts.poses += 1
         self.settle()
 

@@ -1,8 +1,8 @@
 """The built-in worlds of the synthetic robot, and `synthetic:NAME` environments made from them.
 
-Apart from `ravenmem.sim.synthetic` (the renderer and the robot, which know no particular world)
-so that a world built on them, such as the photo `gallery`, imports the renderer and never the
-other way round. `synthetic:rooms` (the default) and `synthetic:gallery` are the names.
+Apart from `ravenmem.sim.synthetic` (the renderer and the robot, with only their default world,
+`rooms`) so that a world built on them, such as the photo `gallery`, imports the renderer and
+never the other way round. `synthetic:rooms` (the default) and `synthetic:gallery` are the names.
 """
 
 from __future__ import annotations

@@ -74,3 +74,97 @@ def test_overlapping_is_overlaps_over_all_pairs() -> None:
             assert 0 < sum(want) < len(recs)
     assert overlapping([], recs, ChangeConfig()).tolist() == []
     assert overlapping(recs[:3], [], ChangeConfig()).tolist() == [False] * 3
+
+
+class _RecordsOnly:
+    """A store as a backend without `cameras` shows it to the latest mode (e.g. Milvus): every
+    call but `cameras` goes to the real store, so the latest mode reads records instead."""
+
+    def __init__(self, store: object) -> None:
+        self._store = store
+
+    def __getattr__(self, name: str) -> object:
+        if name == "cameras":
+            raise AttributeError(name)
+        return getattr(self._store, name)
+
+
+def _loops(laps: int = 12) -> tuple[list[Frame], np.ndarray]:
+    """A robot driving a 10 m square, 0.5 m a keyframe, a camera tilted by turns (quaternion
+    poses on odd laps, yaw only on even ones); a red thing in view at the start of the first
+    side for the first half, then at the third side; a green one in view for the first 8 laps
+    only. Embeddings in ColorEmbedder's space: the colour of what is in view."""
+    frames, emb = [], []
+    per_lap = 80
+    for i in range(laps * per_lap):
+        lap, s = divmod(i, per_lap)
+        edge, along = divmod(s * 0.5, 10.0)
+        x, y, yaw = [
+            (along, 0.0, 0.0),
+            (10.0, along, math.pi / 2),
+            (10 - along, 10.0, math.pi),
+            (0.0, 10 - along, -math.pi / 2),
+        ][int(edge)]
+        pose = Pose(x, y, 1.0, yaw)
+        if lap % 2:
+            tilt = 0.2 * math.sin(i)
+            pose = Pose.from_quaternion(x, y, 1.0, *_quat(yaw, tilt))
+        red = (lap < laps // 2 and 2 <= s < 6) or (lap >= laps // 2 and 42 <= s < 46)
+        green = lap < 8 and 22 <= s < 26
+        v = np.array([1.0 if red else 0.1, 1.0 if green else 0.1, 0.1, 0.15 + 0.01 * (s % 5)], np.float32)
+        frames.append(Frame(solid("black"), T0 + i, pose, "loop", i))
+        emb.append(v / np.linalg.norm(v))
+    return frames, np.array(emb, np.float32)
+
+
+def _quat(yaw: float, pitch: float) -> tuple[float, float, float, float]:
+    """The quaternion (x, y, z, w) of a yaw about z after a pitch about y."""
+    cy, sy, cp, sp = math.cos(yaw / 2), math.sin(yaw / 2), math.cos(pitch / 2), math.sin(pitch / 2)
+    return (-sy * sp, cy * sp, sy * cp, cy * cp)
+
+
+def _decided(w: object) -> list[tuple[object, ...]]:
+    return [
+        (
+            p.verdict,
+            [h.memory.id for h in p.sightings],
+            [(h.memory.id, round(h.score or 0.0, 6)) for h in p.revisits],
+            p.revisit_count,
+            p.later_visit,
+        )
+        for p in w.places  # type: ignore[attr-defined]
+    ]
+
+
+def test_the_latest_mode_decides_the_same_on_cameras_as_on_records(tmp_path) -> None:
+    """The embedded store gives the latest mode cameras (poses from its in-RAM columns) where a
+    backend without them gives records: the same places, sightings, revisits and verdicts, on a
+    memory with quaternion and yaw-only poses, before and after a reopen (columns from their
+    file), as of now and as of an earlier time."""
+    frames, emb = _loops()
+    mem = ravenmem.create(tmp_path / "m.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    mem.add_frames(frames, embeddings=emb)
+    mem.close()
+    for _ in range(2):  # the first open loads the columns from SQLite, the second from their file
+        mem = ravenmem.open(tmp_path / "m.mem", embedder=ColorEmbedder())
+        try:
+            real = mem.store
+            for colour, before in (("red", None), ("green", None), ("red", T0 + 500)):
+                mem.store = real
+                on_cameras = mem.last_seen(colour, before=before)
+                mem.store = _RecordsOnly(real)  # type: ignore[assignment]
+                on_records = mem.last_seen(colour, before=before)
+                assert _decided(on_cameras) == _decided(on_records)
+                assert on_cameras.status == on_records.status
+            mem.store = real
+            red, green = mem.last_seen("red"), mem.last_seen("green")
+            assert [p.verdict for p in red.places] == ["still there", "moved"]  # the setup holds
+            assert green.status == "gone" and green.places[0].revisits
+            recs = real.by_time(T0, 2000)
+            cams = real.cameras(T0, 2000)  # type: ignore[attr-defined]
+            assert cams.ids.tolist() == [r.id for r in recs] and np.array_equal(cams.t, [r.t for r in recs])
+            want = np.array([[r.pose.x, r.pose.y, r.pose.yaw, *(r.pose.quat or (np.nan,) * 4)] for r in recs])
+            assert np.allclose(cams.poses, want, atol=1e-6, equal_nan=True)
+            assert np.isnan(cams.poses[:80, 3:]).all() and not np.isnan(cams.poses[80:160, 3:]).any()
+        finally:
+            mem.close()

@@ -97,15 +97,12 @@ class Changes(Core):
         q, label = _query_vector(self, query, img, memory_id, vector)
         filt = self.make_filter(after, before, near)
         asof = Filter(before=filt.before)
-        pool = _search(self, q, min(s.pool, self.count()), filt)
-        if not pool:
+        scored = self.store.search_vector(q, max(1, min(s.pool, self.count(), MAX_K)), filt)
+        if not scored:
             return Whereabouts(label, [], math.inf, 0.0, 0.0)
-        best = max(sc for _, sc in pool.values())
         index = seen_index(self, s.floor_sample)  # whole-memory facts, read once per state
         floor = index.floor(q)
-        thr = floor + s.match_ratio * (best - floor) if best > floor + 1e-6 else math.inf
-        if min_score is not None:
-            thr = max(thr, float(min_score))
+        pool, thr, best = _pool(self, scored, floor, s.match_ratio, min_score)
         pool.update(_recent(self, q, pool, filt, thr, s))
         seen = {i: Hit(memory=r, score=sc) for i, (r, sc) in pool.items() if sc >= thr}
         if not seen:
@@ -151,10 +148,24 @@ def _query_vector(
     return v, "the vector"
 
 
-def _search(mem: Core, q: np.ndarray, k: int, filt: Filter) -> dict[int, tuple[MemoryRecord, float]]:
-    scored = mem.store.search_vector(q, max(1, min(k, MAX_K)), filt)
-    recs = {r.id: r for r in sample(mem, [i for i, _ in scored])}
-    return {i: (recs[i], float(sc)) for i, sc in scored if i in recs}
+def _pool(
+    mem: Core, scored: list[tuple[int, float]], floor: float, ratio: float, min_score: float | None
+) -> tuple[dict[int, tuple[MemoryRecord, float]], float, float]:
+    """The pool's sightings (records read for them only: the rest of the pool is below the
+    threshold and never shown), the threshold and the best score they set. A memory forgotten
+    since the index was read (another process's `forget`) is left out, and the threshold is
+    set again without it when it was the best."""
+    while scored:
+        best = max(sc for _, sc in scored)
+        thr = floor + ratio * (best - floor) if best > floor + 1e-6 else math.inf
+        if min_score is not None:
+            thr = max(thr, float(min_score))
+        want = [i for i, sc in scored if sc >= thr]
+        recs = {r.id: r for r in sample(mem, want)} if want else {}
+        if len(recs) == len(want):
+            return {i: (recs[i], sc) for i, sc in scored if i in recs}, thr, best
+        scored = [(i, sc) for i, sc in scored if sc < thr or i in recs]
+    return {}, math.inf, 0.0
 
 
 def _recent(

@@ -31,11 +31,12 @@ range whatever the order of ids; on a store whose ids follow time each holds the
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import numpy as np
 
-from ..types import Filter, Hit, MemoryRecord, Region
+from ..store.base import Cameras
+from ..types import Filter, Hit, Region
 from .core import Core
 from .protocol import MAX_K
 
@@ -100,20 +101,21 @@ class Later:
         return _chrono([h for h in hits if _inside(h, region) and keep(h)])
 
 
-def exact_scores(mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord]) -> dict[int, float]:
-    """Id -> score of records in hand, from one exact scan of the time span and disc that hold
-    them (vectors only: no record is read again); {} when those hold more than `MAX_K`."""
-    if not recs:
+def exact_scores(mem: Core, q: np.ndarray, found: Cameras) -> dict[int, float]:
+    """Id -> score of memories in hand, from one exact scan of the time span and disc that
+    hold them (vectors only: no record is read again); {} when those hold more than `MAX_K`."""
+    if not len(found):
         return {}
-    cx = sum(r.pose.x for r in recs) / len(recs)
-    cy = sum(r.pose.y for r in recs) / len(recs)
-    reach = max(math.hypot(r.pose.x - cx, r.pose.y - cy) for r in recs)
-    ts = [r.t for r in recs]
-    filt = Filter(after=min(ts), before=max(ts), region=Region(cx, cy, reach + 1e-3))
+    x, y = found.poses[:, 0], found.poses[:, 1]
+    cx, cy = float(x.mean()), float(y.mean())
+    reach = float(np.hypot(x - cx, y - cy).max())
+    filt = Filter(
+        after=float(found.t.min()), before=float(found.t.max()), region=Region(cx, cy, reach + 1e-3)
+    )
     n = len(mem.store.select(filt))
     if n == 0 or n > MAX_K:
         return {}
-    want = {r.id for r in recs}
+    want = set(found.ids.tolist())
     return {i: sc for i, sc in mem.store.search_vector(q, n, filt, exact=True) if i in want}
 
 

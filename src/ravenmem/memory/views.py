@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..store.base import Cameras, CameraStore
 from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
 from .newest import Later, exact_scores
@@ -58,17 +59,29 @@ def chrono(h: Hit) -> tuple[float, int]:
     return (h.memory.t, h.memory.id)
 
 
-def _scores(mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord]) -> list[tuple[MemoryRecord, float]]:
-    """The records (still stored) with their scores: read by one exact scan (`exact_scores`),
-    else from each record's embedding."""
-    got = exact_scores(mem, q, recs)
-    out = [(r, got[r.id]) for r in recs if r.id in got]
-    rest = [r.id for r in recs if r.id not in got]
+def _scores(mem: Core, q: np.ndarray, found: Cameras) -> tuple[Cameras, np.ndarray]:
+    """The memories of `found` still stored, with their scores: from one exact scan
+    (`exact_scores`), else from each one's embedding."""
+    got = exact_scores(mem, q, found)
+    rest = [int(i) for i in found.ids if int(i) not in got]
     for r in sample(mem, rest, embeddings=True) if rest else []:
         assert r.embedding is not None
-        out.append((r, float(np.dot(r.embedding, q))))
-        r.embedding = None
-    return out
+        got[r.id] = float(np.dot(r.embedding, q))
+    kept = found.take(np.array([int(i) in got for i in found.ids], bool).reshape(-1))
+    return kept, np.array([got[int(i)] for i in kept.ids], np.float64)
+
+
+def cameras(mem: Core, t: float, k: int, filt: Filter) -> Cameras:
+    """`by_time`'s memories as cameras: from the store's RAM when it keeps them
+    (`CameraStore`), else from their records."""
+    if isinstance(mem.store, CameraStore):
+        return mem.store.cameras(t, k, filt)
+    return Cameras.of(mem.store.by_time(t, k, filt))
+
+
+def _after(found: Cameras, mark: tuple[float, int]) -> np.ndarray:
+    """Which of `found` come after `mark` in (time, id) order."""
+    return (found.t > mark[0]) | ((found.t == mark[0]) & (found.ids > mark[1]))
 
 
 def sample(mem: Core, ids: Sequence[int], embeddings: bool = False) -> list[MemoryRecord]:
@@ -90,7 +103,13 @@ def overlapping(recs: Sequence[MemoryRecord], cams: Sequence[MemoryRecord], s: C
     sightings was that many calls)."""
     if not recs or not cams:
         return np.zeros(len(recs), bool)
-    a, b = _poses(recs), _poses(cams)
+    return overlapping_poses(_poses(recs), _poses(cams), s)
+
+
+def overlapping_poses(a: np.ndarray, b: np.ndarray, s: ChangeConfig) -> np.ndarray:
+    """`overlapping` for poses as `_poses` gives them ((n, 7) arrays, e.g. `Cameras.poses`)."""
+    if not len(a) or not len(b):
+        return np.zeros(len(a), bool)
     close = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) <= s.view_radius
     turn = np.abs(np.mod(b[None, :, 2] - a[:, None, 2] + math.pi, 2.0 * math.pi) - math.pi)
     qa, qb = a[:, None, 3:], b[None, :, 3:]
@@ -104,8 +123,7 @@ def overlapping(recs: Sequence[MemoryRecord], cams: Sequence[MemoryRecord], s: C
 
 def _poses(recs: Sequence[MemoryRecord]) -> np.ndarray:
     """(n, 7): x, y, yaw and the quaternion (NaN without one) of each record's pose."""
-    nan = (math.nan,) * 4
-    return np.array([(r.pose.x, r.pose.y, r.pose.yaw, *(r.pose.quat or nan)) for r in recs], np.float64)
+    return Cameras.of(recs).poses
 
 
 def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hit]]:
@@ -142,9 +160,12 @@ def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hi
 
 
 def next_in_time(mem: Core, a: MemoryRecord, b: MemoryRecord) -> bool:
-    """Whether `b` is the memory right after `a` in time order (time, then id), both stored:
-    counted from the ids in their time span (the store's filter, no record read), not
-    counting those at `b`'s time with a larger id (after `b` in that order)."""
+    """Whether `a` and `b` are, in (time, id) order, the first two memories of the time span
+    [a.t, b.t], both stored: a store that keeps cameras in RAM answers from those two;
+    otherwise it is counted from the ids in the span (the store's filter, no record read),
+    not counting those at `b`'s time with a larger id (after `b` in that order)."""
+    if isinstance(mem.store, CameraStore):
+        return mem.store.cameras(a.t, 2, Filter(before=b.t)).ids.tolist() == [a.id, b.id]
     ids = mem.store.select(Filter(after=a.t, before=b.t))  # sorted
     if len(ids) < 2:
         return False
@@ -170,12 +191,12 @@ def _disc(p: Place, s: ChangeConfig) -> tuple[Region, list[MemoryRecord]]:
 
 
 def _views(
-    mem: Core, q: np.ndarray, recs: Sequence[MemoryRecord], cams: list[MemoryRecord], s: ChangeConfig
-) -> list[Hit]:
-    """The records whose view overlaps one of `cams`, scored against the query, chronological."""
-    near = [r for r, ok in zip(recs, overlapping(recs, cams, s), strict=True) if ok]
-    scored = _scores(mem, q, near) if near else []
-    return sorted((Hit(memory=r, score=sc) for r, sc in scored), key=chrono)
+    mem: Core, q: np.ndarray, found: Cameras, cams: np.ndarray, s: ChangeConfig
+) -> tuple[Cameras, np.ndarray]:
+    """The memories of `found` whose view overlaps one of `cams` (poses as `_poses` gives them),
+    with their scores, in `found`'s order."""
+    near = found.take(overlapping_poses(found.poses, cams, s))
+    return _scores(mem, q, near) if len(near) else (near, np.zeros(0))
 
 
 def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> list[Hit]:
@@ -189,21 +210,25 @@ def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> list[Hit]:
     return later.find(p.last.t, disc, later_view)
 
 
-def _newest_views(mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Filter) -> list[Hit]:
-    """The newest views of the place after its last sighting: time windows growing backwards
-    from the end, inside the place's disc."""
+def _newest_views(
+    mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Filter
+) -> tuple[Cameras, np.ndarray]:
+    """The newest views of the place after its last sighting, with their scores: time windows
+    growing backwards from the end, inside the place's disc."""
     disc, cams = _disc(p, s)
+    poses = _poses(cams)
     lo, last = p.last.t, chrono(p.sightings[-1])
     hi = asof.before if asof.before is not None else mem.time_span()[1]
     width = max((hi - lo) / 64.0, 1e-3)
+    found = Cameras.of([])
     for _ in range(s.recency_windows + 4):
         start = max(lo, hi - width)
-        recs = mem.store.by_time(start, s.pool, Filter(after=start, before=hi, region=disc))
-        got = [h for h in _views(mem, q, recs, cams, s) if chrono(h) > last]
-        if got or start <= lo:
-            return got
+        found = cameras(mem, start, s.pool, Filter(after=start, before=hi, region=disc))
+        got, scores = _views(mem, q, found.take(_after(found, last)), poses, s)
+        if len(got) or start <= lo:
+            return got, scores
         width *= 4.0
-    return []
+    return found.take(np.zeros(len(found), bool)), np.zeros(0)
 
 
 def grow(p: Place, s: ChangeConfig, later: Later) -> None:
@@ -221,20 +246,28 @@ def revisits(
     mem: Core, p: Place, q: np.ndarray, thr: float, s: ChangeConfig, asof: Filter, gap: float
 ) -> None:
     """The later views of the place without the thing (`Place.revisits`, `revisit_count`) and
-    whether the robot came back to it at all (`later_visit`): from its sightings only."""
+    whether the robot came back to it at all (`later_visit`): decided on cameras (poses and
+    scores); records are read only for the revisits kept."""
     end = _visit_end(mem, p, p.last, s, asof)
     start = p.last.t + gap if end is None else max(end, p.last.t + gap)
     disc, cams = _disc(p, s)
-    first = mem.store.by_time(start, s.pool, Filter(before=asof.before, region=disc))
-    without = [h for h in _views(mem, q, first, cams, s) if (h.score or 0.0) < thr]
-    p.revisit_count = len(without)
+    first, scores = _views(
+        mem, q, cameras(mem, start, s.pool, Filter(before=asof.before, region=disc)), _poses(cams), s
+    )
+    miss = scores < thr
+    without = list(zip(first.ids[miss].tolist(), scores[miss].tolist(), strict=True))
+    count = len(without)
     if without:
-        newest = [h for h in _newest_views(mem, q, p, s, asof) if (h.score or 0.0) < thr]
-        if newest and newest[-1].memory.id not in {h.memory.id for h in without}:
-            without.append(newest[-1])
-            p.revisit_count = max(p.revisit_count + 1, len(without))
+        newest, ns = _newest_views(mem, q, p, s, asof)
+        gone = np.flatnonzero(ns < thr)
+        if len(gone) and int(newest.ids[gone[-1]]) not in {i for i, _ in without}:
+            without.append((int(newest.ids[gone[-1]]), float(ns[gone[-1]])))
+            count = max(count + 1, len(without))
     keep = s.max_revisits
-    p.revisits = without if len(without) <= keep else without[: keep - 1] + without[-1:]
+    kept = without if len(without) <= keep else without[: keep - 1] + without[-1:]
+    recs = {r.id: r for r in sample(mem, [i for i, _ in kept])}
+    p.revisits = [Hit(memory=recs[i], score=sc) for i, sc in kept if i in recs]
+    p.revisit_count = count
     first_end = _visit_end(mem, p, p.first, s, asof)
     p.later_visit = first_end is not None and p.last.t >= first_end
 
@@ -242,19 +275,19 @@ def revisits(
 def _visit_end(mem: Core, p: Place, start: MemoryRecord, s: ChangeConfig, asof: Filter) -> float | None:
     """When the robot first looked away from the place after `start`: the time of the first
     later memory that overlaps none of the place's sightings (None if it never did)."""
-    views = [h.memory for h in p.sightings]
+    views = _poses([h.memory for h in p.sightings])
     cursor, read, size = (start.t, start.id), 0, 16  # mostly the robot looks away at once
     while read < s.max_walk:
-        page = mem.store.by_time(cursor[0], size, asof)
-        fresh = [r for r in page if (r.t, r.id) > cursor]
-        away = np.flatnonzero(~overlapping(fresh, views, s))
+        page = cameras(mem, cursor[0], size, asof)
+        fresh = page.take(_after(page, cursor))
+        away = np.flatnonzero(~overlapping_poses(fresh.poses, views, s))
         if len(away):
-            return fresh[int(away[0])].t
+            return float(fresh.t[int(away[0])])
         read += len(fresh)
-        if len(page) < size or (not fresh and size >= _PAGE):
+        if len(page) < size or (not len(fresh) and size >= _PAGE):
             return None
-        if fresh:
-            cursor = (fresh[-1].t, fresh[-1].id)
+        if len(fresh):
+            cursor = (float(fresh.t[-1]), int(fresh.ids[-1]))
         size = min(_PAGE, 4 * size)
     return None
 

@@ -1,8 +1,12 @@
-"""In-RAM columns (id, t, x, y, z) of every memory, for filters and the position tool.
+"""In-RAM columns (id, t, x, y, z, orientation) of every memory, for filters, the position tool
+and the latest mode's view tests.
 
 Why RAM and not SQL: a filter must be resolved on every filtered search, and a numpy pass over
 1M float64 values takes about a millisecond, where SQLite needs tens of milliseconds to visit
-that many rows. The columns cost 40 bytes per memory (40 MB at 1M). They are a cache of
+that many rows. The columns cost 60 bytes per memory (60 MB at 1M): id, t, x, y, z as float64,
+and the orientation (yaw and the quaternion, NaN without one) as float32, which is what the
+latest mode needs to tell whether two memories look at the same scene (`Cameras`) without
+reading records: a question compares hundreds of later memories with a place. They are a cache of
 SQLite like the vector index: saved to `columns.cache` with the index (10M rows load from it in
 about a second where reading them from SQLite took 14 s), and on open brought up to date from
 SQLite (rows added since, deletions logged since), or reloaded from SQLite if the file is
@@ -18,22 +22,29 @@ from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..fsio import atomic_open
-from ..types import Filter, Region
+from ..types import Filter, MemoryRecord, Region
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
-_MAGIC = b"RVMCOLS1"
+_MAGIC = b"RVMCOLS2"  # 2: the orientation columns
 _HEADER = struct.Struct("<8sqqqI4x16s")  # magic, n, max id covered, deletions reflected, crc, store uid
 
 
 _FAR = 1e12  # metres: where a non-finite stored position is put for the nearest-neighbour tree
+
+
+def turn_of(records: Sequence[MemoryRecord]) -> np.ndarray:
+    """(5, n) float32 orientation columns of records: yaw, qx, qy, qz, qw (NaN: no quaternion)."""
+    nan = (np.nan,) * 4
+    return np.array([(r.pose.yaw, *(r.pose.quat or nan)) for r in records], np.float32).reshape(-1, 5).T
 
 
 class ColumnsFileError(Exception):
@@ -50,6 +61,7 @@ class Columns:
         self.n = 0
         self._ids = np.empty(0, np.int64)
         self._xyzt = np.empty((4, 0), np.float64)
+        self._turn = np.empty((5, 0), np.float32)  # yaw, qx, qy, qz, qw (NaN: no quaternion)
         self.t_sorted = True
         self._trees: dict[bool, tuple[cKDTree, int]] = {}
 
@@ -61,7 +73,20 @@ class Columns:
     def col(self, name: str) -> np.ndarray:
         return self._xyzt["xyzt".index(name), : self.n]
 
-    def append(self, ids: np.ndarray, t: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> None:
+    def turn(self) -> np.ndarray:
+        """(5, n) float32: yaw, qx, qy, qz, qw of every row (the quaternion NaN without one)."""
+        return self._turn[:, : self.n]
+
+    def append(
+        self,
+        ids: np.ndarray,
+        t: np.ndarray,
+        x: np.ndarray,
+        y: np.ndarray,
+        z: np.ndarray,
+        turn: np.ndarray | None = None,
+    ) -> None:
+        """Add rows; `turn` is (5, m) yaw, qx, qy, qz, qw (None: yaw 0, no quaternion)."""
         m = len(ids)
         if m == 0:
             return
@@ -71,13 +96,19 @@ class Columns:
             ids_new[: self.n] = self._ids[: self.n]
             cols_new = np.empty((4, cap), np.float64)
             cols_new[:, : self.n] = self._xyzt[:, : self.n]
-            self._ids, self._xyzt, self._cap = ids_new, cols_new, cap
+            turn_new = np.empty((5, cap), np.float32)
+            turn_new[:, : self.n] = self._turn[:, : self.n]
+            self._ids, self._xyzt, self._turn, self._cap = ids_new, cols_new, turn_new, cap
         t = np.asarray(t, np.float64)
         if self.t_sorted and (np.any(np.diff(t) < 0) or (self.n and t[0] < self._xyzt[3, self.n - 1])):
             self.t_sorted = False
         sl = slice(self.n, self.n + m)
         self._ids[sl] = ids
         self._xyzt[0, sl], self._xyzt[1, sl], self._xyzt[2, sl], self._xyzt[3, sl] = x, y, z, t
+        if turn is None:
+            self._turn[0, sl], self._turn[1:, sl] = 0.0, np.nan
+        else:
+            self._turn[:, sl] = turn
         self.n += m
 
     def remove(self, ids: np.ndarray) -> int:
@@ -94,6 +125,7 @@ class Columns:
         m = int(keep.sum())
         self._ids[:m] = self._ids[: self.n][keep]
         self._xyzt[:, :m] = self._xyzt[:, : self.n][:, keep]
+        self._turn[:, :m] = self._turn[:, : self.n][:, keep]
         self.n = m
         self._trees.clear()
         return len(pos)
@@ -103,6 +135,7 @@ class Columns:
         """Atomically write the columns, recording the highest id and deletions they cover."""
         ids = np.ascontiguousarray(self.ids, "<i8").tobytes()
         cols = np.ascontiguousarray(self._xyzt[:, : self.n], "<f8").tobytes()
+        cols += np.ascontiguousarray(self._turn[:, : self.n], "<f4").tobytes()
         crc = zlib.crc32(cols, zlib.crc32(ids))
         with atomic_open(path, "wb") as f:
             f.write(_HEADER.pack(_MAGIC, self.n, max_id, deletions, crc, uid))
@@ -120,12 +153,13 @@ class Columns:
             raise ColumnsFileError(f"{path.name} is truncated")
         magic, n, max_id, deletions, crc, fuid = _HEADER.unpack_from(raw)
         body = memoryview(raw)[_HEADER.size :]
-        if magic != _MAGIC or fuid != uid or n < 0 or len(body) != 40 * n or zlib.crc32(body) != crc:
+        if magic != _MAGIC or fuid != uid or n < 0 or len(body) != 60 * n or zlib.crc32(body) != crc:
             raise ColumnsFileError(f"{path.name} is damaged or belongs to another store")
         cols = cls()
         ids = np.frombuffer(body[: 8 * n], "<i8").astype(np.int64)
-        xyzt = np.frombuffer(body[8 * n :], "<f8").reshape(4, n)
-        cols.append(ids, xyzt[3], xyzt[0], xyzt[1], xyzt[2])
+        xyzt = np.frombuffer(body[8 * n : 40 * n], "<f8").reshape(4, n)
+        turn = np.frombuffer(body[40 * n :], "<f4").reshape(5, n)
+        cols.append(ids, xyzt[3], xyzt[0], xyzt[1], xyzt[2], turn)
         return cols, int(max_id), int(deletions)
 
     def extent(self) -> dict[str, float | None]:

@@ -44,6 +44,36 @@ class SourceFrames:
         return cls(ids[order], idx[order], t[order])
 
 
+@dataclass(frozen=True)
+class Cameras:
+    """Where memories were taken from, as parallel arrays: ids (int64), times (float64) and
+    `poses` (n, 7) float64: x, y, yaw and the quaternion (qx, qy, qz, qw; NaN without one).
+    What the latest mode compares views with: a record's other fields are not needed to tell
+    whether two memories look at the same scene."""
+
+    ids: np.ndarray
+    t: np.ndarray
+    poses: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @classmethod
+    def of(cls, records: Sequence[MemoryRecord]) -> Cameras:
+        """The cameras of records in hand, in their order."""
+        nan = (np.nan,) * 4
+        rows = [(r.pose.x, r.pose.y, r.pose.yaw, *(r.pose.quat or nan)) for r in records]
+        return cls(
+            np.array([r.id for r in records], np.int64),
+            np.array([r.t for r in records], np.float64),
+            np.array(rows, np.float64).reshape(len(records), 7),
+        )
+
+    def take(self, keep: np.ndarray) -> Cameras:
+        """The rows a boolean mask or index array selects."""
+        return Cameras(self.ids[keep], self.t[keep], self.poses[keep])
+
+
 @runtime_checkable
 class Store(Protocol):
     dim: int
@@ -143,6 +173,18 @@ class TextStore(Protocol):
     def set_ocr_text(self, ids: Sequence[int], texts: Sequence[str]) -> int:
         """Replace the OCR text of memories `ids` in one durable transaction (the text search
         sees it at once); returns how many of them are stored (unknown ids are ignored)."""
+        ...
+
+
+@runtime_checkable
+class CameraStore(Protocol):
+    """A store that answers `by_time` with cameras only, from RAM (the embedded store keeps
+    poses in its in-RAM columns). The latest mode walks hundreds of later memories per place
+    to see whether the robot looked at it again; on any other store it reads their records."""
+
+    def cameras(self, t: float, k: int, filt: Filter | None = None) -> Cameras:
+        """`by_time`'s memories (the k from time t on that the filter accepts, in (time, id)
+        order) as cameras."""
         ...
 
 

@@ -41,7 +41,7 @@ from ..errors import InputError
 from ..fsio import disk_full, remove_stale_temp_files, sqlite_reader
 from ..types import MAX_ID, Filter, MemoryRecord, Pose
 from . import _sql
-from ._columns import Columns, ColumnsFileError
+from ._columns import Columns, ColumnsFileError, turn_of
 from ._common import (
     DIM_KEY,
     above,
@@ -61,7 +61,7 @@ from ._common import (
 )
 from ._lifecycle import IndexLifecycle
 from ._vindex import CODES
-from .base import STORES, SourceFrames
+from .base import STORES, Cameras, SourceFrames
 from .presence import check_present
 
 log = logging.getLogger(__name__)
@@ -205,7 +205,7 @@ class LocalStore(IndexLifecycle):
             self._vi_upto = self._last_id
         if self._cols is not None:
             cols = np.array([(r.t, r.pose.x, r.pose.y, r.pose.z) for r in records], np.float64).T
-            self._cols.append(ids, cols[0], cols[1], cols[2], cols[3])
+            self._cols.append(ids, cols[0], cols[1], cols[2], cols[3], turn_of(records))
         return ids
 
     def add_many(
@@ -439,6 +439,19 @@ class LocalStore(IndexLifecycle):
             rows = self._conn.execute(sql, [float(t), *args, k]).fetchall()
         return [_sql.to_record(r) for r in rows]
 
+    def cameras(self, t: float, k: int, filt: Filter | None = None) -> Cameras:
+        """`by_time`'s memories as cameras, from the in-RAM columns (no record is read)."""
+        k, filt = check_limit(k), check_filter(filt)
+        if not _finite(t) and t not in (float("inf"), float("-inf")):
+            raise InputError(f"t: expected a timestamp in seconds, got {t!r}")
+        with self._lock:
+            self._check_open()
+            cols = self._columns()
+            pos = cols.first_from(float(t), k, filt or Filter())
+            turn = cols.turn()[:, pos].astype(np.float64)
+            poses = np.stack([cols.col("x")[pos], cols.col("y")[pos], *turn], axis=1)
+            return Cameras(cols.ids[pos], cols.col("t")[pos], poses)
+
     def nearest(
         self,
         x: float,
@@ -624,7 +637,8 @@ class LocalStore(IndexLifecycle):
         last = after
         while True:
             rows = self._conn.execute(
-                "SELECT id, t, x, y, z FROM memories WHERE id > ? ORDER BY id LIMIT 200000", (last,)
+                "SELECT id, t, x, y, z, yaw, qx, qy, qz, qw FROM memories WHERE id > ? ORDER BY id LIMIT 200000",
+                (last,),
             ).fetchall()
             if not rows:
                 break
@@ -632,7 +646,7 @@ class LocalStore(IndexLifecycle):
                 a = np.array(rows, np.float64)
             except (TypeError, ValueError):  # a damaged row (text in a REAL column): NaN here
                 a = np.array([[_number(v) for v in r] for r in rows], np.float64)
-            cols.append(a[:, 0].astype(np.int64), a[:, 1], a[:, 2], a[:, 3], a[:, 4])
+            cols.append(a[:, 0].astype(np.int64), a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5:].T)
             last = int(a[-1, 0])
 
 

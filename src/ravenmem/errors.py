@@ -57,3 +57,10 @@ def require(module: str, extra: str) -> object:
         raise MissingDependencyError(
             f"{module} is not installed: pip install 'ravenmem[{extra}]' ({e})"
         ) from e
+
+
+def one_line(e: object) -> str:
+    """`str(e)` with every run of whitespace (the newlines of a library's multi-line message:
+    rcl's argument errors, a hub's HTTP reply) made one space, so that it fits the one-line
+    `error: ...` the CLI prints, a service reply's reason and a log line."""
+    return " ".join(str(e).split())

@@ -19,6 +19,7 @@ from ravenmem.errors import (
     NotFoundError,
     RavenmemError,
     StoreUnavailableError,
+    one_line,
     require,
 )
 from ravenmem.types import Frame, Pose
@@ -88,3 +89,10 @@ def test_a_bad_pose_is_an_input_error_naming_it() -> None:
     assert "\n" not in str(e.value)
     with pytest.raises(InputError, match="quaternion has zero or non-finite norm"):
         Pose.from_quaternion(0, 0, 0, 0, 0, 0, 0)
+
+
+def test_one_line_flattens_a_multi_line_message() -> None:
+    e = RuntimeError("Couldn't parse params file:\n  'bad.yaml'\r\n\tat line 3  ")
+    assert one_line(e) == "Couldn't parse params file: 'bad.yaml' at line 3"
+    assert one_line(InputError("already one line")) == "already one line"
+    assert one_line(ValueError()) == ""  # nothing to say: the caller names the type (embed.hf)

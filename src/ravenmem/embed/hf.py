@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, require
+from ..errors import InputError, one_line, require
 from ._lazy import LazyTorchEmbedder
 from .base import EMBEDDERS, l2_normalize
 
@@ -78,7 +78,7 @@ class HFEmbedder(LazyTorchEmbedder):
 
     def _cannot_load(self, e: Exception) -> InputError:
         """The one-line error for a model that could not be had, with the library's reason."""
-        reason = " ".join(str(e).split()) or type(e).__name__
+        reason = one_line(e) or type(e).__name__
         return InputError(f"hf embedder: cannot load {self.source!r}: {reason}")
 
     def _load_model(self) -> int:

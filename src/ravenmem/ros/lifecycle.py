@@ -28,7 +28,8 @@ configured states.
 
 Each transition runs in the node's default callback group, which the pose, map and camera-info
 callbacks and the settling tick share (`RavenmemNode(sensors=...)`), so none of them runs in
-the middle of a transition.
+the middle of a transition. The process around the node (arguments, rclpy, the executor) is
+`ros.run`, the same as for the plain node.
 """
 
 from __future__ import annotations
@@ -44,10 +45,10 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 
 from ..agent.ask import AskResult
 from ..agent.progress import Progress
-from ..errors import InputError, RavenmemError
+from ..errors import InputError, RavenmemError, one_line
 from ..runtime.ask import AskArgs
 from .intake import SequenceGaps
-from .node import RavenmemNode, made_node, open_service
+from .node import RavenmemNode, open_service
 from .params import NodeSettings
 from .services import ServiceBackend
 
@@ -59,7 +60,7 @@ log = logging.getLogger(__name__)
 SKIP_INACTIVE = "node inactive"  # an image delivered while the node deactivates
 NAVIGATE_INACTIVE = "the node is inactive: activate it to navigate (questions without navigate are answered)"
 DRAIN_S = 60.0  # how long deactivate waits for the frames queued for the writer
-LINGER_S = 0.5  # after the shutdown transition: its reply reaches the caller before the exit
+LINGER_S = 0.5  # ros.run spins on after the shutdown transition: its reply reaches the caller
 
 
 class Made:
@@ -187,6 +188,8 @@ class Managed:
         ros = self._configured()
         if self.active:  # shutdown from active
             self.deactivate()
+        else:  # after a failed activate or deactivate, images may still wait
+            ros.stop_intake()
         self.ros = None
         try:
             ros.finish()  # the writer stores what is queued, the run noted, the memory closed
@@ -223,7 +226,7 @@ class ManagedNode(LifecycleNode):
             with self.work.lock:
                 step()
         except Exception as e:  # the reason in one line; the traceback only in the debug log
-            why = " ".join(str(e).split())
+            why = one_line(e)
             if not isinstance(e, (RavenmemError, OSError)):
                 why = f"{type(e).__name__}: {why}"
                 log.debug("%s failed", name, exc_info=True)
@@ -268,27 +271,3 @@ class ManagedNode(LifecycleNode):
             log.debug("shutdown transition refused", exc_info=True)
         with self.work.lock:
             self.work.shutdown()
-
-
-def run_managed(memory: Path, create: bool, stop: threading.Event) -> None:
-    """Run the managed node until it is shut down (the transition) or stopped (`stop`: SIGINT,
-    SIGTERM); the memory is closed either way."""
-    import rclpy
-    from rclpy.executors import MultiThreadedExecutor
-
-    node = made_node(lambda: ManagedNode(memory, create, stop))
-    try:
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        node.get_logger().info(f"ravenmem: {memory}, managed: unconfigured (configure, then activate); ready")
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-        end = time.monotonic() + (LINGER_S if node.finished else 0.0)
-        while time.monotonic() < end and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-        node.close()  # before the executor stops: its callbacks under way end meanwhile
-        executor.shutdown(timeout_sec=1.0)
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()

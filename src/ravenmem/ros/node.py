@@ -31,7 +31,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import InputError
+from ..errors import InputError, one_line
 from . import msgs
 from .convert import fill, to_dict
 from .intake import FrameIntake
@@ -382,14 +382,15 @@ class RavenmemNode:
         } | self.counts()
 
     def stop_intake(self) -> None:
-        """Stop taking frames and hand the waiting ones to the writer (SIGINT/SIGTERM)."""
+        """Stop taking frames and hand the waiting ones to the writer (SIGINT/SIGTERM, a managed
+        node's cleanup; `close`)."""
         self.intake.stopping = True  # images still delivered are counted as SKIP_STOPPING
         self.intake.settle(flush=True)
 
     def finish(self) -> None:
-        """Stop taking frames, store what was queued, note the run in the manifest and close the
-        memory (its writer lock released)."""
-        self.stop_intake()
+        """Store what was queued, note the run in the manifest and close the memory (its writer
+        lock released). The caller has stopped the intake first (`stop_intake`, or the managed
+        node's deactivate), so no image waits for a writer that is closed."""
         assert self.service.writer is not None
         self.service.writer.close()  # stores what was queued
         self.record()
@@ -445,4 +446,4 @@ def made_node(make: Callable[[], Any]) -> Any:
         return make()
     except Exception as e:
         rclpy.shutdown()
-        raise InputError(f"--ros-args: {' '.join(str(e).split())}") from None
+        raise InputError(f"--ros-args: {one_line(e)}") from None

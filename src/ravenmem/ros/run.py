@@ -6,8 +6,8 @@
 
 Parses ravenmem's own arguments (everything from `--ros-args` on is rclpy's), starts rclpy,
 turns SIGINT and SIGTERM into a clean stop, and runs the node (`ros.node.RavenmemNode`) plain
-or, with `--lifecycle`, managed (`ros.lifecycle`). Apart from both so that neither imports the
-other's entry point.
+or, with `--lifecycle`, managed (`ros.lifecycle`), both spun by one loop (`spin_until_stopped`).
+Apart from both so that neither imports the other's entry point.
 """
 
 from __future__ import annotations
@@ -20,11 +20,12 @@ import signal
 import sys
 import tempfile
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError, MissingDependencyError, RavenmemError
+from ..errors import InputError, MissingDependencyError, RavenmemError, one_line
 from ..threads import share_cores
 from .node import RavenmemNode, made_node, open_service
 from .params import NodeSettings
@@ -85,7 +86,6 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(own)
     share_cores()  # before torch or FAISS loads (ravenmem.threads)
     rclpy = _rclpy()
-    from rclpy.executors import MultiThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
     with _stderr_held() as said:  # rcl logs a bad argument itself before raising
@@ -93,39 +93,83 @@ def main(argv: list[str] | None = None) -> None:
             rclpy.init(args=["ravenmem", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
         except Exception as e:
             said["show"] = False
-            raise InputError(f"--ros-args: {' '.join(str(e).split())}") from None
+            raise InputError(f"--ros-args: {one_line(e)}") from None
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    if args.lifecycle:
-        from .lifecycle import run_managed
+    (_run_managed if args.lifecycle else _run_plain)(args.memory, args.create, stop)
 
-        run_managed(args.memory, args.create, stop)
-        return
-    node = made_node(lambda: rclpy.create_node("ravenmem"))
-    service = None
+
+@contextlib.contextmanager
+def _node_up(make: Callable[[], Any]) -> Iterator[Any]:
+    """The node `make()` makes (`node.made_node`), destroyed and rclpy shut down after."""
+    import rclpy
+
+    node = made_node(make)
     try:
-        settings = NodeSettings.declare(node)
-        service = open_service(args.memory, args.create, settings)
-        ros_node = RavenmemNode(node, settings, service)
-        service.attach(ros_node)
-        service.warm_up()  # the embedder loaded and run once: the first search is as fast as the next
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        node.get_logger().info(f"ravenmem: {args.memory} ({service.mem.count()} memories), ready")
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-        node.get_logger().info("stopping: storing the frames already taken")
-        ros_node.stop_intake()
-        executor.shutdown(timeout_sec=1.0)
-        ros_node.finish()  # stores what was queued, notes the run, closes the memory
-        service = None
+        yield node
     finally:
-        if service is not None:
-            service.close()
         node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+
+
+def spin_until_stopped(
+    node: Any, stop: threading.Event, stopping: Callable[[], None], linger: Callable[[], float] = lambda: 0.0
+) -> None:
+    """Spin `node` on a 4-thread executor until `stop` is set (a signal, or the managed node's
+    shutdown) or rclpy is shut down; then `linger()` seconds more (a reply still on its way
+    reaches its caller); then `stopping()` while the executor still runs (the callbacks under
+    way end meanwhile); then stop the executor."""
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    while not stop.is_set() and rclpy.ok():
+        executor.spin_once(timeout_sec=0.1)
+    end = time.monotonic() + linger()
+    while time.monotonic() < end and rclpy.ok():
+        executor.spin_once(timeout_sec=0.1)
+    stopping()
+    executor.shutdown(timeout_sec=1.0)
+
+
+def _run_plain(memory: Path, create: bool, stop: threading.Event) -> None:
+    """The plain node: the memory open and frames taken from the start until `stop`; then the
+    frames already taken are stored and the memory closed."""
+    import rclpy
+
+    with _node_up(lambda: rclpy.create_node("ravenmem")) as node:
+        service = None
+        try:
+            settings = NodeSettings.declare(node)
+            service = open_service(memory, create, settings)
+            ros_node = RavenmemNode(node, settings, service)
+            service.attach(ros_node)
+            service.warm_up()  # the embedder loaded and run once: the first search is as fast as the next
+            node.get_logger().info(f"ravenmem: {memory} ({service.mem.count()} memories), ready")
+
+            def stopping() -> None:
+                node.get_logger().info("stopping: storing the frames already taken")
+                ros_node.stop_intake()
+
+            spin_until_stopped(node, stop, stopping)
+            ros_node.finish()  # stores what was queued, notes the run, closes the memory
+            service = None
+        finally:
+            if service is not None:
+                service.close()
+
+
+def _run_managed(memory: Path, create: bool, stop: threading.Event) -> None:
+    """The managed node (`ros.lifecycle`) until it is shut down (the transition) or stopped
+    (`stop`: SIGINT, SIGTERM); the memory is closed either way."""
+    from .lifecycle import LINGER_S, ManagedNode
+
+    with _node_up(lambda: ManagedNode(memory, create, stop)) as node:
+        node.get_logger().info(f"ravenmem: {memory}, managed: unconfigured (configure, then activate); ready")
+        spin_until_stopped(node, stop, node.close, lambda: LINGER_S if node.finished else 0.0)
 
 
 if __name__ == "__main__":

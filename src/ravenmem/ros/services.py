@@ -36,7 +36,7 @@ import numpy as np
 
 from ..agent.ask import AskResult
 from ..agent.progress import Progress
-from ..errors import RavenmemError
+from ..errors import RavenmemError, one_line
 from ..refusal import refusal_of
 from ..runtime.ask import AskArgs
 from ..stamps import sec_nanosec
@@ -124,7 +124,7 @@ def ask_reply(backend: Backend, request: dict[str, Any], progress: Progress | No
         result = backend.ask(args, _image(request.get("image")), progress)
         data = backend.answer_json(result)
     except RavenmemError as e:
-        return {"found": False, "reason": " ".join(str(e).split())}
+        return {"found": False, "reason": one_line(e)}
     except Exception:  # a robot gets a reason, the log the traceback
         log.exception("ravenmem_msgs/srv/Ask failed")
         return {"found": False, "reason": "internal error; the service log has the details"}
@@ -188,7 +188,7 @@ def search_reply(backend: Backend, request: dict[str, Any]) -> dict[str, Any]:
             near or None,
         )
     except RavenmemError as e:
-        return {"memories": [], "error": " ".join(str(e).split())}
+        return {"memories": [], "error": one_line(e)}
     except Exception:
         log.exception("ravenmem_msgs/srv/Search failed")
         return {"memories": [], "error": "internal error; the service log has the details"}

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import InputError, require
+from ..errors import InputError, one_line, require
 from .link import SKIP_BUSY, LinkConfig, LinkStats, RosLink, Sink, goal_bytes, goal_of, writer_sink
 from .services import Backend, ServiceBackend, bridge_token, handle, keys, rmw_reply_attachment
 
@@ -79,7 +79,7 @@ class ZenohEndpoints:
 
 def short_error(e: BaseException) -> str:
     """Zenoh's error text on one line, without the Rust source location it appends."""
-    text = " ".join(str(e).split())
+    text = one_line(e)
     return text.split(" at /", 1)[0][:300]
 
 

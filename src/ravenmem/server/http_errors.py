@@ -14,7 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
-from ..errors import NotFoundError, RavenmemError
+from ..errors import NotFoundError, RavenmemError, one_line
 from ..fsio import DiskFullError, disk_full
 from ..runtime.images import TooLargeError
 from ..runtime.live import BusyError
@@ -24,7 +24,7 @@ T = TypeVar("T")
 
 
 def _one_line(text: str, limit: int = 300) -> str:
-    line = " ".join(str(text).split())
+    line = one_line(text)
     return line if len(line) <= limit else line[: limit - 3] + "..."
 
 

@@ -13,6 +13,9 @@ under them, wrapped with a clock: the sum of steps is the question). `--ram-vect
 store that reads vectors at RAM speed, as a memory-mapped vector file beside SQLite would: every
 vector is loaded into RAM first and the store's exact re-scoring reads them from there; both
 tools are timed again on it, side by side, so the ratio says whether such a file closes the gap.
+`--floor` times, beside the text tool, the one store call every latest-mode question begins
+with: the pool search (`search_vector`, k = the pool, 200), with the vectors' exact re-scoring
+and nothing else: the least a question that ranks 200 candidates exactly can cost.
 """
 
 from __future__ import annotations
@@ -88,6 +91,21 @@ def phases(mem: ravenmem.Memory, reps: int) -> None:
         print(f"    {name:<22} {1000 * sec / reps:6.1f} ms  {calls[name] / reps:5.0f} calls")
 
 
+def floor(mem: ravenmem.Memory, reps: int) -> None:
+    """The pool search alone (k = 200, the latest mode's first store call) beside the text tool."""
+    q = np.asarray(mem.embedder.embed_texts(["mug"])[0], np.float32)
+    st, pool = [], []
+    for _ in range(reps):
+        t = time.perf_counter()
+        mem.search_text("mug", k=5)
+        st.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        mem.store.search_vector(q, changes.ChangeConfig().pool)
+        pool.append(time.perf_counter() - t)
+    a, b = 1000 * float(np.median(st)), 1000 * float(np.median(pool))
+    print(f"  the pool search alone: {b:.1f} ms p50 beside the text tool's {a:.1f} ms ({b / a:.1f}x)")
+
+
 def ram_vectors(mem: ravenmem.Memory) -> None:
     """Re-score from every vector held in RAM (as a memory-mapped vector file would serve them)."""
     store = mem.store
@@ -123,6 +141,7 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="build the memories here and reuse them")
     ap.add_argument("--phases", action="store_true", help="where a question's time goes, step by step")
     ap.add_argument("--ram-vectors", action="store_true", help="again with every vector read from RAM")
+    ap.add_argument("--floor", action="store_true", help="the pool search alone beside the text tool")
     args = ap.parse_args()
     folder = args.keep or Path(tempfile.mkdtemp(prefix="bench-last-seen-"))
     folder.mkdir(parents=True, exist_ok=True)
@@ -137,6 +156,8 @@ def main() -> None:
             report(mem, n, build, args.reps)
             if args.phases:
                 phases(mem, args.reps)
+            if args.floor:
+                floor(mem, args.reps)
             if args.ram_vectors:
                 ram_vectors(mem)
                 mem.last_seen("mug")

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..store.base import Cameras, CameraStore
+from ..store.base import Cameras
 from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
 from .newest import Later, exact_scores
@@ -74,9 +74,15 @@ def _scores(mem: Core, q: np.ndarray, found: Cameras) -> tuple[Cameras, np.ndarr
 def cameras(mem: Core, t: float, k: int, filt: Filter) -> Cameras:
     """`by_time`'s memories as cameras: from the store's RAM when it keeps them
     (`CameraStore`), else from their records."""
-    if isinstance(mem.store, CameraStore):
-        return mem.store.cameras(t, k, filt)
+    if _has_cameras(mem):
+        return mem.store.cameras(t, k, filt)  # type: ignore[attr-defined]
     return Cameras.of(mem.store.by_time(t, k, filt))
+
+
+def _has_cameras(mem: Core) -> bool:
+    """Whether the store is a `store.base.CameraStore` (its method looked up: `isinstance`
+    on a protocol costs more than the call it guards, asked for every pair of sightings)."""
+    return callable(getattr(mem.store, "cameras", None))
 
 
 def _after(found: Cameras, mark: tuple[float, int]) -> np.ndarray:
@@ -164,8 +170,8 @@ def next_in_time(mem: Core, a: MemoryRecord, b: MemoryRecord) -> bool:
     [a.t, b.t], both stored: a store that keeps cameras in RAM answers from those two;
     otherwise it is counted from the ids in the span (the store's filter, no record read),
     not counting those at `b`'s time with a larger id (after `b` in that order)."""
-    if isinstance(mem.store, CameraStore):
-        return mem.store.cameras(a.t, 2, Filter(before=b.t)).ids.tolist() == [a.id, b.id]
+    if _has_cameras(mem):
+        return cameras(mem, a.t, 2, Filter(before=b.t)).ids.tolist() == [a.id, b.id]
     ids = mem.store.select(Filter(after=a.t, before=b.t))  # sorted
     if len(ids) < 2:
         return False

@@ -448,8 +448,9 @@ class LocalStore(IndexLifecycle):
             self._check_open()
             cols = self._columns()
             pos = cols.first_from(float(t), k, filt or Filter())
-            turn = cols.turn()[:, pos].astype(np.float64)
-            poses = np.stack([cols.col("x")[pos], cols.col("y")[pos], *turn], axis=1)
+            poses = np.empty((len(pos), 7), np.float64)
+            poses[:, 0], poses[:, 1] = cols.col("x")[pos], cols.col("y")[pos]
+            poses[:, 2:] = cols.turn()[:, pos].T
             return Cameras(cols.ids[pos], cols.col("t")[pos], poses)
 
     def nearest(
@@ -661,7 +662,7 @@ def _columns_uid(uid: bytes, epoch: str | None) -> bytes:
 def _top(ids: np.ndarray, scores: np.ndarray, k: int) -> list[tuple[int, float]]:
     """The k best (id, score), best first, the older memory first on ties."""
     order = np.lexsort((ids, -scores))[:k]
-    return [(int(ids[i]), float(scores[i])) for i in order]
+    return list(zip(ids[order].tolist(), scores[order].astype(np.float64).tolist(), strict=True))
 
 
 def _number(v: object) -> float:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, StoreUnavailableError, require
+from ..errors import InputError, StoreUnavailableError, one_line, require
 from ..types import Filter, MemoryRecord, Pose
 from ._common import (
     DIM_KEY,
@@ -118,7 +118,7 @@ class MilvusStore:
             self.client = pm.MilvusClient(uri=uri, token=token)
             version = str(self.client.get_server_version())
         except pm.exceptions.MilvusException as e:  # unreachable server, refused token, ...
-            reason = " ".join(str(getattr(e, "message", "") or e).split())[:200]
+            reason = one_line(getattr(e, "message", "") or e)[:200]
             raise StoreUnavailableError(f"milvus store {uri}: cannot connect ({reason})") from None
         old = re.match(r"v?2\.[0-3]\.", version) is not None
         self._infix = not old  # `like "%w%"` arrived in Milvus 2.4

@@ -12,12 +12,17 @@ embedder and the store are measured elsewhere):
    30 s of history, an image waiting (so each message asks for the newest pose, as a camera
    slightly ahead of odometry makes it). Before: `TfTree`, pruned to the history and its whole
    pose track rebuilt per message (the link's code until then, kept here to measure it).
+4. (`--odom` alone) the same for a pose topic: 100 Hz odometry, 30 s of history, an image
+   waiting, each message added and the pose at a stamp just before it looked up. Before: the
+   whole history rebuilt into a `PoseTrack` for the lookup (the link's code until then, kept
+   here); after: `PoseHistory`, which matches on the few samples around the stamp.
 A camera at 30 fps needs 30 frames/s; ROS image topics are usually 15 to 30 Hz.
 """
 
 from __future__ import annotations
 
 import argparse
+import bisect
 import io
 import json
 import math
@@ -29,6 +34,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from ravenmem.ingest.poses import PoseTrack
 from ravenmem.ros import msgs as rosmsg
 from ravenmem.ros.link import LinkConfig, PoseHistory, RosLink
 from ravenmem.ros.tf import TfTree
@@ -281,13 +287,60 @@ def tf_costs(seconds: float = 40.0, history: float = 30.0, rate: float = 100.0) 
     print(f"  before/after p50: {statistics.median(cost['before']) / statistics.median(cost['after']):.0f}x")
 
 
+def odom_costs(seconds: float = 40.0, history: float = 30.0, rate: float = 100.0) -> None:
+    """Per odometry message after the history has filled: add it and look up the pose 5 ms
+    before it, before (the whole kept history as one `PoseTrack`) and after (`PoseHistory`)."""
+    t0 = 1_700_000_000.0
+    cfg = LinkConfig.from_spec(f"image=cam,pose=odom,history={history:g}")
+    after = PoseHistory(cfg)
+    kept: list[rosmsg.Sample] = []
+    stream = [
+        rosmsg.Sample(t0 + k / rate, (k / rate, math.sin(k / 100), 0.0), (0.0, 0.0, 0.0, 1.0))
+        for k in range(int(seconds * rate))
+    ]
+    filled = int(history * rate)
+    for s in stream[:filled]:
+        after.add(s, "odom")
+        kept.append(s)
+    cost: dict[str, list[float]] = {"before": [], "after": []}
+    for s in stream[filled:]:
+        a = time.perf_counter()
+        after.add(s, "odom")
+        assert isinstance(after.lookup(s.t - 0.005), Pose)
+        b = time.perf_counter()
+        kept.append(s)
+        cut = (
+            bisect.bisect_left([k.t for k in kept[:2]], s.t - history) - 1
+        )  # the link's rule, a sample a time
+        if cut > 0:
+            del kept[:cut]
+        track = PoseTrack([k.t for k in kept], [k.xyz for k in kept], [k.quat for k in kept])
+        assert isinstance(track.match(s.t - 0.005), Pose)
+        c = time.perf_counter()
+        cost["after"].append((b - a) * 1e3)
+        cost["before"].append((c - b) * 1e3)
+    med = {k: statistics.median(v) for k, v in cost.items()}
+    print(
+        f"odometry at {rate:g} Hz, {history:g} s of history, {len(cost['after'])} messages timed, an image waiting:"
+    )
+    print(
+        f"  before, the whole history as a PoseTrack per lookup ({len(kept)} samples): p50 {med['before']:.4f} ms"
+    )
+    print(f"  after, PoseHistory (the samples around the stamp): p50 {med['after']:.4f} ms")
+    print(f"  before/after p50: {med['before'] / med['after']:.0f}x")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--tf", action="store_true", help="only the /tf cost, before and after")
+    ap.add_argument("--odom", action="store_true", help="only the pose topic's cost, before and after")
     args = ap.parse_args()
     if args.tf:
         tf_costs()
+        return
+    if args.odom:
+        odom_costs()
         return
     n = args.frames
     poses = [odom(0.9 + k / 50) for k in range(int((n / 30 + 0.3) * 50))]

@@ -260,3 +260,43 @@ def test_poses_of_another_frame_than_the_memorys_are_not_stored() -> None:
         lk2.pose("tf", w.tf(t))
     lk2.image("cam", w.image(10.1, w.picture(0)))
     assert lk2.stats.stored == 1 and lk2.poses.frame == "map"
+
+
+@pytest.mark.parametrize("match, gap", [("interpolate", None), ("interpolate", 0.15), ("nearest", 0.05)])
+def test_a_pose_topic_lookup_is_the_whole_tracks(match: str, gap: float | None) -> None:
+    """The link matches an image on the few pose samples around its stamp; the answer (pose,
+    `SKIP_OUTSIDE`, `SKIP_GAP`) is the one a track of every sample kept gives, at stamps on
+    samples, between them, across a gap, before the first and after the last, with samples
+    arriving late and repeated (the last one kept)."""
+    from ravenmem.ingest.poses import PoseTrack
+    from ravenmem.ros.link import PoseHistory
+
+    rng = np.random.default_rng(3)
+    times = np.round(np.r_[np.arange(10.0, 12.0, 0.1), np.arange(12.5, 13.0, 0.05)], 6)
+    hist = PoseHistory(LinkConfig(image="camera", pose="odom", pose_match=match, max_gap=gap))
+    kept: dict[float, rosmsg.Sample] = {}
+    for t in rng.permutation(np.r_[times, times[::5]]):  # late and repeated samples
+        yaw = 0.7 * float(t) + float(rng.normal(0, 0.01))
+        s = rosmsg.Sample(
+            float(t), (float(t), math.sin(t), 0.0), (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+        )
+        hist.add(s, "odom")
+        kept[s.t] = s
+    order = sorted(kept)
+    whole = PoseTrack(order, [kept[t].xyz for t in order], [kept[t].quat for t in order])
+    stamps = np.r_[times, times[:-1] + 0.037, 9.9, 9.97, 12.3, 13.0, 13.04, 13.2]
+    got = [hist.lookup(float(t)) for t in stamps]
+    want = [whole.match(float(t), match, gap) for t in stamps]  # type: ignore[arg-type]
+    for t, g, e in zip(stamps, got, want, strict=True):
+        if isinstance(e, str):
+            assert g == e, t
+        else:
+            assert (
+                isinstance(g, Pose) and np.allclose(g.xyz, e.xyz) and math.isclose(g.yaw, e.yaw, abs_tol=1e-9)
+            ), t
+    kinds = {g if isinstance(g, str) else "pose" for g in got}
+    assert (
+        "pose" in kinds
+        and SKIP_OUTSIDE in kinds
+        and (SKIP_GAP in kinds or match == "interpolate" and gap is None)
+    )

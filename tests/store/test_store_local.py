@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sqlite3
 import threading
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -469,3 +470,34 @@ def test_by_time_in_a_region_walks_the_columns(tmp_path: Path) -> None:
         assert cols.ids[got].tolist() == [2, 4, 3]  # time, then id
     finally:
         store.close()
+
+
+def test_a_columns_file_of_the_earlier_layout_is_reloaded_with_the_orientation(
+    tmp_path: Path, caplog
+) -> None:
+    """`columns.cache` written before the columns held the orientation (id, t, x, y, z: 40 B a
+    row, magic RVMCOLS1) is read again from SQLite once, with a warning that says so, and
+    written back in the new layout: cameras then carry each memory's yaw and quaternion."""
+    folder = tmp_path / "m"
+    store, _ = filled(folder, 200)
+    recs = store.by_time(0.0, 200)
+    store.select()  # the columns are loaded, so closing writes their file
+    store.close()
+    path = folder / "columns.cache"
+    raw = path.read_bytes()
+    head = _columns._HEADER.unpack_from(raw)
+    n = head[1]
+    body = raw[_columns._HEADER.size :][: 40 * n]  # ids and x, y, z, t: the earlier layout
+    old = _columns._HEADER.pack(b"RVMCOLS1", n, head[2], head[3], zlib.crc32(body), head[5])
+    path.write_bytes(old + body)
+    with caplog.at_level("WARNING"):
+        store = open_store(str(folder), DIM)
+        try:
+            cams = store.cameras(0.0, 200)  # type: ignore[attr-defined]
+        finally:
+            store.close()
+    assert "earlier layout, without the orientation" in caplog.text
+    want = np.array([[r.pose.x, r.pose.y, r.pose.yaw, *(r.pose.quat or (np.nan,) * 4)] for r in recs])
+    assert cams.ids.tolist() == [r.id for r in recs]
+    assert np.allclose(cams.poses, want, atol=1e-6, equal_nan=True) and not np.isnan(want[:, 3]).all()
+    assert path.read_bytes()[:8] == b"RVMCOLS2"

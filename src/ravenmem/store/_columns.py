@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
 _MAGIC = b"RVMCOLS2"  # 2: the orientation columns
+_MAGIC_V1 = b"RVMCOLS1"  # id, t, x, y, z only: reloaded from SQLite once
 _HEADER = struct.Struct("<8sqqqI4x16s")  # magic, n, max id covered, deletions reflected, crc, store uid
 
 
@@ -153,6 +154,8 @@ class Columns:
             raise ColumnsFileError(f"{path.name} is truncated")
         magic, n, max_id, deletions, crc, fuid = _HEADER.unpack_from(raw)
         body = memoryview(raw)[_HEADER.size :]
+        if magic == _MAGIC_V1:
+            raise ColumnsFileError(f"{path.name} has the earlier layout, without the orientation")
         if magic != _MAGIC or fuid != uid or n < 0 or len(body) != 60 * n or zlib.crc32(body) != crc:
             raise ColumnsFileError(f"{path.name} is damaged or belongs to another store")
         cols = cls()

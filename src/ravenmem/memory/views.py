@@ -171,7 +171,7 @@ def next_in_time(mem: Core, a: MemoryRecord, b: MemoryRecord) -> bool:
     otherwise it is counted from the ids in the span (the store's filter, no record read),
     not counting those at `b`'s time with a larger id (after `b` in that order)."""
     if _has_cameras(mem):
-        return cameras(mem, a.t, 2, Filter(before=b.t)).ids.tolist() == [a.id, b.id]
+        return mem.store.cameras(a.t, 2, Filter(before=b.t)).ids.tolist() == [a.id, b.id]  # type: ignore[attr-defined]
     ids = mem.store.select(Filter(after=a.t, before=b.t))  # sorted
     if len(ids) < 2:
         return False
@@ -226,7 +226,6 @@ def _newest_views(
     lo, last = p.last.t, chrono(p.sightings[-1])
     hi = asof.before if asof.before is not None else mem.time_span()[1]
     width = max((hi - lo) / 64.0, 1e-3)
-    found = Cameras.of([])
     for _ in range(s.recency_windows + 4):
         start = max(lo, hi - width)
         found = cameras(mem, start, s.pool, Filter(after=start, before=hi, region=disc))
@@ -234,7 +233,7 @@ def _newest_views(
         if len(got) or start <= lo:
             return got, scores
         width *= 4.0
-    return found.take(np.zeros(len(found), bool)), np.zeros(0)
+    return Cameras.of([]), np.zeros(0)
 
 
 def grow(p: Place, s: ChangeConfig, later: Later) -> None:

@@ -22,14 +22,13 @@ from __future__ import annotations
 
 import struct
 import zlib
-from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..fsio import atomic_open
-from ..types import Filter, MemoryRecord, Region
+from ..types import Filter, Region
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -40,12 +39,6 @@ _HEADER = struct.Struct("<8sqqqI4x16s")  # magic, n, max id covered, deletions r
 
 
 _FAR = 1e12  # metres: where a non-finite stored position is put for the nearest-neighbour tree
-
-
-def turn_of(records: Sequence[MemoryRecord]) -> np.ndarray:
-    """(5, n) float32 orientation columns of records: yaw, qx, qy, qz, qw (NaN: no quaternion)."""
-    nan = (np.nan,) * 4
-    return np.array([(r.pose.yaw, *(r.pose.quat or nan)) for r in records], np.float32).reshape(-1, 5).T
 
 
 class ColumnsFileError(Exception):

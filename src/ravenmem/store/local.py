@@ -41,7 +41,7 @@ from ..errors import InputError
 from ..fsio import disk_full, remove_stale_temp_files, sqlite_reader
 from ..types import MAX_ID, Filter, MemoryRecord, Pose
 from . import _sql
-from ._columns import Columns, ColumnsFileError, turn_of
+from ._columns import Columns, ColumnsFileError
 from ._common import (
     DIM_KEY,
     above,
@@ -205,7 +205,7 @@ class LocalStore(IndexLifecycle):
             self._vi_upto = self._last_id
         if self._cols is not None:
             cols = np.array([(r.t, r.pose.x, r.pose.y, r.pose.z) for r in records], np.float64).T
-            self._cols.append(ids, cols[0], cols[1], cols[2], cols[3], turn_of(records))
+            self._cols.append(ids, cols[0], cols[1], cols[2], cols[3], Cameras.of(records).poses[:, 2:].T)
         return ids
 
     def add_many(

@@ -14,8 +14,8 @@ store that reads vectors at RAM speed, as a memory-mapped vector file beside SQL
 vector is loaded into RAM first and the store's exact re-scoring reads them from there; both
 tools are timed again on it, side by side, so the ratio says whether such a file closes the gap.
 `--floor` times, beside the text tool, the one store call every latest-mode question begins
-with: the pool search (`search_vector`, k = the pool, 200), with the vectors' exact re-scoring
-and nothing else: the least a question that ranks 200 candidates exactly can cost.
+with: the pool search (`search_vector`, k = the pool, 200, its 200 candidates re-scored
+exactly, as `last_seen` asks for them) and nothing else.
 """
 
 from __future__ import annotations
@@ -100,7 +100,8 @@ def floor(mem: ravenmem.Memory, reps: int) -> None:
         mem.search_text("mug", k=5)
         st.append(time.perf_counter() - t)
         t = time.perf_counter()
-        mem.store.search_vector(q, changes.ChangeConfig().pool)
+        k = changes.ChangeConfig().pool
+        mem.store.search_vector(q, k, candidates=k)
         pool.append(time.perf_counter() - t)
     a, b = 1000 * float(np.median(st)), 1000 * float(np.median(pool))
     print(f"  the pool search alone: {b:.1f} ms p50 beside the text tool's {a:.1f} ms ({b / a:.1f}x)")

@@ -119,15 +119,15 @@ def test_later_sightings_of_a_place_reach_its_newest_and_are_kept(memory, spot) 
     inside = [r for r in recs if abs(r.pose.x - spot) <= 1.5 and scores[r.id] >= thr]
     assert inside
     later = Later(mem, u, thr, None, pool=40, steps=8, margin=1.5)
-    got = later.find(inside[0].t, region, lambda h: True)
+    got = later.find(inside[0].t, region, lambda hits: np.ones(len(hits), bool))
     assert (got[-1].memory.t, got[-1].memory.id) == (inside[-1].t, inside[-1].id)
     assert {h.memory.id for h in got} <= {r.id for r in inside}
-    assert later.find(inside[-1].t + 0.5, region, lambda h: True) == []
+    assert later.find(inside[-1].t + 0.5, region, lambda hits: np.ones(len(hits), bool)) == []
     # asked again inside what was searched, from when on it holds every sighting: the same
     # answer as brute force, without a search
     searches, (complete_from, _, _) = len(later.known), later.known[0]
     inner = Region(spot + 0.5, 0.0, 1.0)
-    again = later.find(complete_from, inner, lambda h: h.memory.id % 2 == 0)
+    again = later.find(complete_from, inner, lambda hits: np.array([h.memory.id % 2 == 0 for h in hits]))
     want = [
         r.id
         for r in recs

@@ -9,8 +9,8 @@ import math
 import numpy as np
 
 import ravenmem
-from ravenmem.memory.views import ChangeConfig, next_in_time, overlapping, overlaps
-from ravenmem.types import Filter, Frame, MemoryRecord, Pose
+from ravenmem.memory.views import ChangeConfig, _apart, next_in_time, overlapping, overlaps
+from ravenmem.types import Filter, Frame, Hit, MemoryRecord, Pose
 from tests.conftest import ColorEmbedder, solid
 
 T0 = 1_700_000_000.0
@@ -32,6 +32,33 @@ def test_next_in_time_is_the_next_in_time_then_id_order(tmp_path) -> None:
         mem.forget(ids=[gone.id])
         assert not next_in_time(mem, recs[2], gone) and not next_in_time(mem, gone, recs[4])
         check_pairs(mem, [r for r in recs if r.id != gone.id])
+    finally:
+        mem.close()
+
+
+def test_time_order_tells_which_sightings_are_apart(tmp_path) -> None:
+    """`time_order` is each memory's place in (time, id) order on a chronological store (ties
+    included; -1 for an id not stored; places close up after a forget), None on a store whose
+    ids do not follow time. `_apart` (the latest mode's one call for all pairs of sightings in
+    a row) never calls apart two memories that are next in time."""
+    times = [0.0, 1.0, 1.0, 2.0, 5.0, 5.0, 5.0, 7.0, 9.0]
+    mem = ravenmem.create(tmp_path / "m.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    mem.add_frames([Frame(solid("red"), T0 + t, Pose(float(i), 0.0), "s", i) for i, t in enumerate(times)])
+    try:
+        recs = sorted(mem.all_records(), key=lambda r: (r.t, r.id))
+        got = mem.store.time_order([r.id for r in recs] + [999])
+        assert got is not None and got.tolist() == [*range(len(recs)), -1]
+        for a, b in itertools.combinations(recs, 2):  # chronological pairs
+            hits = [Hit(memory=a), Hit(memory=b)]
+            assert not (_apart(mem, hits)[0] and next_in_time(mem, a, b)), (a.id, b.id)
+            assert _apart(mem, hits)[0] == (recs.index(b) != recs.index(a) + 1)
+        mem.forget(ids=[recs[3].id])
+        left = [r for r in recs if r.id != recs[3].id]
+        assert mem.store.time_order([r.id for r in left]).tolist() == list(range(len(left)))
+        assert mem.store.time_order([recs[3].id]).tolist() == [-1]
+        assert _apart(mem, [Hit(memory=recs[2]), Hit(memory=recs[4])]).tolist() == [False]
+        mem.add_frames([Frame(solid("red"), T0 + 3.0, Pose(0.0, 0.0), "s", 99)])  # back in time
+        assert mem.store.time_order([recs[0].id]) is None
     finally:
         mem.close()
 

@@ -113,6 +113,22 @@ def test_a_score_floor_keeps_the_best_that_reach_it(filled: Data, fi: int | None
             store.search_vector(q, 5, filt, min_score=bad)  # type: ignore[arg-type]
 
 
+def test_candidates_sets_how_many_are_scored_exactly(filled: Data) -> None:
+    """`candidates`: the store's best k, each with its exact score, best first (the exact top
+    k where the index is exact, as here); a count that is no whole number >= 1 is refused."""
+    store, recs, emb = filled
+    q = (emb[200] + 0.1 * np.random.default_rng(4).normal(size=DIM)).astype(np.float32)
+    for filt in (None, FILTERS[1]):
+        ids, scores = brute_vector(recs, emb, q, 7, filt)
+        for candidates in (7, 30):
+            got = store.search_vector(q, 7, filt, candidates=candidates)
+            assert [h[0] for h in got] == ids
+            assert np.allclose([h[1] for h in got], scores, atol=1e-5)
+    for bad in (0, -3, 2.5, "7", True):
+        with pytest.raises(InputError, match="candidates"):
+            store.search_vector(q, 5, candidates=bad)  # type: ignore[arg-type]
+
+
 def test_by_time_starts_at_t_in_order(filled: Data) -> None:
     store, recs, _ = filled
     chrono = sorted(recs, key=lambda r: (r.t, r.id))
@@ -282,6 +298,7 @@ def test_select_and_delete_match_numpy(open_fn: StoreOpener) -> None:
         assert store.select().tolist() == ids
         for filt in FILTERS:
             assert store.select(filt).tolist() == [r.id for r in recs if filt.accepts(r)]
+            assert store.count(filt) == sum(filt.accepts(r) for r in recs)
         t_cut = sorted(r.t for r in recs)[N // 4]
         forget = store.select(Filter(before=t_cut)).tolist() + [ids[-1], ids[5], ids[5], 10**9]
         gone = set(forget) - {10**9}
@@ -295,6 +312,8 @@ def test_select_and_delete_match_numpy(open_fn: StoreOpener) -> None:
         keep = [i for i, r in enumerate(recs) if r.id not in gone]
         left, left_emb = [recs[i] for i in keep], emb[keep]
         assert store.select().tolist() == [r.id for r in left]
+        for filt in FILTERS:  # the count of a filter forgets what was forgotten too
+            assert store.count(filt) == sum(filt.accepts(r) for r in left)
         rng = np.random.default_rng(6)
         for filt in [None, *FILTERS[:3]]:
             for qi in rng.choice(N, 3, replace=False):

@@ -446,6 +446,110 @@ def test_a_score_floor_reads_only_the_vectors_near_it(
         store.close()
 
 
+def test_candidates_reads_only_that_many_vectors(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`candidates=k` re-ranks the codes' best k, not `rerank` x k: k vectors are read, and the
+    hits carry their exact scores, best first; most of the exact top k are among them."""
+    from ravenmem.store import _sql
+
+    store, emb = filled(tmp_path / "m", 3_000, ann_threshold=1_000, background=False)
+    unit = emb / np.linalg.norm(emb, axis=1, keepdims=True)
+    read: list[int] = []
+    fetch = _sql.fetch_vectors
+    monkeypatch.setattr(_sql, "fetch_vectors", lambda conn, ids: read.append(len(ids)) or fetch(conn, ids))
+    rng = np.random.default_rng(9)
+    try:
+        for qi in rng.choice(3_000, 5, replace=False):
+            q = (unit[qi] + 0.3 * rng.normal(size=DIM) / np.sqrt(DIM)).astype(np.float32)
+            exact = unit @ (q / np.linalg.norm(q))
+            read.clear()
+            full = store.search_vector(q, 40)
+            assert sum(read) == 4 * 40  # the store's own setting: rerank 4
+            read.clear()
+            got = store.search_vector(q, 40, candidates=40)
+            assert sum(read) == 40 and len(got) == 40
+            assert np.allclose([sc for _, sc in got], exact[[i - 1 for i, _ in got]], atol=1e-5)
+            assert [sc for _, sc in got] == sorted((sc for _, sc in got), reverse=True)
+            assert len({i for i, _ in got} & {i for i, _ in full}) >= 36
+    finally:
+        store.close()
+
+
+@pytest.mark.parametrize("codes", ["sq8", "fp16", "flat"])
+def test_a_score_floor_leaves_out_the_lists_that_cannot_reach_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, codes: str
+) -> None:
+    """A floor search skips the IVF lists whose centroid score plus their longest residual
+    (plus the codes' error) is below the floor (`VectorIndex.reachable`): exact searches give
+    brute force's answer while lists are skipped. A memory added later, further from its
+    list's centroid than any before, is still found: the list's reach is read again."""
+    store, emb = filled(tmp_path / "m", 3_000, ann_threshold=1_000, codes=codes, background=False)
+    vi = store._vi
+    assert vi.kind == "ivf" and vi.codes == codes
+    unit = emb / np.linalg.norm(emb, axis=1, keepdims=True)
+    recs = make_records(3_000)
+    skipped: list[int] = []
+    reachable = VectorIndex.reachable
+
+    def spy(self: VectorIndex, *args: object) -> np.ndarray:
+        keep = reachable(self, *args)  # type: ignore[arg-type]
+        skipped.append(int((~keep).sum()))
+        return keep
+
+    monkeypatch.setattr(VectorIndex, "reachable", spy)
+    rng = np.random.default_rng(5)
+    try:
+        for filt in (
+            None,
+            Filter(after=recs[300].t, before=recs[2_400].t),
+            Filter(region=Region(-9.0, 1.0, 6.0)),
+        ):
+            ok = np.array([filt is None or filt.accepts(r) for r in recs])
+            for qi in rng.choice(np.flatnonzero(ok), 4, replace=False):
+                q = (unit[qi] + 0.2 * rng.normal(size=DIM) / np.sqrt(DIM)).astype(np.float32)
+                scores = unit @ (q / np.linalg.norm(q))
+                floor = float(np.sort(scores[ok])[-12]) - 1e-6
+                want = {i + 1 for i in np.flatnonzero(ok & (scores >= floor))}
+                got = store.search_vector(q, 3_000, filt, exact=True, min_score=floor)
+                assert {i for i, _ in got} == want
+                assert {i for i, _ in store.search_vector(q, 40, filt, min_score=floor)} <= want
+        assert sum(skipped) > 0, "no list was ever left out: the test does not reach the rule"
+        # the bound itself, where it is tightest: the query along a list's longest residual
+        for lst in range(vi.nlist):
+            members = np.flatnonzero(vi.list_of[1:3_001] == lst)
+            if not len(members):
+                continue
+            res = unit[members] - vi.centroids[lst]
+            r = res[np.argmax(np.linalg.norm(res, axis=1))]
+            q = (r / np.linalg.norm(r)).astype(np.float32)
+            best = float((unit[members] @ q).max())
+            assert reachable(vi, np.array([lst]), np.array([vi.centroids[lst] @ q]), q, best - 1e-6)[0]
+        # a new memory far from its list's centroid: before the add, that list could not hold it
+        found = None
+        for _ in range(5_000):
+            lst = int(rng.integers(vi.nlist))
+            c = vi.centroids[lst]
+            w = rng.normal(size=DIM)
+            w -= (w @ c) / (c @ c) * c
+            x = c / np.linalg.norm(c) + rng.uniform(0.3, 3.0) * w / np.linalg.norm(w)
+            x = (x / np.linalg.norm(x)).astype(np.float32)
+            if (
+                int(np.argmax(vi.centroids @ x)) == lst
+                and not reachable(vi, np.array([lst]), np.array([c @ x]), x, 0.99)[0]
+            ):
+                found = (lst, x)
+                break
+        assert found is not None
+        lst, x = found
+        new = store.add(make_records(1, t0=recs[-1].t + 1.0), x[None])[0]
+        assert store._vi is vi and vi.list_of[new] == lst  # the same index, the same list
+        assert store.search_vector(x, 5, min_score=0.99)[0][0] == new
+        assert [
+            i for i, _ in store.search_vector(x, 5, Filter(after=recs[0].t), exact=True, min_score=0.99)
+        ] == [new]
+    finally:
+        store.close()
+
+
 def test_by_time_in_a_region_walks_the_columns(tmp_path: Path) -> None:
     """`by_time` with a region reads its positions from the columns: on a chronological store
     by walking forward in growing steps, on another by sorting what the filter accepts; both

@@ -97,7 +97,8 @@ class Changes(Core):
         q, label = _query_vector(self, query, img, memory_id, vector)
         filt = self.make_filter(after, before, near)
         asof = Filter(before=filt.before)
-        scored = self.store.search_vector(q, max(1, min(s.pool, self.count(), MAX_K)), filt)
+        k = max(1, min(s.pool, self.count(), MAX_K))  # good matches, not the exact best k:
+        scored = self.store.search_vector(q, k, filt, candidates=k)  # re-ranks k, not 4 k
         if not scored:
             return Whereabouts(label, [], math.inf, 0.0, 0.0)
         index = seen_index(self, s.floor_sample)  # whole-memory facts, read once per state

@@ -58,6 +58,7 @@ class Core:
         self._embedder = embedder
         self._lock = threading.RLock()
         self._span: tuple[float, float] | None = None
+        self.writes = 0  # how many store writes this object made (caches of whole-memory facts)
         self._closed = False
         self._groups = GroupView(path)  # consolidated memories: count and span (memory.lifelong)
         self._writer = Writer(path, self._lock, self._changed, lock, reader=ocr_reader)
@@ -154,6 +155,7 @@ class Core:
     def _changed(self, groups: bool) -> None:
         """A write changed the store (and, with `groups`, the consolidated groups)."""
         self._span = None
+        self.writes += 1
         if groups:
             self._groups.invalidate()
 

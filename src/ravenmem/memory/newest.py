@@ -88,17 +88,18 @@ class Later:
         self.pool, self.steps, self.margin = pool, steps, margin
         self.known: list[tuple[float, Region, list[Hit]]] = []  # complete from, disc, sightings
 
-    def find(self, after: float, region: Region, keep: Callable[[Hit], bool]) -> list[Hit]:
-        """Sightings from `after` on inside `region` that pass `keep`, chronological."""
+    def find(self, after: float, region: Region, keep: Callable[[list[Hit]], np.ndarray]) -> list[Hit]:
+        """Sightings from `after` on inside `region` that pass `keep` (which says it of a list
+        of hits at once), chronological."""
         for lo, disc, hits in self.known:
             if lo <= after and math.hypot(region.x - disc.x, region.y - disc.y) + region.r <= disc.r:
-                return _chrono([h for h in hits if h.memory.t >= after and _inside(h, region) and keep(h)])
+                return _kept([h for h in hits if h.memory.t >= after and _inside(h, region)], keep)
         wide = Region(region.x, region.y, region.r + self.margin)
         filt = Filter(after=after, before=self.before, region=wide)
         hits, complete = _window(self.mem, self.q, filt, self.thr, self.pool, self.steps)
         if complete is not None:
             self.known.append((complete, wide, hits))
-        return _chrono([h for h in hits if _inside(h, region) and keep(h)])
+        return _kept([h for h in hits if _inside(h, region)], keep)
 
 
 def exact_scores(mem: Core, q: np.ndarray, found: Cameras) -> dict[int, float]:
@@ -112,7 +113,7 @@ def exact_scores(mem: Core, q: np.ndarray, found: Cameras) -> dict[int, float]:
     filt = Filter(
         after=float(found.t.min()), before=float(found.t.max()), region=Region(cx, cy, reach + 1e-3)
     )
-    n = len(mem.store.select(filt))
+    n = mem.store.count(filt)
     if n == 0 or n > MAX_K:
         return {}
     want = set(found.ids.tolist())
@@ -123,6 +124,11 @@ def _inside(h: Hit, region: Region) -> bool:
     """The store's disc test (`Filter.region`)."""
     dx, dy = h.memory.pose.x - region.x, h.memory.pose.y - region.y
     return dx * dx + dy * dy <= region.r * region.r
+
+
+def _kept(hits: list[Hit], keep: Callable[[list[Hit]], np.ndarray]) -> list[Hit]:
+    """The hits `keep` says yes to, chronological."""
+    return _chrono([h for h, ok in zip(hits, keep(hits), strict=True) if ok]) if hits else []
 
 
 def _chrono(hits: list[Hit]) -> list[Hit]:
@@ -140,7 +146,7 @@ def _window(
     for _ in range(steps):
         start = filt.after if filt.after is not None else -math.inf
         span = Filter(after=filt.after, before=filt.before)  # its count bounds the filter's
-        n = len(mem.store.select(span if filt.region is not None else filt))
+        n = mem.store.count(span if filt.region is not None else filt)
         if n == 0:
             return list(out.values()), start
         exact = n <= MAX_K

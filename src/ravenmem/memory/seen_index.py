@@ -6,8 +6,10 @@ robot's usual time between keyframes. Both were read afresh for every question, 
 store's full statistics (an aggregate over every row: a third of a second at a million
 memories) and a few hundred single reads. Here they are computed once per memory state and kept
 beside the memory object: the sample's embeddings (64 x dim floats) and the spacing. The state
-is the store's count and newest id, so an add, a forget or a consolidation computes them again;
-a reader that another process writes to sees the new count on its next question.
+is the store's count and the memory object's own writes, so an add, a forget or a consolidation
+computes them again (an open store sees what it held when opened and its own writes since: a
+reader sees another process's writes when it opens the memory again). The state is read
+without listing the ids: that list cost 0.7 ms of a 20 ms question at a million memories.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ __all__ = ["SeenIndex", "seen_index"]
 class SeenIndex:
     """The whole-memory facts of one memory state (see the module docstring)."""
 
-    key: tuple[int, int]
+    key: tuple[int, int]  # (store count, the memory object's writes)
     sample: np.ndarray  # (n, dim) embeddings of memories spread evenly over the memory
     spacing: float  # mean seconds between a memory and the next one stored, breaks left out
 
@@ -42,13 +44,13 @@ _LOCK = threading.Lock()
 
 def seen_index(mem: Core, n: int = 64) -> SeenIndex:
     """The memory's SeenIndex for its current state, computed when the state changed."""
-    ids = mem.store.select()  # every stored id, ascending: ids grow with insertion
-    key = (len(ids), int(ids[-1]) if len(ids) else 0)
+    key = (mem.store.count(), mem.writes)
     with _LOCK:
         got = _CACHE.get(mem)
-    if got is not None and got.key == key and len(got.sample) == min(n, len(ids)):
+    if got is not None and got.key == key and len(got.sample) == min(n, key[0]):
         return got
-    made = SeenIndex(key, _sample(mem, ids, n), _spacing(mem, ids))
+    ids = mem.store.select()  # every stored id, ascending: ids grow with insertion
+    made = SeenIndex((len(ids), key[1]), _sample(mem, ids, n), _spacing(mem, ids))
     with _LOCK:
         _CACHE[mem] = made
     return made

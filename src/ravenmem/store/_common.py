@@ -203,6 +203,16 @@ def check_min_score(v: object) -> float | None:
     return float(v)
 
 
+def check_candidates(v: object, k: int) -> int | None:
+    """How many of the index's candidates a search scores exactly: None (the store's own
+    setting) or a whole number, never fewer than k."""
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+        raise InputError(f"candidates: expected a whole number >= 1 or None, got {v!r}")
+    return max(int(v), k)
+
+
 def above(hits: list[tuple[int, float]], min_score: float | None) -> list[tuple[int, float]]:
     """The (id, score) hits that score at least `min_score` (all of them when it is None)."""
     return hits if min_score is None else [h for h in hits if h[1] >= min_score]

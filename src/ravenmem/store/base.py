@@ -113,11 +113,15 @@ class Store(Protocol):
         filt: Filter | None = None,
         exact: bool = False,
         min_score: float | None = None,
+        candidates: int | None = None,
     ) -> list[tuple[int, float]]:
         """Top-k (id, cosine) for one (dim,) query, best first, honouring the filter; `exact`
         scores every memory the filter accepts (slow unless the filter keeps few). `min_score`
         keeps only the hits that score at least that (so fewer than k when fewer do); a store
-        may use it to read fewer candidates."""
+        may use it to read fewer candidates. `candidates`: how many of its index's best a
+        store that re-ranks scores exactly (None: its own setting; k: the k it would return,
+        in exact order among themselves, for a caller that wants good matches more than the
+        exact best k); a store that does not re-rank ignores it."""
         ...
 
     def search_text(self, text: str, k: int, filt: Filter | None = None) -> list[tuple[int, float]]:
@@ -151,7 +155,10 @@ class Store(Protocol):
         memories (an index on source), and cost nothing for a source the store has never seen."""
         ...
 
-    def count(self) -> int: ...
+    def count(self, filt: Filter | None = None) -> int:
+        """How many memories are stored (that the filter accepts): `len(select(filt))`
+        without listing them."""
+        ...
 
     def stats(self) -> dict[str, object]:
         """Counts, time span, spatial extent, bytes on disk: what `ravenmem info` prints."""
@@ -185,6 +192,12 @@ class CameraStore(Protocol):
     def cameras(self, t: float, k: int, filt: Filter | None = None) -> Cameras:
         """`by_time`'s memories (the k from time t on that the filter accepts, in (time, id)
         order) as cameras."""
+        ...
+
+    def time_order(self, ids: Sequence[int]) -> np.ndarray | None:
+        """Each id's place in (time, id) order among the stored memories (0: the first; -1:
+        not stored), or None when the store cannot tell it from RAM at once (its ids do not
+        follow time). Two memories are next to each other in time when their places are."""
         ...
 
 

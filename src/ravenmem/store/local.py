@@ -46,6 +46,7 @@ from ._common import (
     DIM_KEY,
     above,
     check_add,
+    check_candidates,
     check_dim,
     check_filter,
     check_ids,
@@ -69,6 +70,10 @@ UID_KEY = "store.uid"
 POSES_KEY = "store.poses"  # bumped by every `set_poses`: the columns cache is of one pose epoch
 _MAX_T = 1.7976931348623157e308  # every finite time is within +-this; inf and text are not
 _RERANK_MIN = 32  # candidates re-ranked per query at least (k = 1 still gets a margin)
+# SQLite reads the database through a memory map this large at most (capped at its build's
+# limit, 2 GB in CPython's): a vector or record read is then a copy from the page cache, not a
+# read() call; 800 random vectors at 1M memories: 2.7 -> 1.2 ms (bench_last_seen.py --phases)
+_MMAP_BYTES = 1 << 31
 _CODE_EXACT_MAX = 50_000  # an exact search with a floor scores up to this many codes, not vectors
 _CODES_PER_READ = 256  # codes scored in the time of one vector read from SQLite (measured at 1M)
 
@@ -122,6 +127,7 @@ class LocalStore(IndexLifecycle):
         else:
             self._conn = _sql.connect(str(self._db_path), synchronous.upper())
         try:
+            self._conn.execute(f"PRAGMA mmap_size={_MMAP_BYTES}")
             if read_only:
                 self._tokenizer = _sql.read_schema(self._conn, str(self._db_path))
             else:
@@ -303,10 +309,12 @@ class LocalStore(IndexLifecycle):
         filt: Filter | None = None,
         exact: bool = False,
         min_score: float | None = None,
+        candidates: int | None = None,
     ) -> list[tuple[int, float]]:
         """Top-k (id, cosine). The IVF's 8-bit codes only pick candidates: the best
-        `rerank` x k are scored again with their exact vectors from SQLite. `exact=True` is the
-        ground truth (a scan of every vector the filter accepts; slow on big stores).
+        `rerank` x k (or `candidates`, at least k) are scored again with their exact vectors
+        from SQLite. `exact=True` is the ground truth (a scan of every vector the filter
+        accepts; slow on big stores).
 
         `min_score` keeps only hits scoring at least that: only the candidates whose code
         score is within the codes' error (`VectorIndex.score_error`) of it are read and
@@ -315,7 +323,7 @@ class LocalStore(IndexLifecycle):
         one of them is scored from its code and only those near or above the floor are read:
         the same answer as the scan, from a fraction of the reads."""
         q, k, filt = check_query(query, self.dim), check_limit(k), check_filter(filt)
-        floor = check_min_score(min_score)
+        floor, candidates = check_min_score(min_score), check_candidates(candidates, k)
         with self._lock:
             self._check_open()
             if k == 0 or self._count == 0:
@@ -327,13 +335,13 @@ class LocalStore(IndexLifecycle):
                     return []
             vi = self._vi
             if exact and not vi.exact_scores:
-                if floor is None or not self._codes_cover(allowed):
+                if floor is None or not self._codes_cover(allowed, q[0], floor):
                     return above(self._scan(q, k, allowed, contiguous), floor)
                 assert allowed is not None  # _codes_cover refuses the whole store
                 want = len(allowed)  # every accepted memory's code score
             else:
-                want = k if vi.exact_scores else max(self.rerank * k, _RERANK_MIN)
-            hits = vi.search(q, want, self.nprobe, allowed, exact, self.filter_budget, contiguous)
+                want = k if vi.exact_scores else candidates or max(self.rerank * k, _RERANK_MIN)
+            hits = vi.search(q, want, self.nprobe, allowed, exact, self.filter_budget, contiguous, floor)
             if vi.exact_scores:
                 return above(hits[:k], floor)
             if floor is not None and hits:
@@ -342,15 +350,15 @@ class LocalStore(IndexLifecycle):
                 hits = [h for h, ok in zip(hits, sure, strict=True) if h[1] >= near or not ok]
             return above(self._rescore(q, [i for i, _ in hits], k), floor)
 
-    def _codes_cover(self, allowed: np.ndarray | None) -> bool:
-        """Whether an exact search should score `allowed` from the index's codes: every stored
-        memory is in the index (none deferred), and the lists that hold them are short enough
-        that scoring all their codes costs less than reading the accepted vectors (a code
-        costs about a 256th of a read; a time window of a robot that saw the same few scenes
-        all along spreads over a few crowded lists)."""
+    def _codes_cover(self, allowed: np.ndarray | None, q: np.ndarray, floor: float) -> bool:
+        """Whether an exact search with a floor should score `allowed` from the index's codes:
+        every stored memory is in the index (none deferred), and the lists that hold them and
+        may reach the floor are short enough that scoring all their codes costs less than
+        reading the accepted vectors (a code costs about a 256th of a read; a time window of
+        a robot that saw the same few scenes all along spreads over a few crowded lists)."""
         if allowed is None or len(allowed) > _CODE_EXACT_MAX or self._vi_upto != self._last_id:
             return False
-        return self._vi.codes_scanned(allowed) <= _CODES_PER_READ * len(allowed)
+        return self._vi.codes_scanned(allowed, q, floor) <= _CODES_PER_READ * len(allowed)
 
     def _rescore(self, q: np.ndarray, ids: Sequence[int], k: int) -> list[tuple[int, float]]:
         """Exact cosine of `ids` from their SQLite vectors, best k (older first on ties)."""
@@ -453,6 +461,21 @@ class LocalStore(IndexLifecycle):
             poses[:, 2:] = cols.turn()[:, pos].T
             return Cameras(cols.ids[pos], cols.col("t")[pos], poses)
 
+    def time_order(self, ids: Sequence[int]) -> np.ndarray | None:
+        """Each id's place in (time, id) order (-1: not stored): its position in the in-RAM
+        columns when their ids follow time (None otherwise)."""
+        want = np.asarray([int(i) for i in ids], np.int64)
+        with self._lock:
+            self._check_open()
+            cols = self._columns()
+            if not cols.t_sorted:
+                return None
+            pos = np.searchsorted(cols.ids, want)
+            inside = pos < cols.n
+            found = np.zeros(len(want), bool)
+            found[inside] = cols.ids[pos[inside]] == want[inside]
+            return np.where(found, pos, -1)
+
     def nearest(
         self,
         x: float,
@@ -511,8 +534,13 @@ class LocalStore(IndexLifecycle):
             rows = _sql.source_frames(self._conn, source)
         return SourceFrames.from_rows(rows)
 
-    def count(self) -> int:
-        return self._count
+    def count(self, filt: Filter | None = None) -> int:
+        filt = check_filter(filt)
+        if filt is None:
+            return self._count
+        with self._lock:
+            self._check_open()
+            return len(self._columns().select_ids(filt)[0])
 
     def stats(self) -> dict[str, object]:
         """Counts, time span, spatial extent, index kind, bytes on disk (SQLite + caches)."""

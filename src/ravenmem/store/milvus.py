@@ -32,6 +32,7 @@ from ._common import (
     RECORD_COLUMNS,
     above,
     check_add,
+    check_candidates,
     check_dim,
     check_filter,
     check_ids,
@@ -357,10 +358,13 @@ class MilvusStore:
         filt: Filter | None = None,
         exact: bool = False,
         min_score: float | None = None,
+        candidates: int | None = None,
     ) -> list[tuple[int, float]]:
         """Top-k (id, cosine) scoring at least `min_score` (when given): the top k, then the
-        floor (Milvus reads no vectors of its own to re-rank, so a floor saves nothing here)."""
+        floor (Milvus reads no vectors of its own to re-rank, so a floor saves nothing here,
+        and `candidates` is checked and has nothing to set)."""
         q, k, filt = check_query(query, self.dim), check_limit(k), check_filter(filt)
+        check_candidates(candidates, k)
         return above(self._top_k(q, k, filt, exact), check_min_score(min_score))
 
     def _top_k(self, q: np.ndarray, k: int, filt: Filter | None, exact: bool) -> list[tuple[int, float]]:
@@ -530,10 +534,13 @@ class MilvusStore:
         values = [None if c in QUAT_COLUMNS and not r["has_quat"] else r[c] for c in RECORD_COLUMNS]
         return record_from(r["id"], values, np.asarray(r["v"], np.float32) if "v" in r else None)
 
-    def count(self) -> int:
+    def count(self, filt: Filter | None = None) -> int:
+        filt = check_filter(filt)
+        if filt is not None and filt.region is not None:  # the disc is tested here, not by Milvus
+            return len(self.select(filt))
         with self._lock:
             self._check_open()
-            return self._count()
+            return self._count(_expr(filt) if filt is not None else "")
 
     def stats(self) -> dict[str, object]:
         """Counts, time span and extent (upper bounds after a crash), bytes on disk (Lite only)."""

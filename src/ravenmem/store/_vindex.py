@@ -45,6 +45,7 @@ _SQ = {"sq8": "QT_8bit_uniform", "fp16": "QT_fp16"}
 # half: with per-dimension ranges a query's own frame was among its 32 candidates 75-93 % of the
 # time; with one range widened by 20 %, always (and the same recall when trained on everything).
 _SQ_MARGIN = 0.2
+_ROUNDING = 1e-6  # float32 scores: a list's reach is widened by this for rounding
 _HNSW_ASSIGN_MIN = 20_000  # rows per add from which an HNSW graph over the centroids assigns lists
 
 
@@ -220,7 +221,7 @@ class VectorIndex:
         if self.kind != "ivf" or not len(lists):
             return np.ones(len(lists), bool)
         self._read_lists(lists)
-        return centroid_scores + self._reach[lists] + self.score_error(q) >= floor
+        return centroid_scores + self._reach[lists] + self.score_error(q) + _ROUNDING >= floor
 
     def _read_lists(self, lists: np.ndarray) -> None:
         """Read the rough flags and reach of the `lists` not read since their last add."""

@@ -72,7 +72,7 @@ _MAX_T = 1.7976931348623157e308  # every finite time is within +-this; inf and t
 _RERANK_MIN = 32  # candidates re-ranked per query at least (k = 1 still gets a margin)
 # SQLite reads the database through a memory map this large at most (capped at its build's
 # limit, 2 GB in CPython's): a vector or record read is then a copy from the page cache, not a
-# read() call; 800 random vectors at 1M memories: 2.7 -> 1.2 ms (bench_last_seen.py --phases)
+# read() call; 200 random vectors at 1M memories: 0.76 -> 0.24 ms (docs/store.md, "Reads")
 _MMAP_BYTES = 1 << 31
 _CODE_EXACT_MAX = 50_000  # an exact search with a floor scores up to this many codes, not vectors
 _CODES_PER_READ = 256  # codes scored in the time of one vector read from SQLite (measured at 1M)

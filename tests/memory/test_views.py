@@ -104,14 +104,15 @@ def test_overlapping_is_overlaps_over_all_pairs() -> None:
 
 
 class _RecordsOnly:
-    """A store as a backend without `cameras` shows it to the latest mode (e.g. Milvus): every
-    call but `cameras` goes to the real store, so the latest mode reads records instead."""
+    """A store as a backend without the optional `CameraStore` methods shows it to the latest
+    mode (e.g. Milvus): every call but `cameras` and `time_order` goes to the real store, so the
+    latest mode reads records instead."""
 
     def __init__(self, store: object) -> None:
         self._store = store
 
     def __getattr__(self, name: str) -> object:
-        if name == "cameras":
+        if name in ("cameras", "time_order"):
             raise AttributeError(name)
         return getattr(self._store, name)
 

@@ -80,9 +80,9 @@ def cameras(mem: Core, t: float, k: int, filt: Filter) -> Cameras:
 
 
 def _has_cameras(mem: Core) -> bool:
-    """Whether the store is a `store.base.CameraStore` (its methods looked up: `isinstance`
-    on a protocol costs more than the call it guards)."""
-    return callable(getattr(mem.store, "cameras", None)) and callable(getattr(mem.store, "time_order", None))
+    """Whether the store answers `cameras` (`store.base.CameraStore`; the method looked up:
+    `isinstance` on a protocol costs more than the call it guards)."""
+    return callable(getattr(mem.store, "cameras", None))
 
 
 def _after(found: Cameras, mark: tuple[float, int]) -> np.ndarray:
@@ -171,7 +171,8 @@ def _apart(mem: Core, hits: list[Hit]) -> np.ndarray:
     their places in time order (`time_order`, one call for all) are not next to each other.
     The pairs left are asked `next_in_time` one by one (a pool's sightings are mostly days
     apart: sixty store calls per question were spent finding that out)."""
-    order = mem.store.time_order([h.memory.id for h in hits]) if _has_cameras(mem) else None  # type: ignore[attr-defined]
+    time_order = getattr(mem.store, "time_order", None)  # optional, as `cameras` is
+    order = time_order([h.memory.id for h in hits]) if callable(time_order) else None
     if order is None or len(hits) < 2:
         return np.zeros(max(0, len(hits) - 1), bool)
     return (order[1:] != order[:-1] + 1) | (order[:-1] < 0)

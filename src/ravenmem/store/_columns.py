@@ -105,13 +105,19 @@ class Columns:
             self._turn[:, sl] = turn
         self.n += m
 
-    def remove(self, ids: np.ndarray) -> int:
-        """Drop the rows of `ids` (absent ones ignored); returns how many were dropped."""
+    def positions(self, ids: np.ndarray) -> np.ndarray:
+        """The row of each id (-1 for an id not held), in the order given."""
         ids = np.asarray(ids, np.int64)
         pos = np.searchsorted(self.ids, ids)
-        ok = pos < self.n
-        pos, ids = pos[ok], ids[ok]
-        pos = np.unique(pos[self.ids[pos] == ids])
+        found = np.zeros(len(ids), bool)
+        inside = pos < self.n
+        found[inside] = self.ids[pos[inside]] == ids[inside]
+        return np.where(found, pos, -1)
+
+    def remove(self, ids: np.ndarray) -> int:
+        """Drop the rows of `ids` (absent ones ignored); returns how many were dropped."""
+        pos = self.positions(ids)
+        pos = np.unique(pos[pos >= 0])
         if len(pos) == 0:
             return 0
         keep = np.ones(self.n, bool)

@@ -468,13 +468,7 @@ class LocalStore(IndexLifecycle):
         with self._lock:
             self._check_open()
             cols = self._columns()
-            if not cols.t_sorted:
-                return None
-            pos = np.searchsorted(cols.ids, want)
-            inside = pos < cols.n
-            found = np.zeros(len(want), bool)
-            found[inside] = cols.ids[pos[inside]] == want[inside]
-            return np.where(found, pos, -1)
+            return cols.positions(want) if cols.t_sorted else None
 
     def nearest(
         self,

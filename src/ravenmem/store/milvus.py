@@ -540,7 +540,7 @@ class MilvusStore:
             return len(self.select(filt))
         with self._lock:
             self._check_open()
-            return self._count(_expr(filt) if filt is not None else "")
+            return self._count(_expr(filt))
 
     def stats(self) -> dict[str, object]:
         """Counts, time span and extent (upper bounds after a crash), bytes on disk (Lite only)."""

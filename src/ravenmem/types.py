@@ -54,6 +54,8 @@ def check_coord(v: object, what: str = "coordinate") -> float:
 def check_id(v: object, what: str = "memory id") -> int:
     """A memory id (or frame index): a whole number from 0 to MAX_ID (SQLite's INTEGER); a
     whole number written as text (a query string's) is read as one."""
+    if type(v) is int and 0 <= v <= MAX_ID:  # the common case, decided at once
+        return v
     if isinstance(v, str) and v.strip().lstrip("+-").isdigit():
         v = int(v)
     if isinstance(v, bool) or not isinstance(v, (int, np.integer, float, np.floating)):
@@ -108,6 +110,11 @@ class Pose:
     quat: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
+        c, a = MAX_COORD, MAX_ANGLE  # NaN fails every comparison, so this passes only good poses
+        if -c <= self.x <= c and -c <= self.y <= c and -c <= self.z <= c and -a <= self.yaw <= a:
+            q = self.quat
+            if q is None or math.isfinite(q[0] + q[1] + q[2] + q[3]):  # a record read back: at once
+                return
         vals = (self.x, self.y, self.z, self.yaw, *(self.quat or ()))
         if not all(math.isfinite(v) for v in vals):
             raise InputError(f"pose has a non-finite value: {self}")

@@ -147,7 +147,7 @@ def test_last_seen_ends_every_place_at_its_newest_sighting(memory) -> None:
     assert (newest.t, newest.id) == (truth[-1].t, truth[-1].id)
     assert abs(w.now.last.pose.x - 21.0) <= 1.0 and w.status != "gone"
     for p in w.places:  # nothing later looks at the place's views and shows the thing
-        _, cams = _disc(p, s)
+        _, cams, _ = _disc(p, s)
         later = [
             r for r in truth if (r.t, r.id) > chrono(p.sightings[-1]) and any(overlaps(r, c, s) for c in cams)
         ]

@@ -114,17 +114,18 @@ def overlapping(recs: Sequence[MemoryRecord], cams: Sequence[MemoryRecord], s: C
 
 def overlapping_poses(a: np.ndarray, b: np.ndarray, s: ChangeConfig) -> np.ndarray:
     """`overlapping` for poses as `_poses` gives them ((n, 7) arrays, e.g. `Cameras.poses`)."""
+    out = np.zeros(len(a), bool)
     if not len(a) or not len(b):
-        return np.zeros(len(a), bool)
+        return out
     close = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) <= s.view_radius
-    turn = np.abs(np.mod(b[None, :, 2] - a[:, None, 2] + math.pi, 2.0 * math.pi) - math.pi)
-    qa, qb = a[:, None, 3:], b[None, :, 3:]
-    dot = np.abs(
-        qa[..., 0] * qb[..., 0] + qa[..., 1] * qb[..., 1] + qa[..., 2] * qb[..., 2] + qa[..., 3] * qb[..., 3]
-    )
+    i, j = np.nonzero(close)  # turns only for the pairs close enough (mostly a few)
+    pa, pb = a[i], b[j]
+    turn = np.abs(np.mod(pb[:, 2] - pa[:, 2] + math.pi, 2.0 * math.pi) - math.pi)
+    dot = np.abs(pa[:, 3] * pb[:, 3] + pa[:, 4] * pb[:, 4] + pa[:, 5] * pb[:, 5] + pa[:, 6] * pb[:, 6])
     both = ~np.isnan(dot)
     turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot[both]))
-    return (close & (np.degrees(turn) <= s.view_angle_deg)).any(axis=1)
+    out[i[np.degrees(turn) <= s.view_angle_deg]] = True
+    return out
 
 
 def _poses(recs: Sequence[MemoryRecord]) -> np.ndarray:
@@ -196,17 +197,19 @@ def next_in_time(mem: Core, a: MemoryRecord, b: MemoryRecord) -> bool:
     return bool(np.all(at < len(ids)) and np.all(ids[np.minimum(at, len(ids) - 1)] == [a.id, b.id]))
 
 
-def _disc(p: Place, s: ChangeConfig) -> tuple[Region, list[MemoryRecord]]:
-    """The cameras a later view is compared with (the last 16 sightings and the best one), and
-    a disc around them that holds every camera overlapping one of them."""
+def _disc(p: Place, s: ChangeConfig) -> tuple[Region, list[MemoryRecord], np.ndarray]:
+    """The cameras a later view is compared with (the last 16 sightings and the best one; as
+    records and as `_poses` gives them), and a disc around them that holds every camera
+    overlapping one of them."""
     cams = [h.memory for h in p.sightings[-16:]]
     best = p.best.memory
     if all(r.id != best.id for r in cams):
         cams.append(best)
-    cx = float(np.mean([r.pose.x for r in cams]))
-    cy = float(np.mean([r.pose.y for r in cams]))
-    reach = max(math.hypot(r.pose.x - cx, r.pose.y - cy) for r in cams)
-    return Region(cx, cy, reach + s.view_radius), cams
+    poses = _poses(cams)
+    x, y = poses[:, 0].copy(), poses[:, 1].copy()
+    cx, cy = float(x.mean()), float(y.mean())
+    reach = float(np.hypot(x - cx, y - cy).max())
+    return Region(cx, cy, reach + s.view_radius), cams, poses
 
 
 def _views(
@@ -220,8 +223,8 @@ def _views(
 
 def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> list[Hit]:
     """Every later view of the place, inside its disc, that shows the thing (up to the newest)."""
-    disc, cams = _disc(p, s)
-    last, poses = chrono(p.sightings[-1]), _poses(cams)
+    disc, _, poses = _disc(p, s)
+    last = chrono(p.sightings[-1])
 
     def later_views(hits: list[Hit]) -> np.ndarray:
         found = Cameras.of([h.memory for h in hits])
@@ -231,12 +234,10 @@ def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> list[Hit]:
 
 
 def _newest_views(
-    mem: Core, q: np.ndarray, p: Place, s: ChangeConfig, asof: Filter
+    mem: Core, q: np.ndarray, p: Place, disc: Region, poses: np.ndarray, s: ChangeConfig, asof: Filter
 ) -> tuple[Cameras, np.ndarray]:
     """The newest views of the place after its last sighting, with their scores: time windows
-    growing backwards from the end, inside the place's disc."""
-    disc, cams = _disc(p, s)
-    poses = _poses(cams)
+    growing backwards from the end, inside the place's disc (`_disc`: `disc`, `poses`)."""
     lo, last = p.last.t, chrono(p.sightings[-1])
     hi = asof.before if asof.before is not None else mem.time_span()[1]
     width = max((hi - lo) / 64.0, 1e-3)
@@ -267,17 +268,18 @@ def revisits(
     """The later views of the place without the thing (`Place.revisits`, `revisit_count`) and
     whether the robot came back to it at all (`later_visit`): decided on cameras (poses and
     scores); records are read only for the revisits kept."""
-    end = _visit_end(mem, p, p.last, s, asof)
+    views = _poses([h.memory for h in p.sightings])
+    end = _visit_end(mem, views, p.last, s, asof)
     start = p.last.t + gap if end is None else max(end, p.last.t + gap)
-    disc, cams = _disc(p, s)
+    disc, _, poses = _disc(p, s)
     first, scores = _views(
-        mem, q, cameras(mem, start, s.pool, Filter(before=asof.before, region=disc)), _poses(cams), s
+        mem, q, cameras(mem, start, s.pool, Filter(before=asof.before, region=disc)), poses, s
     )
     miss = scores < thr
     without = list(zip(first.ids[miss].tolist(), scores[miss].tolist(), strict=True))
     count = len(without)
     if without:
-        newest, ns = _newest_views(mem, q, p, s, asof)
+        newest, ns = _newest_views(mem, q, p, disc, poses, s, asof)
         gone = np.flatnonzero(ns < thr)
         if len(gone) and int(newest.ids[gone[-1]]) not in {i for i, _ in without}:
             without.append((int(newest.ids[gone[-1]]), float(ns[gone[-1]])))
@@ -287,14 +289,16 @@ def revisits(
     recs = {r.id: r for r in sample(mem, [i for i, _ in kept])}
     p.revisits = [Hit(memory=recs[i], score=sc) for i, sc in kept if i in recs]
     p.revisit_count = count
-    first_end = _visit_end(mem, p, p.first, s, asof)
+    first_end = _visit_end(mem, views, p.first, s, asof)
     p.later_visit = first_end is not None and p.last.t >= first_end
 
 
-def _visit_end(mem: Core, p: Place, start: MemoryRecord, s: ChangeConfig, asof: Filter) -> float | None:
+def _visit_end(
+    mem: Core, views: np.ndarray, start: MemoryRecord, s: ChangeConfig, asof: Filter
+) -> float | None:
     """When the robot first looked away from the place after `start`: the time of the first
-    later memory that overlaps none of the place's sightings (None if it never did)."""
-    views = _poses([h.memory for h in p.sightings])
+    later memory that overlaps none of the place's sightings (`views`, as `_poses` gives
+    them; None if it never did)."""
     cursor, read, size = (start.t, start.id), 0, 16  # mostly the robot looks away at once
     while read < s.max_walk:
         page = cameras(mem, cursor[0], size, asof)

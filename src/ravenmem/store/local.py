@@ -61,6 +61,7 @@ from ._common import (
     skip_rows,
 )
 from ._lifecycle import IndexLifecycle
+from ._tail import Tail, capacity
 from ._vindex import CODES
 from .base import STORES, Cameras, SourceFrames
 from .presence import check_present
@@ -149,6 +150,7 @@ class LocalStore(IndexLifecycle):
         self._last_id = max(top, top_deleted)  # ids never repeat, not even a deleted newest one
         self._count = int(self._conn.execute("SELECT COUNT(*) FROM memories").fetchone()[0])
         self._cols: Columns | None = None
+        self._tail: Tail | None = None  # the newest vectors in RAM, loaded at first use
         self._cols_saved = (-1, -1)  # (max id, deletions) the columns file covers
         self._worker: threading.Thread | None = None
         self._cancel = threading.Event()
@@ -209,6 +211,8 @@ class LocalStore(IndexLifecycle):
         if not self._deferred:
             self._vi.add(ids, emb)
             self._vi_upto = self._last_id
+        if self._tail is not None:
+            self._tail.append(ids, emb)
         if self._cols is not None:
             cols = np.array([(r.t, r.pose.x, r.pose.y, r.pose.z) for r in records], np.float64).T
             self._cols.append(ids, cols[0], cols[1], cols[2], cols[3], Cameras.of(records).poses[:, 2:].T)
@@ -334,6 +338,10 @@ class LocalStore(IndexLifecycle):
                 if len(allowed) == 0:
                     return []
             vi = self._vi
+            if exact and not vi.exact_scores and allowed is not None:
+                tail = self._tail_covering(allowed)
+                if tail is not None:  # the newest memories: exact scores from RAM
+                    return above(_top(*tail.scores(allowed, q[0]), k), floor)
             if exact and not vi.exact_scores:
                 if floor is None or not self._codes_cover(allowed, q[0], floor):
                     return above(self._scan(q, k, allowed, contiguous), floor)
@@ -349,6 +357,21 @@ class LocalStore(IndexLifecycle):
                 sure = vi.trusted(np.array([i for i, _ in hits], np.int64))
                 hits = [h for h, ok in zip(hits, sure, strict=True) if h[1] >= near or not ok]
             return above(self._rescore(q, [i for i, _ in hits], k), floor)
+
+    def _tail_covering(self, allowed: np.ndarray) -> Tail | None:
+        """The tail (`_tail`) when it holds every stored one of `allowed`, loaded when first
+        needed (the newest `cap` memories' vectors, one read)."""
+        if self._tail is None:
+            ids = self._columns().ids
+            cap = capacity(self.dim)
+            after = int(ids[-cap]) - 1 if len(ids) > cap else -1
+            if len(allowed) == 0 or int(allowed[0]) <= after:
+                return None  # reaches further back than a tail would: not loaded for it
+            got = list(_sql.read_vectors(self._conn, after, self._last_id))
+            vids = np.concatenate([i for i, _ in got]) if got else np.empty(0, np.int64)
+            vecs = np.concatenate([v for _, v in got]) if got else np.empty((0, self.dim), np.float32)
+            self._tail = Tail(self.dim, after, vids, vecs)
+        return self._tail if self._tail.covers(allowed) else None
 
     def _codes_cover(self, allowed: np.ndarray | None, q: np.ndarray, floor: float) -> bool:
         """Whether an exact search with a floor should score `allowed` from the index's codes:

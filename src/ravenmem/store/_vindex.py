@@ -83,6 +83,9 @@ class VectorIndex:
         # clipped), read with the rough flags; a floor search skips a list whose centroid
         # score plus this (plus the codes' error) is below the floor (see `reachable`)
         self._reach = np.zeros(0, np.float64)
+        # IVF only, per list: how many adds reached it (what was read of a list is stale when
+        # this moved on: `_boxes.ListBoxes`)
+        self.adds = np.zeros(index.nlist if isinstance(index, faiss.IndexIVF) else 0, np.int64)
         self.centroids = np.zeros((0, dim), np.float32)
         if self.kind == "ivf":
             self.centroids = index.quantizer.reconstruct_n(0, index.nlist)
@@ -280,6 +283,7 @@ class VectorIndex:
             self.index.add_core(len(x), faiss.swig_ptr(x), faiss.swig_ptr(xids), faiss.swig_ptr(lists))
         self._grow(int(xids.max()))
         self.list_of[xids] = lists
+        self.adds[np.unique(lists)] += 1
         if len(self._rough_read):
             self._rough_read[lists] = False  # their new codes are read at the next `trusted`
 

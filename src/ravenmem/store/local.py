@@ -41,6 +41,7 @@ from ..errors import InputError
 from ..fsio import disk_full, remove_stale_temp_files, sqlite_reader
 from ..types import MAX_ID, Filter, MemoryRecord, Pose
 from . import _sql
+from ._boxes import ListBoxes
 from ._columns import Columns, ColumnsFileError
 from ._common import (
     DIM_KEY,
@@ -151,6 +152,7 @@ class LocalStore(IndexLifecycle):
         self._count = int(self._conn.execute("SELECT COUNT(*) FROM memories").fetchone()[0])
         self._cols: Columns | None = None
         self._tail: Tail | None = None  # the newest vectors in RAM, loaded at first use
+        self._boxes: ListBoxes | None = None  # where each IVF list's memories are, read at first use
         self._cols_saved = (-1, -1)  # (max id, deletions) the columns file covers
         self._worker: threading.Thread | None = None
         self._cancel = threading.Event()
@@ -334,7 +336,7 @@ class LocalStore(IndexLifecycle):
                 return []
             allowed, contiguous = None, False
             if filt is not None:
-                allowed, contiguous = self._columns().select_ids(filt)
+                allowed, contiguous = self._accepted(filt, q[0], floor, exact)
                 if len(allowed) == 0:
                     return []
             vi = self._vi
@@ -357,6 +359,30 @@ class LocalStore(IndexLifecycle):
                 sure = vi.trusted(np.array([i for i, _ in hits], np.int64))
                 hits = [h for h, ok in zip(hits, sure, strict=True) if h[1] >= near or not ok]
             return above(self._rescore(q, [i for i, _ in hits], k), floor)
+
+    def _accepted(
+        self, filt: Filter, q: np.ndarray, floor: float | None, exact: bool
+    ) -> tuple[np.ndarray, bool]:
+        """(sorted ids a search may score, contiguous): the filter's (`Columns.select_ids`),
+        except that an IVF search in a disc with a floor gets only those in the lists that
+        can hold a hit: lists whose memories' box meets the disc (`ListBoxes`) and that can
+        reach the floor (`VectorIndex.reachable`). The lists it then probes, and so its hits,
+        are the same; the positions tested are those lists' few, not all of the time range's."""
+        vi = self._vi
+        if (
+            filt.region is None
+            or floor is None
+            or exact
+            or vi.kind != "ivf"
+            or self._vi_upto != self._last_id
+        ):
+            return self._columns().select_ids(filt)
+        cols = self._columns()
+        if self._boxes is None or self._boxes.vi is not vi or self._boxes.cols is not cols:
+            self._boxes = ListBoxes(vi, cols)
+        lists = self._boxes.meeting(filt.region)
+        lists = lists[vi.reachable(lists, vi.centroids[lists] @ q, q, floor)]
+        return self._boxes.accepted(lists, filt), False
 
     def _tail_covering(self, allowed: np.ndarray) -> Tail | None:
         """The tail (`_tail`) when it holds every stored one of `allowed`, loaded when first

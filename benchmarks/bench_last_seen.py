@@ -15,7 +15,9 @@ vector is loaded into RAM first and the store's exact re-scoring reads them from
 tools are timed again on it, side by side, so the ratio says whether such a file closes the gap.
 `--floor` times, beside the text tool, the one store call every latest-mode question begins
 with: the pool search (`search_vector`, k = the pool, 200, its 200 candidates re-scored
-exactly, as `last_seen` asks for them) and nothing else.
+exactly, as `last_seen` asks for them) and nothing else. `--cached-records` times both tools
+again with every record read once and then served from a dict: what answers that hold their
+sightings without reading each one's record (ids, times and poses from RAM) could gain at most.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_changes import Labels, build_patrol, patrol, timings, verdicts  # noqa: E402
 
 import ravenmem  # noqa: E402
-from ravenmem.memory import changes  # noqa: E402
+from ravenmem.memory import changes, core  # noqa: E402
 from ravenmem.store import _sql, local  # noqa: E402
 
 STEPS = ("_pool", "seen_index", "_recent", "group_sightings", "grow", "merge", "revisits", "_judge")
@@ -123,6 +125,21 @@ def ram_vectors(mem: ravenmem.Memory) -> None:
     local.LocalStore._rescore = rescore  # type: ignore[method-assign]
 
 
+def cached_records() -> None:
+    """Serve records from a dict after their first read (`Core.stored`), for both tools."""
+    read = core.Core.stored
+    held: dict[int, object] = {}
+
+    def stored(self: core.Core, ids: Sequence[int], with_embeddings: bool = False) -> list[object]:
+        if with_embeddings:
+            return list(read(self, ids, with_embeddings=True))
+        missing = [i for i in ids if i not in held]
+        held.update((r.id, r) for r in (read(self, missing) if missing else []))
+        return [held[i] for i in ids if i in held]
+
+    core.Core.stored = stored  # type: ignore[method-assign,assignment]
+
+
 def report(mem: ravenmem.Memory, n: int, build: float, reps: int, label: str = "") -> None:
     st, ls = timings(mem, reps)
     checks = verdicts(mem)
@@ -143,6 +160,7 @@ def main() -> None:
     ap.add_argument("--phases", action="store_true", help="where a question's time goes, step by step")
     ap.add_argument("--ram-vectors", action="store_true", help="again with every vector read from RAM")
     ap.add_argument("--floor", action="store_true", help="the pool search alone beside the text tool")
+    ap.add_argument("--cached-records", action="store_true", help="again with records served from a dict")
     args = ap.parse_args()
     folder = args.keep or Path(tempfile.mkdtemp(prefix="bench-last-seen-"))
     folder.mkdir(parents=True, exist_ok=True)
@@ -159,6 +177,12 @@ def main() -> None:
                 phases(mem, args.reps)
             if args.floor:
                 floor(mem, args.reps)
+            if args.cached_records:
+                saved = core.Core.stored
+                cached_records()
+                mem.last_seen("mug")
+                report(mem, n, 0.0, args.reps, " (records served from a dict)")
+                core.Core.stored = saved  # type: ignore[method-assign]
             if args.ram_vectors:
                 ram_vectors(mem)
                 mem.last_seen("mug")

@@ -17,7 +17,8 @@ import pytest
 
 import ravenmem
 from ravenmem.memory.newest import Later, newest_sightings
-from ravenmem.memory.views import ChangeConfig, _disc, chrono, overlaps
+from ravenmem.memory.views import ChangeConfig, _disc, chrono, overlapping_poses
+from ravenmem.store.base import Cameras
 from ravenmem.types import Frame, Pose, Region
 
 T0 = 1_700_000_000.0
@@ -102,12 +103,11 @@ def test_the_newest_sighting_is_the_brute_force_one(memory, after_frac) -> None:
     truth = [r for r in recs if r.t >= after and scores[r.id] >= thr]
     assert len(truth) > (40 if after_frac < 0.9 else 10)  # mostly more than one search returns
     got = newest_sightings(mem, u, after, None, thr, pool=40)
-    assert got, "a sighting exists"
-    assert (got[-1].memory.t, got[-1].memory.id) == (truth[-1].t, truth[-1].id)
-    assert all(scores[h.memory.id] >= thr for h in got)
+    assert len(got), "a sighting exists"
+    assert got.key(-1) == (truth[-1].t, truth[-1].id)
+    assert all(scores[i] >= thr for i in got.ids.tolist())
     # the window it read is complete: every sighting from its first one on is there
-    first = (got[0].memory.t, got[0].memory.id)
-    assert [h.memory.id for h in got] == [r.id for r in truth if (r.t, r.id) >= first]
+    assert got.ids.tolist() == [r.id for r in truth if (r.t, r.id) >= got.key(0)]
 
 
 @pytest.mark.parametrize("spot", [3.0, 12.0, 21.0])
@@ -120,20 +120,20 @@ def test_later_sightings_of_a_place_reach_its_newest_and_are_kept(memory, spot) 
     assert inside
     later = Later(mem, u, thr, None, pool=40, steps=8, margin=1.5)
     got = later.find(inside[0].t, region, lambda hits: np.ones(len(hits), bool))
-    assert (got[-1].memory.t, got[-1].memory.id) == (inside[-1].t, inside[-1].id)
-    assert {h.memory.id for h in got} <= {r.id for r in inside}
-    assert later.find(inside[-1].t + 0.5, region, lambda hits: np.ones(len(hits), bool)) == []
+    assert got.key(-1) == (inside[-1].t, inside[-1].id)
+    assert set(got.ids.tolist()) <= {r.id for r in inside}
+    assert len(later.find(inside[-1].t + 0.5, region, lambda hits: np.ones(len(hits), bool))) == 0
     # asked again inside what was searched, from when on it holds every sighting: the same
     # answer as brute force, without a search
     searches, (complete_from, _, _) = len(later.known), later.known[0]
     inner = Region(spot + 0.5, 0.0, 1.0)
-    again = later.find(complete_from, inner, lambda hits: np.array([h.memory.id % 2 == 0 for h in hits]))
+    again = later.find(complete_from, inner, lambda hits: hits.ids % 2 == 0)
     want = [
         r.id
         for r in recs
         if r.t >= complete_from and scores[r.id] >= thr and abs(r.pose.x - spot - 0.5) <= 1.0
     ]
-    assert want and [h.memory.id for h in again] == [i for i in want if i % 2 == 0]
+    assert want and again.ids.tolist() == [i for i in want if i % 2 == 0]
     assert len(later.known) == searches
 
 
@@ -147,9 +147,11 @@ def test_last_seen_ends_every_place_at_its_newest_sighting(memory) -> None:
     assert (newest.t, newest.id) == (truth[-1].t, truth[-1].id)
     assert abs(w.now.last.pose.x - 21.0) <= 1.0 and w.status != "gone"
     for p in w.places:  # nothing later looks at the place's views and shows the thing
-        _, cams, _ = _disc(p, s)
+        _, cams = _disc(p, s)
         later = [
-            r for r in truth if (r.t, r.id) > chrono(p.sightings[-1]) and any(overlaps(r, c, s) for c in cams)
+            r
+            for r in truth
+            if (r.t, r.id) > chrono(p.sightings[-1]) and overlapping_poses(Cameras.of([r]).poses, cams, s)[0]
         ]
         assert later == [], f"place {p.index} stops at m{p.last.id}, m{later[0].id} is later"
     old = [p for p in w.places if abs(p.last.pose.x - 3.0) <= 1.0]

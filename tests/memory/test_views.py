@@ -10,7 +10,7 @@ import numpy as np
 
 import ravenmem
 from ravenmem.memory.views import ChangeConfig, _apart, next_in_time, overlapping, overlaps
-from ravenmem.types import Filter, Frame, Hit, MemoryRecord, Pose
+from ravenmem.types import Filter, Frame, MemoryRecord, Pose
 from tests.conftest import ColorEmbedder, solid
 
 T0 = 1_700_000_000.0
@@ -30,7 +30,9 @@ def test_next_in_time_is_the_next_in_time_then_id_order(tmp_path) -> None:
         assert 0 < check_pairs(mem, recs) < len(recs)  # both answers were checked
         gone = recs[3]
         mem.forget(ids=[gone.id])
-        assert not next_in_time(mem, recs[2], gone) and not next_in_time(mem, gone, recs[4])
+        assert not next_in_time(mem, key(recs[2]), key(gone)) and not next_in_time(
+            mem, key(gone), key(recs[4])
+        )
         check_pairs(mem, [r for r in recs if r.id != gone.id])
     finally:
         mem.close()
@@ -49,18 +51,22 @@ def test_time_order_tells_which_sightings_are_apart(tmp_path) -> None:
         got = mem.store.time_order([r.id for r in recs] + [999])
         assert got is not None and got.tolist() == [*range(len(recs)), -1]
         for a, b in itertools.combinations(recs, 2):  # chronological pairs
-            hits = [Hit(memory=a), Hit(memory=b)]
-            assert not (_apart(mem, hits)[0] and next_in_time(mem, a, b)), (a.id, b.id)
-            assert _apart(mem, hits)[0] == (recs.index(b) != recs.index(a) + 1)
+            ids = [a.id, b.id]
+            assert not (_apart(mem, ids)[0] and next_in_time(mem, key(a), key(b))), (a.id, b.id)
+            assert _apart(mem, ids)[0] == (recs.index(b) != recs.index(a) + 1)
         mem.forget(ids=[recs[3].id])
         left = [r for r in recs if r.id != recs[3].id]
         assert mem.store.time_order([r.id for r in left]).tolist() == list(range(len(left)))
         assert mem.store.time_order([recs[3].id]).tolist() == [-1]
-        assert _apart(mem, [Hit(memory=recs[2]), Hit(memory=recs[4])]).tolist() == [False]
+        assert _apart(mem, [recs[2].id, recs[4].id]).tolist() == [False]
         mem.add_frames([Frame(solid("red"), T0 + 3.0, Pose(0.0, 0.0), "s", 99)])  # back in time
         assert mem.store.time_order([recs[0].id]) is None
     finally:
         mem.close()
+
+
+def key(r: MemoryRecord) -> tuple[float, int]:
+    return (r.t, r.id)
 
 
 def check_pairs(mem: ravenmem.Memory, recs: list) -> int:
@@ -71,7 +77,7 @@ def check_pairs(mem: ravenmem.Memory, recs: list) -> int:
             continue
         step = mem.store.by_time(a.t, 2, Filter(before=b.t))
         want = [r.id for r in step] == [a.id, b.id]
-        assert next_in_time(mem, a, b) == want, (a.id, b.id)
+        assert next_in_time(mem, key(a), key(b)) == want, (a.id, b.id)
         adjacent += want
     return adjacent
 
@@ -105,14 +111,14 @@ def test_overlapping_is_overlaps_over_all_pairs() -> None:
 
 class _RecordsOnly:
     """A store as a backend without the optional `CameraStore` methods shows it to the latest
-    mode (e.g. Milvus): every call but `cameras` and `time_order` goes to the real store, so the
+    mode (e.g. Milvus): every call but `cameras`, `time_order` and `cameras_of` goes to the real store, so the
     latest mode reads records instead."""
 
     def __init__(self, store: object) -> None:
         self._store = store
 
     def __getattr__(self, name: str) -> object:
-        if name in ("cameras", "time_order"):
+        if name in ("cameras", "time_order", "cameras_of"):
             raise AttributeError(name)
         return getattr(self._store, name)
 

@@ -620,7 +620,7 @@ class OfflineReasoner:
             why = w.status_note or top.sentence()
             ans.found, ans.position, ans.yaw, ans.time = False, None, None, top.last_t
             ans.position_source = ans.yaw_source = "none"
-            ans.evidence = [_ev_hit(h) for h in [top.sightings[-1], *top.revisits]][: self.top_k]
+            ans.evidence = [_ev_hit(h) for h in [top.last_hit, *top.revisits]][: self.top_k]
             ans.text = (
                 f"I don't know where {subject} is now: last seen from x={p.x:.2f}, y={p.y:.2f} at "
                 f"{fmt_time(top.last_t)}, and not seen since ({why})."
@@ -632,8 +632,7 @@ class OfflineReasoner:
         p = here.last.pose
         ans.position, ans.yaw, ans.time = [p.x, p.y, p.z], p.yaw, here.last_t
         ans.position_source = ans.yaw_source = "evidence"
-        newest_first = sorted(here.sightings, key=lambda h: (-h.memory.t, -h.memory.id))
-        ans.evidence = [_ev_hit(h) for h in newest_first][: self.top_k]
+        ans.evidence = [_ev_hit(h) for h in here.newest(self.top_k)]
         where, when = f"x={p.x:.2f}, y={p.y:.2f}, z={p.z:.2f}", fmt_time(here.last_t)
         if qtype == "binary":
             ans.yes = not moved
@@ -681,7 +680,7 @@ def _stale_place(w: Whereabouts | None, memory_id: int | None) -> Place | None:
     if w is None or memory_id is None:
         return None
     for p in w.places:
-        if p.verdict in ("moved", "gone") and any(h.memory.id == memory_id for h in p.sightings):
+        if p.verdict in ("moved", "gone") and memory_id in p.found.ids.tolist():
             return p
     return None
 

@@ -54,13 +54,13 @@ import numpy as np
 from ..errors import InputError
 from ..imageio import read_image
 from ..timeparse import fmt_time
-from ..types import Filter, Hit, MemoryRecord, check_picture
+from ..types import Filter, check_picture
 from .core import Core, check_text
-from .newest import Later, newest_sightings
-from .places import Place, Verdict, Whereabouts
+from .newest import Later, cameras_of, newest_sightings
+from .places import Place, Sightings, Verdict, Whereabouts
 from .protocol import MAX_K, Near, TimeLike
 from .seen_index import seen_index
-from .views import ChangeConfig, chrono, group_sightings, grow, merge, revisits, sample
+from .views import ChangeConfig, group_sightings, grow, merge, revisits
 
 __all__ = ["ChangeConfig", "Changes", "Place", "Verdict", "Whereabouts"]
 
@@ -104,26 +104,30 @@ class Changes(Core):
         index = seen_index(self, s.floor_sample)  # whole-memory facts, read once per state
         floor = index.floor(q)
         pool, thr, best = _pool(self, scored, floor, s.match_ratio, min_score)
-        pool.update(_recent(self, q, pool, filt, thr, s))
-        seen = {i: Hit(memory=r, score=sc) for i, (r, sc) in pool.items() if sc >= thr}
-        if not seen:
+        seen = pool.union(_recent(self, q, pool, filt, thr, s))
+        if not len(seen):
             return Whereabouts(label, [], thr, floor, best)
-        places = [Place(0, g) for g in group_sightings(self, sorted(seen.values(), key=chrono), s)]
+        places = [Place(0, seen.take(g), load=self.stored) for g in group_sightings(self, seen, s)]
         gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
         later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, 2.0 * s.view_radius)
-        for p in sorted(places, key=lambda p: chrono(p.sightings[-1])):  # earliest first (see Later)
+        for p in sorted(places, key=lambda p: p.found.key(-1)):  # earliest first (see Later)
             grow(p, s, later)
         for p in merge(places):  # a place that took others in grows again from its new last
             grow(p, s, later)
         for p in places:  # revisits once, of the places left (they read only their sightings)
             revisits(self, p, q, thr, s, asof, gap)
-        places.sort(key=lambda p: chrono(p.sightings[-1]), reverse=True)
+        places.sort(key=lambda p: p.found.key(-1), reverse=True)
         for i, p in enumerate(places, 1):
             p.index = i
-        # consolidated memories stand for several: counts and spans on the evidence
-        self.grouped([h for p in places for h in (*p.sightings, *p.revisits)])
+        groups = self.groups()  # consolidated memories stand for several: counts and spans
+        if groups:
+            for p in places:
+                p.found = p.found.grouped(groups)
+            self.grouped([h for p in places for h in p.revisits])
         out = Whereabouts(label, places, thr, floor, best)
         _judge(out, _episodes(places, gap))
+        for p in places:  # the records an answer shows: one read per place
+            p.read([0, len(p.found) - 1, p.best_row])
         return out
 
 
@@ -151,86 +155,92 @@ def _query_vector(
 
 def _pool(
     mem: Core, scored: list[tuple[int, float]], floor: float, ratio: float, min_score: float | None
-) -> tuple[dict[int, tuple[MemoryRecord, float]], float, float]:
-    """The pool's sightings (records read for them only: the rest of the pool is below the
-    threshold and never shown), the threshold and the best score they set. A memory forgotten
-    since the index was read (another process's `forget`) is left out, and the threshold is
-    set again without it when it was the best."""
+) -> tuple[Sightings, float, float]:
+    """The pool's sightings (the rest of the pool is below the threshold and never shown), the
+    threshold and the best score they set. A memory no longer stored is left out, and the
+    threshold is set again without it when it was the best."""
     while scored:
         best = max(sc for _, sc in scored)
         thr = floor + ratio * (best - floor) if best > floor + 1e-6 else math.inf
         if min_score is not None:
             thr = max(thr, float(min_score))
         want = [i for i, sc in scored if sc >= thr]
-        recs = {r.id: r for r in sample(mem, want)} if want else {}
-        if len(recs) == len(want):
-            return {i: (recs[i], sc) for i, sc in scored if i in recs}, thr, best
-        scored = [(i, sc) for i, sc in scored if sc < thr or i in recs]
-    return {}, math.inf, 0.0
+        cams = cameras_of(mem, want) if want else None
+        if cams is not None and len(cams) == len(want):
+            score = dict(scored)
+            return Sightings.of(cams, np.array([score[i] for i in cams.ids.tolist()])), thr, best
+        if cams is None:
+            return Sightings.none(), thr, best
+        have = set(cams.ids.tolist())
+        scored = [(i, sc) for i, sc in scored if sc < thr or i in have]
+    return Sightings.none(), math.inf, 0.0
 
 
 def _recent(
     mem: Core,
     q: np.ndarray,
-    pool: dict[int, tuple[MemoryRecord, float]],
+    pool: Sightings,
     filt: Filter,
     thr: float,
     s: ChangeConfig,
-) -> dict[int, tuple[MemoryRecord, float]]:
+) -> Sightings:
     """The newest sightings: only memories after the newest sighting in the pool can be newer,
     so the search goes on from there (`newest_sightings`: a few searches, each later)."""
-    seen = [r.t for r, sc in pool.values() if sc >= thr]
-    start = max(seen) if seen else filt.after
-    hits = newest_sightings(
+    start = float(pool.t.max()) if len(pool) else filt.after
+    return newest_sightings(
         mem, q, start, filt.before, thr, region=filt.region, pool=s.pool, steps=s.max_rounds
     )
-    return {h.memory.id: (h.memory, float(h.score or 0.0)) for h in hits}
 
 
 def _episodes(places: list[Place], gap: float) -> dict[int, int]:
     """Memory id -> pass: sightings of the thing (any place) in a row with no gap over `gap` s."""
-    hits = sorted((h for p in places for h in p.sightings), key=chrono)
-    out, ep, prev = {}, 0, None
-    for h in hits:
-        if prev is not None and h.memory.t - prev > gap:
-            ep += 1
-        out[h.memory.id] = ep
-        prev = h.memory.t
-    return out
+    ids = np.concatenate([p.found.ids for p in places])
+    t = np.concatenate([p.found.t for p in places])
+    order = np.lexsort((ids, t))
+    ep = np.concatenate([[0], np.cumsum(np.diff(t[order]) > gap)])
+    return dict(zip(ids[order].tolist(), ep.tolist(), strict=True))
 
 
 def _judge(w: Whereabouts, episode: dict[int, int]) -> None:
     """Place verdicts (moved / gone when a later visit looked without seeing it, else still
     there / not revisited), then the thing's status. `w.places` is newest first."""
+    passes = [np.array([episode[i] for i in p.found.ids.tolist()]) for p in w.places]
     for p in w.places:
         if not p.revisits:
             p.verdict = "still there" if p.later_visit else "not revisited"
             continue
-        t1, t2, ep = p.last.t, p.revisits[0].memory.t, episode[p.last.id]
-        since = [
-            (h, q)
-            for q in w.places
-            if q is not p
-            for h in q.sightings
-            if h.memory.t > t2 or (h.memory.t > t1 and episode[h.memory.id] != ep)
-        ]
-        if since:  # seen elsewhere on a later pass, or after it was found missing here: moved
-            newest, where = max(since, key=lambda hq: chrono(hq[0]))
-            p.verdict, p.moved_to, p.newest_since = "moved", where.index, newest
-            p.seen_since = min((h for h, _ in since), key=chrono)
+        t1, t2, ep = float(p.found.t[-1]), p.revisits[0].memory.t, episode[int(p.found.ids[-1])]
+        newest: tuple[tuple[float, int], Place, int] | None = None
+        first: tuple[tuple[float, int], Place, int] | None = None
+        for q, q_pass in zip(w.places, passes, strict=True):
+            if q is p:
+                continue
+            rows = np.flatnonzero((q.found.t > t2) | ((q.found.t > t1) & (q_pass != ep)))
+            if not len(rows):
+                continue
+            hi, lo = int(rows[-1]), int(rows[0])  # a place's sightings are chronological
+            if newest is None or q.found.key(hi) > newest[0]:
+                newest = (q.found.key(hi), q, hi)
+            if first is None or q.found.key(lo) < first[0]:
+                first = (q.found.key(lo), q, lo)
+        if newest is not None and first is not None:
+            # seen elsewhere on a later pass, or after it was found missing here: moved
+            p.verdict, p.moved_to, p.newest_since = "moved", newest[1].index, newest[1].hit(newest[2])
+            p.seen_since = first[1].hit(first[2])
         else:  # seen elsewhere only on the pass it was last seen here (another view of it): gone
             p.verdict = "gone"
     top = w.places[0]
     w.status = top.verdict
     if top.verdict != "gone":
-        ep, t_last = episode[top.last.id], top.last.t
+        ep, t_last = episode[int(top.found.ids[-1])], float(top.found.t[-1])
         for q in w.places[1:]:
             later = [h for h in q.revisits if h.memory.t > t_last]
-            if later and episode[q.last.id] == ep:
+            if later and episode[int(q.found.ids[-1])] == ep:
                 w.status = "gone"
                 w.status_note = (
-                    f"last seen at {fmt_time(t_last)} from place {top.index} (m{top.last.id}); on that "
-                    f"pass it was also seen from place {q.index} (last m{q.last.id}), which was looked "
-                    f"at again at {fmt_time(later[0].memory.t)} (m{later[0].memory.id}) without it"
+                    f"last seen at {fmt_time(t_last)} from place {top.index} (m{int(top.found.ids[-1])}); "
+                    f"on that pass it was also seen from place {q.index} (last m{int(q.found.ids[-1])}), "
+                    f"which was looked at again at {fmt_time(later[0].memory.t)} (m{later[0].memory.id}) "
+                    "without it"
                 )
                 break

@@ -36,11 +36,12 @@ from collections.abc import Callable
 import numpy as np
 
 from ..store.base import Cameras
-from ..types import Filter, Hit, Region
+from ..types import Filter, Region
 from .core import Core
+from .places import Sightings
 from .protocol import MAX_K
 
-__all__ = ["Later", "exact_scores", "newest_sightings"]
+__all__ = ["Later", "cameras_of", "exact_scores", "newest_sightings"]
 
 _GROW = 8  # each window back in time holds this many times more memories than the one before
 
@@ -55,9 +56,9 @@ def newest_sightings(
     region: Region | None = None,
     pool: int = 200,
     steps: int = 8,
-) -> list[Hit]:
+) -> Sightings:
     """Sightings (score >= `thr`) from `after` to `before` inside `region`, from the newest
-    window back from the end that holds any (step 2 of the module docstring), chronological."""
+    window back from the end that holds any (step 2 of the module docstring)."""
     ids = mem.store.select(Filter(after=after, before=before, region=region))
     end, size, hi = len(ids), MAX_K, before
     for _ in range(steps):
@@ -66,10 +67,10 @@ def newest_sightings(
         start = max(0, end - size)
         lo = after if start == 0 else _time_of(mem, int(ids[start]), after, hi)
         got, _ = _window(mem, q, Filter(after=lo, before=hi, region=region), thr, pool, steps)
-        if got or start == 0 or lo == after:
-            return _chrono(got)
+        if len(got) or start == 0 or lo == after:
+            return got
         end, size, hi = start, size * _GROW, lo
-    return []
+    return Sightings.none()
 
 
 class Later:
@@ -86,20 +87,20 @@ class Later:
     ) -> None:
         self.mem, self.q, self.thr, self.before = mem, q, thr, before
         self.pool, self.steps, self.margin = pool, steps, margin
-        self.known: list[tuple[float, Region, list[Hit]]] = []  # complete from, disc, sightings
+        self.known: list[tuple[float, Region, Sightings]] = []  # complete from, disc, sightings
 
-    def find(self, after: float, region: Region, keep: Callable[[list[Hit]], np.ndarray]) -> list[Hit]:
-        """Sightings from `after` on inside `region` that pass `keep` (which says it of a list
-        of hits at once), chronological."""
+    def find(self, after: float, region: Region, keep: Callable[[Sightings], np.ndarray]) -> Sightings:
+        """Sightings from `after` on inside `region` that pass `keep` (which says it of all of
+        them at once)."""
         for lo, disc, hits in self.known:
             if lo <= after and math.hypot(region.x - disc.x, region.y - disc.y) + region.r <= disc.r:
-                return _kept([h for h in hits if h.memory.t >= after and _inside(h, region)], keep)
+                return _kept(hits.take((hits.t >= after) & _inside(hits, region)), keep)
         wide = Region(region.x, region.y, region.r + self.margin)
         filt = Filter(after=after, before=self.before, region=wide)
         hits, complete = _window(self.mem, self.q, filt, self.thr, self.pool, self.steps)
         if complete is not None:
             self.known.append((complete, wide, hits))
-        return _kept([h for h in hits if _inside(h, region)], keep)
+        return _kept(hits.take(_inside(hits, region)), keep)
 
 
 def exact_scores(mem: Core, q: np.ndarray, found: Cameras) -> dict[int, float]:
@@ -120,62 +121,69 @@ def exact_scores(mem: Core, q: np.ndarray, found: Cameras) -> dict[int, float]:
     return {i: sc for i, sc in mem.store.search_vector(q, n, filt, exact=True) if i in want}
 
 
-def _inside(h: Hit, region: Region) -> bool:
-    """The store's disc test (`Filter.region`)."""
-    dx, dy = h.memory.pose.x - region.x, h.memory.pose.y - region.y
+def cameras_of(mem: Core, ids: list[int]) -> Cameras:
+    """The cameras of the stored ones of `ids`, in the order given: from the store's RAM
+    (`CameraStore.cameras_of`), else from their records."""
+    get = getattr(mem.store, "cameras_of", None)  # optional, as `cameras` is
+    return get(ids) if callable(get) else Cameras.of(mem.stored(ids))
+
+
+def _inside(hits: Sightings, region: Region) -> np.ndarray:
+    """The store's disc test (`Filter.region`), per sighting."""
+    dx, dy = hits.poses[:, 0] - region.x, hits.poses[:, 1] - region.y
     return dx * dx + dy * dy <= region.r * region.r
 
 
-def _kept(hits: list[Hit], keep: Callable[[list[Hit]], np.ndarray]) -> list[Hit]:
-    """The hits `keep` says yes to, chronological."""
-    return _chrono([h for h, ok in zip(hits, keep(hits), strict=True) if ok]) if hits else []
-
-
-def _chrono(hits: list[Hit]) -> list[Hit]:
-    return sorted(hits, key=lambda h: (h.memory.t, h.memory.id))
+def _kept(hits: Sightings, keep: Callable[[Sightings], np.ndarray]) -> Sightings:
+    """The sightings `keep` says yes to."""
+    return hits.take(keep(hits)) if len(hits) else hits
 
 
 def _window(
     mem: Core, q: np.ndarray, filt: Filter, thr: float, pool: int, steps: int
-) -> tuple[list[Hit], float | None]:
+) -> tuple[Sightings, float | None]:
     """The sightings of one window: all of them when it is scanned exactly or when a search's
     best `pool` are not all sightings (the rest score lower still); else searched again after
     the newest of those, until that holds. Also from when on the sightings are all there (the
     last search's start; None when the steps ran out first)."""
-    out: dict[int, Hit] = {}
+    out = Sightings.none()
     for _ in range(steps):
         start = filt.after if filt.after is not None else -math.inf
         span = Filter(after=filt.after, before=filt.before)  # its count bounds the filter's
         n = mem.store.count(span if filt.region is not None else filt)
         if n == 0:
-            return list(out.values()), start
+            return out, start
         exact = n <= MAX_K
         k = n if exact else min(pool, MAX_K)
         scored = mem.store.search_vector(q, k, filt, exact=exact, min_score=thr)
-        hits = _sightings(mem, scored, thr)
-        out.update((h.memory.id, h) for h in hits)
+        hits = sightings(mem, scored, thr)
+        out = out.union(hits)
         if exact or len(scored) < k:
-            return list(out.values()), start
-        newest = max(h.memory.t for h in hits)
+            return out, start
+        if not len(hits):  # every one forgotten meanwhile (another process)
+            break
+        newest = float(hits.t.max())
         if filt.after is not None and newest <= filt.after:
             break
         filt = Filter(after=newest, before=filt.before, region=filt.region)
-    return list(out.values()), None
+    return out, None
 
 
 def _time_of(mem: Core, memory_id: int, lo: float | None, hi: float | None) -> float | None:
     """The time of a stored memory, kept inside [lo, hi] so windows tile the range whatever the
     store's order of ids (`lo` when it was forgotten meanwhile: the window reaches back to it)."""
-    got = mem.stored([memory_id])
-    if not got:
+    got = cameras_of(mem, [memory_id])
+    if not len(got):
         return lo
-    t = got[0].t
+    t = float(got.t[0])
     t = t if hi is None else min(t, hi)
     return t if lo is None else max(t, lo)
 
 
-def _sightings(mem: Core, scored: list[tuple[int, float]], thr: float) -> list[Hit]:
-    """The scored memories at or above the threshold that are still stored, as hits."""
+def sightings(mem: Core, scored: list[tuple[int, float]], thr: float) -> Sightings:
+    """The scored memories at or above the threshold that are still stored."""
     score = {i: sc for i, sc in scored if sc >= thr}
-    recs = mem.stored(sorted(score)) if score else []
-    return [Hit(memory=r, score=float(score[r.id])) for r in recs]
+    if not score:
+        return Sightings.none()
+    cams = cameras_of(mem, sorted(score))
+    return Sightings.of(cams, np.array([score[i] for i in cams.ids.tolist()], np.float64))

@@ -4,28 +4,109 @@ whereabouts (how they are decided: `ravenmem.memory.changes`).
 Plain results, shared by the facade, the tools table (`latest` mode), the agent and the
 service: each place says its verdict in a sentence (`Place.sentence`) and as plain data
 (`Place.as_dict`, the `change` of a hit in `--json`, HTTP and MCP).
+
+A place holds its sightings as arrays (`Sightings`: ids, times, cameras, scores), which is all
+the rules look at; the records of the memories an answer shows (its first, last and best
+sighting, its revisits) are read when the question is answered, and the rest only when
+`Place.sightings` is asked for: a place passed every day for months holds thousands.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+import numpy as np
+
+from ..store.base import Cameras
 from ..timeparse import fmt_time
-from ..types import Hit, MemoryRecord
+from ..types import Hit, MemoryRecord, Pose
 
 Verdict = Literal["still there", "moved", "gone", "not revisited"]
 VERDICTS: tuple[Verdict, ...] = ("still there", "moved", "gone", "not revisited")
 
 
+Load = Callable[[Sequence[int]], list[MemoryRecord]]  # records of the ids still stored
+
+
+@dataclass(frozen=True)
+class Sightings:
+    """Memories that show the thing, in (time, id) order, as parallel arrays: `ids` (int64),
+    `t`, `poses` ((n, 7) as `Cameras.poses`: x, y, yaw, quaternion) and `scores`; `counts` and
+    `spans` ((n, 2), NaN where none) say what a consolidated memory stands for."""
+
+    ids: np.ndarray
+    t: np.ndarray
+    poses: np.ndarray
+    scores: np.ndarray
+    counts: np.ndarray | None = None
+    spans: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, cams: Cameras, scores: np.ndarray) -> Sightings:
+        """From cameras and their scores, in any order."""
+        order = np.lexsort((cams.ids, cams.t))
+        return cls(cams.ids[order], cams.t[order], cams.poses[order], np.asarray(scores, np.float64)[order])
+
+    @classmethod
+    def none(cls) -> Sightings:
+        return cls(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 7)), np.zeros(0))
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @property
+    def cameras(self) -> Cameras:
+        return Cameras(self.ids, self.t, self.poses)
+
+    def key(self, i: int) -> tuple[float, int]:
+        """The (time, id) of row `i`: its place in chronological order."""
+        return (float(self.t[i]), int(self.ids[i]))
+
+    def take(self, rows: np.ndarray) -> Sightings:
+        """The rows a mask or index array selects (in the order given)."""
+        counts = None if self.counts is None else self.counts[rows]
+        spans = None if self.spans is None else self.spans[rows]
+        return Sightings(self.ids[rows], self.t[rows], self.poses[rows], self.scores[rows], counts, spans)
+
+    def union(self, more: Sightings) -> Sightings:
+        """These and the memories of `more` not among them, chronological."""
+        if not len(more):
+            return self
+        new = more.take(~np.isin(more.ids, self.ids))
+        if not len(self):
+            return new
+        both = Sightings(
+            np.concatenate([self.ids, new.ids]),
+            np.concatenate([self.t, new.t]),
+            np.concatenate([self.poses, new.poses]),
+            np.concatenate([self.scores, new.scores]),
+        )
+        return both.take(np.lexsort((both.ids, both.t)))
+
+    def grouped(self, groups: dict[int, tuple[int, float, float]]) -> Sightings:
+        """With `counts` and `spans` from consolidated groups (rep -> count, first_t, last_t)."""
+        counts, spans = np.ones(len(self), np.int64), np.full((len(self), 2), np.nan)
+        for row, i in enumerate(self.ids.tolist()):
+            g = groups.get(i)
+            if g is not None:
+                counts[row], spans[row] = g[0], (g[1], g[2])
+        return Sightings(self.ids, self.t, self.poses, self.scores, counts, spans)
+
+
 @dataclass(eq=False)
 class Place:
-    """One place where the thing was seen, and what later visits say about it. `sightings` and
-    `revisits` (views of the place without the thing, after the robot looked away; at most
-    `max_revisits` kept: the first ones and the latest) are chronological."""
+    """One place where the thing was seen, and what later visits say about it. `found` holds
+    its sightings as arrays (chronological); `sightings` are they as hits with their records,
+    read from the memory when first asked for (the first, last and best sighting's records are
+    read with the answer). `revisits` (views of the place without the thing, after the robot
+    looked away; at most `max_revisits` kept: the first ones and the latest) are
+    chronological."""
 
     index: int
-    sightings: list[Hit]
+    found: Sightings
     revisits: list[Hit] = field(default_factory=list)
     revisit_count: int = 0
     later_visit: bool = False
@@ -33,33 +114,95 @@ class Place:
     moved_to: int | None = None  # moved: the place of its newest sighting since
     seen_since: Hit | None = None  # moved: the first sighting elsewhere since
     newest_since: Hit | None = None  # moved: the newest sighting elsewhere since
+    load: Load | None = field(default=None, repr=False)  # reads records (None: none read)
+    _records: dict[int, MemoryRecord] = field(default_factory=dict, init=False, repr=False)
+    _hits: list[Hit] | None = field(default=None, init=False, repr=False)
+
+    def read(self, rows: Sequence[int]) -> None:
+        """Read the records of `found`'s `rows` not read yet (one store call)."""
+        want = [int(self.found.ids[r]) for r in rows if int(self.found.ids[r]) not in self._records]
+        if want and self.load is not None:
+            self._records.update((r.id, r) for r in self.load(want))
+
+    def record(self, row: int) -> MemoryRecord:
+        """The record of `found`'s row `row`; the camera alone if it was forgotten meanwhile."""
+        i = int(self.found.ids[row])
+        if i not in self._records:
+            self.read([row])
+        got = self._records.get(i)
+        if got is None:  # forgotten since the question: what the arrays know of it
+            x, y, yaw, *q = self.found.poses[row].tolist()
+            got = MemoryRecord(id=i, t=float(self.found.t[row]), pose=Pose(x, y, 0.0, yaw, _quat(q)))
+        return got
+
+    def hit(self, row: int) -> Hit:
+        """`found`'s row `row` as a hit with its record."""
+        f = self.found
+        count = int(f.counts[row]) if f.counts is not None else 1
+        span = None
+        if f.spans is not None and not math.isnan(f.spans[row, 0]):
+            span = (float(f.spans[row, 0]), float(f.spans[row, 1]))
+        return Hit(memory=self.record(row), score=float(f.scores[row]), count=count, span=span)
+
+    @property
+    def sightings(self) -> list[Hit]:
+        """Every sighting with its record, chronological: read from the memory at the first
+        ask, so ask while it is open. A memory another process forgot since is left out."""
+        if self._hits is None:
+            self.read(range(len(self.found)))
+            held = [r for r, i in enumerate(self.found.ids.tolist()) if i in self._records]
+            self._hits = [self.hit(r) for r in held]
+        return self._hits
+
+    def newest(self, k: int) -> list[Hit]:
+        """The newest `k` sightings, newest first (only their records read)."""
+        rows = list(range(len(self.found) - 1, max(-1, len(self.found) - 1 - k), -1))
+        self.read(rows)
+        return [self.hit(r) for r in rows]
 
     @property
     def first(self) -> MemoryRecord:
-        return self.sightings[0].memory
+        return self.record(0)
 
     @property
     def last(self) -> MemoryRecord:
-        return self.sightings[-1].memory
+        return self.record(len(self.found) - 1)
+
+    @property
+    def last_hit(self) -> Hit:
+        """The last sighting as a hit."""
+        return self.hit(len(self.found) - 1)
+
+    @property
+    def best_row(self) -> int:
+        """The row of the best-scored sighting (the earliest of equals)."""
+        return int(np.argmax(self.found.scores))
+
+    @property
+    def best(self) -> Hit:
+        return self.hit(self.best_row)
 
     @property
     def seen(self) -> int:
         """How many memories showed it here: a consolidated sighting counts what it stands for."""
-        return sum(h.count for h in self.sightings)
+        f = self.found
+        return int(f.counts.sum()) if f.counts is not None else len(f)
 
     @property
     def first_t(self) -> float:
         """When it was first seen here (a consolidated sighting's span starts earlier than its t)."""
-        return min(h.span[0] if h.span else h.memory.t for h in self.sightings)
+        f = self.found
+        return float(
+            (f.t if f.spans is None else np.where(np.isnan(f.spans[:, 0]), f.t, f.spans[:, 0])).min()
+        )
 
     @property
     def last_t(self) -> float:
         """When it was last seen here (a consolidated sighting's span ends later than its t)."""
-        return max(h.span[1] if h.span else h.memory.t for h in self.sightings)
-
-    @property
-    def best(self) -> Hit:
-        return max(self.sightings, key=lambda h: h.score or 0.0)
+        f = self.found
+        return float(
+            (f.t if f.spans is None else np.where(np.isnan(f.spans[:, 1]), f.t, f.spans[:, 1])).max()
+        )
 
     @property
     def revisited(self) -> float | None:
@@ -177,7 +320,7 @@ class Whereabouts:
         thing = {"status": self.status, "status_note": self.status_note}
         for p in self.places[:k]:
             info = {**p.as_dict(), **thing}
-            shown = [(p.sightings[-1], "sighting")]
+            shown = [(p.last_hit, "sighting")]
             if p.verdict in ("moved", "gone"):
                 views = p.revisits[:1] + (p.revisits[-1:] if len(p.revisits) > 1 else [])
                 shown += [(h, "revisit") for h in views[:revisits]]
@@ -187,3 +330,8 @@ class Whereabouts:
                     ChangeHit(memory=h.memory, score=h.score, count=h.count, span=h.span, change=change)
                 )
         return out
+
+
+def _quat(q: list[float]) -> tuple[float, float, float, float] | None:
+    """A quaternion from a camera row (None where it has none: NaN)."""
+    return None if any(math.isnan(v) for v in q) else (q[0], q[1], q[2], q[3])

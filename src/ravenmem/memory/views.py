@@ -17,7 +17,7 @@ from ..store.base import Cameras
 from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
 from .newest import Later, exact_scores
-from .places import Place
+from .places import Place, Sightings
 from .protocol import MAX_K
 
 _PAGE = 256  # memories read per step of a walk forward in time, at most
@@ -98,9 +98,24 @@ def sample(mem: Core, ids: Sequence[int], embeddings: bool = False) -> list[Memo
 def overlaps(a: MemoryRecord, b: MemoryRecord, s: ChangeConfig | None = None) -> bool:
     """Whether two memories look at the same scene: cameras within `view_radius` (in the plane)
     and turned at most `view_angle_deg` from each other."""
-    s = s or ChangeConfig()
-    close = math.hypot(a.pose.x - b.pose.x, a.pose.y - b.pose.y) <= s.view_radius
-    return close and math.degrees(a.pose.rotation_to(b.pose)) <= s.view_angle_deg
+    return overlap_rows(_row(a), _row(b), s or ChangeConfig())
+
+
+def overlap_rows(a: Sequence[float], b: Sequence[float], s: ChangeConfig) -> bool:
+    """`overlaps` for two cameras as rows of `_poses` (x, y, yaw, quaternion; NaN: none): the
+    same arithmetic as `Pose.rotation_to`."""
+    if not math.hypot(a[0] - b[0], a[1] - b[1]) <= s.view_radius:
+        return False
+    if not (math.isnan(a[3]) or math.isnan(b[3])):  # both have a quaternion
+        turn = 2.0 * math.acos(min(1.0, abs(a[3] * b[3] + a[4] * b[4] + a[5] * b[5] + a[6] * b[6])))
+    else:
+        turn = abs((b[2] - a[2] + math.pi) % (2.0 * math.pi) - math.pi)
+    return math.degrees(turn) <= s.view_angle_deg
+
+
+def _row(r: MemoryRecord) -> list[float]:
+    p, nan = r.pose, math.nan
+    return [p.x, p.y, p.yaw, *(p.quat or (nan, nan, nan, nan))]
 
 
 def overlapping(recs: Sequence[MemoryRecord], cams: Sequence[MemoryRecord], s: ChangeConfig) -> np.ndarray:
@@ -140,12 +155,12 @@ def _poses(recs: Sequence[MemoryRecord]) -> np.ndarray:
     return Cameras.of(recs).poses
 
 
-def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hit]]:
-    """Places: each sighting joins the best-scored earlier seed whose view it overlaps (no
-    chains: a robot turning on the spot does not make one place of every direction), and
-    sightings that follow each other in time with no memory in between are one place (the
-    robot kept the thing in view while it moved)."""
-    n = len(hits)
+def group_sightings(mem: Core, seen: Sightings, s: ChangeConfig) -> list[np.ndarray]:
+    """Places, as rows of `seen` (chronological): each sighting joins the best-scored earlier
+    seed whose view it overlaps (no chains: a robot turning on the spot does not make one place
+    of every direction), and sightings that follow each other in time with no memory in between
+    are one place (the robot kept the thing in view while it moved)."""
+    n = len(seen)
     parent = list(range(n))
 
     def root(i: int) -> int:
@@ -154,69 +169,71 @@ def group_sightings(mem: Core, hits: list[Hit], s: ChangeConfig) -> list[list[Hi
             i = parent[i]
         return i
 
+    rows, scores = seen.poses.tolist(), seen.scores.tolist()
     seeds: list[int] = []
-    for i in sorted(range(n), key=lambda i: -(hits[i].score or 0.0)):
-        home = next((j for j in seeds if overlaps(hits[i].memory, hits[j].memory, s)), None)
+    for i in sorted(range(n), key=lambda i: -scores[i]):
+        home = next((j for j in seeds if overlap_rows(rows[i], rows[j], s)), None)
         if home is None:
             seeds.append(i)
         else:
             parent[root(i)] = root(home)
-    apart = _apart(mem, hits)
+    ids, t = seen.ids.tolist(), seen.t.tolist()
+    apart = _apart(mem, ids)
     for i in range(n - 1):
-        a, b = hits[i].memory, hits[i + 1].memory
         if root(i) == root(i + 1) or apart[i]:
             continue
-        if next_in_time(mem, a, b):
+        if next_in_time(mem, (t[i], ids[i]), (t[i + 1], ids[i + 1])):
             parent[root(i)] = root(i + 1)
-    groups: dict[int, list[Hit]] = {}
-    for i, h in enumerate(hits):
-        groups.setdefault(root(i), []).append(h)
-    return [sorted(g, key=chrono) for g in groups.values()]
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    return [np.array(g, np.int64) for g in groups.values()]
 
 
-def _apart(mem: Core, hits: list[Hit]) -> np.ndarray:
-    """Per pair of hits in a row (chronological), whether a memory surely lies between them:
-    their places in time order (`time_order`, one call for all) are not next to each other.
-    The pairs left are asked `next_in_time` one by one (a pool's sightings are mostly days
-    apart: sixty store calls per question were spent finding that out)."""
+def _apart(mem: Core, ids: list[int]) -> np.ndarray:
+    """Per pair of sightings in a row (their ids, chronological), whether a memory surely lies
+    between them: their places in time order (`time_order`, one call for all) are not next to
+    each other. The pairs left are asked `next_in_time` one by one (a pool's sightings are
+    mostly days apart: sixty store calls per question were spent finding that out)."""
     time_order = getattr(mem.store, "time_order", None)  # optional, as `cameras` is
-    order = time_order([h.memory.id for h in hits]) if callable(time_order) else None
-    if order is None or len(hits) < 2:
-        return np.zeros(max(0, len(hits) - 1), bool)
+    order = time_order(ids) if callable(time_order) else None
+    if order is None or len(ids) < 2:
+        return np.zeros(max(0, len(ids) - 1), bool)
     return (order[1:] != order[:-1] + 1) | (order[:-1] < 0)
 
 
-def next_in_time(mem: Core, a: MemoryRecord, b: MemoryRecord) -> bool:
-    """Whether `a` and `b` are, in (time, id) order, the first two memories of the time span
-    [a.t, b.t], both stored: a store that keeps cameras in RAM answers from those two;
-    otherwise it is counted from the ids in the span (the store's filter, no record read),
-    not counting those at `b`'s time with a larger id (after `b` in that order)."""
+def next_in_time(mem: Core, a: tuple[float, int], b: tuple[float, int]) -> bool:
+    """Whether memories `a` and `b` ((time, id) each) are, in (time, id) order, the first two
+    memories of the time span [a's, b's], both stored: a store that keeps cameras in RAM
+    answers from those two; otherwise it is counted from the ids in the span (the store's
+    filter, no record read), not counting those at `b`'s time with a larger id (after `b` in
+    that order)."""
+    (at, a_id), (bt, b_id) = a, b
     if _has_cameras(mem):
-        return mem.store.cameras(a.t, 2, Filter(before=b.t)).ids.tolist() == [a.id, b.id]  # type: ignore[attr-defined]
-    ids = mem.store.select(Filter(after=a.t, before=b.t))  # sorted
+        return mem.store.cameras(at, 2, Filter(before=bt)).ids.tolist() == [a_id, b_id]  # type: ignore[attr-defined]
+    ids = mem.store.select(Filter(after=at, before=bt))  # sorted
     if len(ids) < 2:
         return False
     if len(ids) > 2:
-        tied = mem.store.select(Filter(after=b.t, before=b.t))
-        if len(ids) - 2 - int((tied > b.id).sum()) != 0:
+        tied = mem.store.select(Filter(after=bt, before=bt))
+        if len(ids) - 2 - int((tied > b_id).sum()) != 0:
             return False
-    at = np.searchsorted(ids, [a.id, b.id])
-    return bool(np.all(at < len(ids)) and np.all(ids[np.minimum(at, len(ids) - 1)] == [a.id, b.id]))
+    pos = np.searchsorted(ids, [a_id, b_id])
+    return bool(np.all(pos < len(ids)) and np.all(ids[np.minimum(pos, len(ids) - 1)] == [a_id, b_id]))
 
 
-def _disc(p: Place, s: ChangeConfig) -> tuple[Region, list[MemoryRecord], np.ndarray]:
-    """The cameras a later view is compared with (the last 16 sightings and the best one; as
-    records and as `_poses` gives them), and a disc around them that holds every camera
-    overlapping one of them."""
-    cams = [h.memory for h in p.sightings[-16:]]
-    best = p.best.memory
-    if all(r.id != best.id for r in cams):
-        cams.append(best)
-    poses = _poses(cams)
+def _disc(p: Place, s: ChangeConfig) -> tuple[Region, np.ndarray]:
+    """The cameras a later view is compared with (the last 16 sightings and the best one, as
+    `_poses` gives them), and a disc around them that holds every camera overlapping one."""
+    n = len(p.found)
+    rows = list(range(max(0, n - 16), n))
+    if p.best_row not in rows:
+        rows.append(p.best_row)
+    poses = p.found.poses[rows]
     x, y = poses[:, 0].copy(), poses[:, 1].copy()
     cx, cy = float(x.mean()), float(y.mean())
     reach = float(np.hypot(x - cx, y - cy).max())
-    return Region(cx, cy, reach + s.view_radius), cams, poses
+    return Region(cx, cy, reach + s.view_radius), poses
 
 
 def _views(
@@ -228,16 +245,15 @@ def _views(
     return _scores(mem, q, near) if len(near) else (near, np.zeros(0))
 
 
-def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> list[Hit]:
+def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> Sightings:
     """Every later view of the place, inside its disc, that shows the thing (up to the newest)."""
-    disc, _, poses = _disc(p, s)
-    last = chrono(p.sightings[-1])
+    disc, poses = _disc(p, s)
+    last = p.found.key(-1)
 
-    def later_views(hits: list[Hit]) -> np.ndarray:
-        found = Cameras.of([h.memory for h in hits])
-        return _after(found, last) & overlapping_poses(found.poses, poses, s)
+    def later_views(found: Sightings) -> np.ndarray:
+        return _after(found.cameras, last) & overlapping_poses(found.poses, poses, s)
 
-    return later.find(p.last.t, disc, later_views)
+    return later.find(last[0], disc, later_views)
 
 
 def _newest_views(
@@ -245,7 +261,8 @@ def _newest_views(
 ) -> tuple[Cameras, np.ndarray]:
     """The newest views of the place after its last sighting, with their scores: time windows
     growing backwards from the end, inside the place's disc (`_disc`: `disc`, `poses`)."""
-    lo, last = p.last.t, chrono(p.sightings[-1])
+    last = p.found.key(-1)
+    lo = last[0]
     hi = asof.before if asof.before is not None else mem.time_span()[1]
     width = max((hi - lo) / 64.0, 1e-3)
     for _ in range(s.recency_windows + 4):
@@ -263,10 +280,9 @@ def grow(p: Place, s: ChangeConfig, later: Later) -> None:
     thing), round by round until none is new."""
     for _ in range(s.max_rounds):
         more = _later_sightings(p, s, later)
-        if not more:
+        if not len(more):
             break
-        known = {h.memory.id for h in p.sightings}
-        p.sightings = sorted(p.sightings + [h for h in more if h.memory.id not in known], key=chrono)
+        p.found = p.found.union(more)
 
 
 def revisits(
@@ -275,10 +291,10 @@ def revisits(
     """The later views of the place without the thing (`Place.revisits`, `revisit_count`) and
     whether the robot came back to it at all (`later_visit`): decided on cameras (poses and
     scores); records are read only for the revisits kept."""
-    views = _poses([h.memory for h in p.sightings])
-    end = _visit_end(mem, views, p.last, s, asof)
-    start = p.last.t + gap if end is None else max(end, p.last.t + gap)
-    disc, _, poses = _disc(p, s)
+    views, last = p.found.poses, p.found.key(-1)
+    end = _visit_end(mem, views, last, s, asof)
+    start = last[0] + gap if end is None else max(end, last[0] + gap)
+    disc, poses = _disc(p, s)
     first, scores = _views(
         mem, q, cameras(mem, start, s.pool, Filter(before=asof.before, region=disc)), poses, s
     )
@@ -296,17 +312,17 @@ def revisits(
     recs = {r.id: r for r in sample(mem, [i for i, _ in kept])}
     p.revisits = [Hit(memory=recs[i], score=sc) for i, sc in kept if i in recs]
     p.revisit_count = count
-    first_end = _visit_end(mem, views, p.first, s, asof)
-    p.later_visit = first_end is not None and p.last.t >= first_end
+    first_end = _visit_end(mem, views, p.found.key(0), s, asof)
+    p.later_visit = first_end is not None and last[0] >= first_end
 
 
 def _visit_end(
-    mem: Core, views: np.ndarray, start: MemoryRecord, s: ChangeConfig, asof: Filter
+    mem: Core, views: np.ndarray, start: tuple[float, int], s: ChangeConfig, asof: Filter
 ) -> float | None:
-    """When the robot first looked away from the place after `start`: the time of the first
-    later memory that overlaps none of the place's sightings (`views`, as `_poses` gives
-    them; None if it never did)."""
-    cursor, read, size = (start.t, start.id), 0, 16  # mostly the robot looks away at once
+    """When the robot first looked away from the place after `start` ((time, id) of one of its
+    sightings): the time of the first later memory that overlaps none of the place's sightings
+    (`views`, as `_poses` gives them; None if it never did)."""
+    cursor, read, size = start, 0, 16  # mostly the robot looks away at once
     while read < s.max_walk:
         page = cameras(mem, cursor[0], size, asof)
         fresh = page.take(_after(page, cursor))
@@ -328,17 +344,14 @@ def merge(places: list[Place]) -> list[Place]:
     owner: dict[int, Place] = {}
     grown: list[Place] = []
     for p in list(places):
-        for other in {owner[h.memory.id] for h in p.sightings if h.memory.id in owner}:
+        for other in {owner[i] for i in p.found.ids.tolist() if i in owner}:
             if other not in places:
                 continue
-            ids = {h.memory.id for h in p.sightings}
-            p.sightings = sorted(
-                p.sightings + [h for h in other.sightings if h.memory.id not in ids], key=chrono
-            )
+            p.found = p.found.union(other.found)
             places.remove(other)
             grown = [g for g in grown if g is not other]
             if p not in grown:
                 grown.append(p)
-        for h in p.sightings:
-            owner[h.memory.id] = p
+        for i in p.found.ids.tolist():
+            owner[i] = p
     return grown

@@ -187,7 +187,8 @@ class TextStore(Protocol):
 class CameraStore(Protocol):
     """A store that answers `by_time` with cameras only, from RAM (the embedded store keeps
     poses in its in-RAM columns). The latest mode walks hundreds of later memories per place
-    to see whether the robot looked at it again; on any other store it reads their records."""
+    to see whether the robot looked at it again, and holds hundreds of sightings per question;
+    on any other store it reads their records. Each method is optional on its own."""
 
     def cameras(self, t: float, k: int, filt: Filter | None = None) -> Cameras:
         """`by_time`'s memories (the k from time t on that the filter accepts, in (time, id)
@@ -198,6 +199,11 @@ class CameraStore(Protocol):
         """Each id's place in (time, id) order among the stored memories (0: the first; -1:
         not stored), or None when the store cannot tell it from RAM at once (its ids do not
         follow time). Two memories are next to each other in time when their places are."""
+        ...
+
+    def cameras_of(self, ids: Sequence[int]) -> Cameras:
+        """The cameras of the stored ones of `ids`, in the order given (others left out): what
+        the latest mode knows of a sighting until an answer shows its record."""
         ...
 
 

@@ -504,11 +504,16 @@ class LocalStore(IndexLifecycle):
         with self._lock:
             self._check_open()
             cols = self._columns()
-            pos = cols.first_from(float(t), k, filt or Filter())
-            poses = np.empty((len(pos), 7), np.float64)
-            poses[:, 0], poses[:, 1] = cols.col("x")[pos], cols.col("y")[pos]
-            poses[:, 2:] = cols.turn()[:, pos].T
-            return Cameras(cols.ids[pos], cols.col("t")[pos], poses)
+            return _cameras(cols, cols.first_from(float(t), k, filt or Filter()))
+
+    def cameras_of(self, ids: Sequence[int]) -> Cameras:
+        """The cameras of the stored ones of `ids`, in the order given, from the in-RAM columns."""
+        want = np.asarray([int(i) for i in ids], np.int64)
+        with self._lock:
+            self._check_open()
+            cols = self._columns()
+            pos = cols.positions(want)
+            return _cameras(cols, pos[pos >= 0])
 
     def time_order(self, ids: Sequence[int]) -> np.ndarray | None:
         """Each id's place in (time, id) order (-1: not stored): its position in the in-RAM
@@ -720,6 +725,14 @@ class LocalStore(IndexLifecycle):
                 a = np.array([[_number(v) for v in r] for r in rows], np.float64)
             cols.append(a[:, 0].astype(np.int64), a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5:].T)
             last = int(a[-1, 0])
+
+
+def _cameras(cols: Columns, pos: np.ndarray) -> Cameras:
+    """The cameras of the columns' rows `pos`."""
+    poses = np.empty((len(pos), 7), np.float64)
+    poses[:, 0], poses[:, 1] = cols.col("x")[pos], cols.col("y")[pos]
+    poses[:, 2:] = cols.turn()[:, pos].T
+    return Cameras(cols.ids[pos], cols.col("t")[pos], poses)
 
 
 def _columns_uid(uid: bytes, epoch: str | None) -> bytes:

@@ -7,8 +7,10 @@ import itertools
 import math
 
 import numpy as np
+import pytest
 
 import ravenmem
+from ravenmem.errors import InputError
 from ravenmem.memory.views import ChangeConfig, _apart, next_in_time, overlapping, overlaps
 from ravenmem.types import Filter, Frame, MemoryRecord, Pose
 from tests.conftest import ColorEmbedder, solid
@@ -202,3 +204,37 @@ def test_the_latest_mode_decides_the_same_on_cameras_as_on_records(tmp_path) -> 
             assert np.isnan(cams.poses[:80, 3:]).all() and not np.isnan(cams.poses[80:160, 3:]).any()
         finally:
             mem.close()
+
+
+def test_an_answer_reads_only_the_records_it_shows(tmp_path, monkeypatch) -> None:
+    """`last_seen` decides on ids, times, cameras and scores; it reads the records of what its
+    answer shows (each place's first, last and best sighting, the revisits) and a place's
+    other sightings only when `Place.sightings` is asked for, while the memory is open."""
+    frames, emb = _loops()
+    mem = ravenmem.create(tmp_path / "m.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    mem.add_frames(frames, embeddings=emb)
+    read: list[int] = []
+    get = mem.store.get
+    monkeypatch.setattr(mem.store, "get", lambda ids, **kw: read.extend(ids) or get(ids, **kw))
+    try:
+        mem.last_seen("red")  # the whole-memory facts (a sample of records) are read once
+        read.clear()
+        w = mem.last_seen("red")
+        sightings = {int(i) for p in w.places for i in p.found.ids}
+        shown = {i for p in w.places for i in (p.first.id, p.last.id, p.best.memory.id)}
+        shown |= {h.memory.id for p in w.places for h in (p.seen_since, p.newest_since) if h is not None}
+        shown |= {h.memory.id for p in w.places for h in p.revisits}
+        assert set(read) <= shown and len(sightings & set(read)) < len(sightings) // 4
+        read.clear()
+        for p in w.places:  # the rest when asked for: the same sightings, chronological
+            got = p.sightings
+            assert [h.memory.id for h in got] == p.found.ids.tolist()
+            assert [h.score for h in got] == p.found.scores.tolist()
+            assert [(h.memory.t, h.memory.id) for h in got] == sorted((h.memory.t, h.memory.id) for h in got)
+            assert got[-1].memory == p.last and p.seen == len(got)
+        assert set(read) == sightings - shown  # each record read once
+        later = mem.last_seen("green")
+    finally:
+        mem.close()
+    with pytest.raises(InputError, match="ask before closing"):
+        _ = later.places[0].sightings

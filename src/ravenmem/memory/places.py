@@ -20,6 +20,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..errors import InputError
 from ..store.base import Cameras
 from ..timeparse import fmt_time
 from ..types import Hit, MemoryRecord, Pose
@@ -121,8 +122,15 @@ class Place:
     def read(self, rows: Sequence[int]) -> None:
         """Read the records of `found`'s `rows` not read yet (one store call)."""
         want = [int(self.found.ids[r]) for r in rows if int(self.found.ids[r]) not in self._records]
-        if want and self.load is not None:
+        if not want or self.load is None:
+            return
+        try:
             self._records.update((r.id, r) for r in self.load(want))
+        except InputError as e:  # the memory was closed since the question
+            raise InputError(
+                f"{e}: a place's sightings are read from the memory when first asked for; "
+                "ask before closing it (Place.found holds them as arrays)"
+            ) from None
 
     def record(self, row: int) -> MemoryRecord:
         """The record of `found`'s row `row`; the camera alone if it was forgotten meanwhile."""

@@ -68,6 +68,7 @@ class VectorIndex:
     def __init__(self, index: Any, dim: int, trained_n: int = 0) -> None:
         self.index = index
         self.dim = dim
+        self.kind, self.codes, self._step = self._kinds()
         self.trained_n = trained_n  # how many memories the IVF was trained at (0 for flat)
         self._assigner: Any = None  # HNSW over the centroids, built for large adds
         # IVF only: the list each id lives in (-1: absent) and the list centroids, so that a
@@ -125,16 +126,16 @@ class VectorIndex:
         index.train(np.ascontiguousarray(train, np.float32))
         return cls(index, dim, trained_n=n_total)
 
-    @property
-    def kind(self) -> str:
-        return "ivf" if isinstance(self.index, faiss.IndexIVF) else "flat"
-
-    @property
-    def codes(self) -> str:
-        """How vectors are kept: `flat` (float32, exact scores), `sq8` or `fp16`."""
-        if isinstance(self.index, faiss.IndexIVFScalarQuantizer):
-            return "fp16" if self.index.sq.qtype == faiss.ScalarQuantizer.QT_fp16 else "sq8"
-        return "flat"
+    def _kinds(self) -> tuple[str, str, float]:
+        """(kind, codes, sq8 step): `kind` is `ivf` or `flat`; `codes` how vectors are kept:
+        `flat` (float32, exact scores), `sq8` or `fp16`; the step of the 8-bit grid (0 for
+        other codes). Read once: asking FAISS's objects costs tens of microseconds a time."""
+        kind = "ivf" if isinstance(self.index, faiss.IndexIVF) else "flat"
+        if not isinstance(self.index, faiss.IndexIVFScalarQuantizer):
+            return kind, "flat", 0.0
+        if self.index.sq.qtype == faiss.ScalarQuantizer.QT_fp16:
+            return kind, "fp16", 0.0
+        return kind, "sq8", float(faiss.vector_to_array(self.index.sq.trained)[1]) / 255.0  # [min, range]
 
     @property
     def exact_scores(self) -> bool:
@@ -157,8 +158,7 @@ class VectorIndex:
         l1 = float(np.abs(q).sum())
         if codes == "fp16":
             return 2.0**-10 * l1
-        step = float(faiss.vector_to_array(self.index.sq.trained)[1]) / 255.0  # uniform: [min, range]
-        return step * l1
+        return self._step * l1
 
     def codes_scanned(
         self, allowed: np.ndarray, q: np.ndarray | None = None, floor: float | None = None

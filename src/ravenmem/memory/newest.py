@@ -156,7 +156,7 @@ def _window(
         exact = n <= MAX_K
         k = n if exact else min(pool, MAX_K)
         scored = mem.store.search_vector(q, k, filt, exact=exact, min_score=thr)
-        hits = sightings(mem, scored, thr)
+        hits = _sightings(mem, scored, thr)
         out = out.union(hits)
         if exact or len(scored) < k:
             return out, start
@@ -180,7 +180,7 @@ def _time_of(mem: Core, memory_id: int, lo: float | None, hi: float | None) -> f
     return t if lo is None else max(t, lo)
 
 
-def sightings(mem: Core, scored: list[tuple[int, float]], thr: float) -> Sightings:
+def _sightings(mem: Core, scored: list[tuple[int, float]], thr: float) -> Sightings:
     """The scored memories at or above the threshold that are still stored."""
     score = {i: sc for i, sc in scored if sc >= thr}
     if not score:

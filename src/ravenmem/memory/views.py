@@ -114,6 +114,7 @@ def overlap_rows(a: Sequence[float], b: Sequence[float], s: ChangeConfig) -> boo
 
 
 def _row(r: MemoryRecord) -> list[float]:
+    """A record's camera as a row of `_poses`."""
     p, nan = r.pose, math.nan
     return [p.x, p.y, p.yaw, *(p.quat or (nan, nan, nan, nan))]
 
@@ -130,15 +131,8 @@ def overlapping(recs: Sequence[MemoryRecord], cams: Sequence[MemoryRecord], s: C
 def overlapping_poses(a: np.ndarray, b: np.ndarray, s: ChangeConfig) -> np.ndarray:
     """`overlapping` for poses as `_poses` gives them ((n, 7) arrays, e.g. `Cameras.poses`)."""
     out = np.zeros(len(a), bool)
-    out[overlap_pairs(a, b, s)[0]] = True
-    return out
-
-
-def overlap_pairs(a: np.ndarray, b: np.ndarray, s: ChangeConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The pairs (rows i of `a`, rows j of `b`; poses as `_poses` gives them) whose views
-    overlap: `overlaps(a_i, b_j)`, the same arithmetic in the same order."""
     if not len(a) or not len(b):
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return out
     close = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) <= s.view_radius
     i, j = np.nonzero(close)  # turns only for the pairs close enough (mostly a few)
     pa, pb = a[i], b[j]
@@ -146,8 +140,8 @@ def overlap_pairs(a: np.ndarray, b: np.ndarray, s: ChangeConfig) -> tuple[np.nda
     dot = np.abs(pa[:, 3] * pb[:, 3] + pa[:, 4] * pb[:, 4] + pa[:, 5] * pb[:, 5] + pa[:, 6] * pb[:, 6])
     both = ~np.isnan(dot)
     turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot[both]))
-    keep = np.degrees(turn) <= s.view_angle_deg
-    return i[keep], j[keep]
+    out[i[np.degrees(turn) <= s.view_angle_deg]] = True
+    return out
 
 
 def _poses(recs: Sequence[MemoryRecord]) -> np.ndarray:

@@ -17,7 +17,7 @@ import pytest
 
 import ravenmem
 from ravenmem.memory.newest import Later, newest_sightings
-from ravenmem.memory.views import ChangeConfig, _disc, chrono, overlapping_poses
+from ravenmem.memory.views import ChangeConfig, _disc, overlapping_poses
 from ravenmem.store.base import Cameras
 from ravenmem.types import Frame, Pose, Region
 
@@ -151,7 +151,7 @@ def test_last_seen_ends_every_place_at_its_newest_sighting(memory) -> None:
         later = [
             r
             for r in truth
-            if (r.t, r.id) > chrono(p.sightings[-1]) and overlapping_poses(Cameras.of([r]).poses, cams, s)[0]
+            if (r.t, r.id) > p.found.key(-1) and overlapping_poses(Cameras.of([r]).poses, cams, s)[0]
         ]
         assert later == [], f"place {p.index} stops at m{p.last.id}, m{later[0].id} is later"
     old = [p for p in w.places if abs(p.last.pose.x - 3.0) <= 1.0]

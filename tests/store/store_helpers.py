@@ -31,6 +31,20 @@ def robot_stream(n: int, dim: int, seed: int = 0, step: float = 0.15, jump_every
     return out
 
 
+def ivf_stream(
+    folder: Path, n: int, stored: int, dim: int = 32
+) -> tuple[Store, np.ndarray, list[MemoryRecord]]:
+    """An IVF store (from 1,000 memories, rebuilt in the foreground) holding the first `stored`
+    of `n` robot-stream memories, added 1,000 at a time; all n embeddings and records are
+    returned, for the adds a test makes later."""
+    store = open_store(str(folder), dim, ann_threshold=1_000, background=False)
+    emb = robot_stream(n, dim, seed=7, step=0.15, jump_every=500)
+    recs = make_records(n)
+    for s in range(0, stored, 1_000):
+        store.add(recs[s : min(s + 1_000, stored)], emb[s : min(s + 1_000, stored)])
+    return store, emb, recs
+
+
 def make_records(
     n: int, seed: int = 0, t0: float = 1_700_000_000.0, shuffle: bool = False
 ) -> list[MemoryRecord]:

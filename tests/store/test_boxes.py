@@ -9,10 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ravenmem.store import open_store
 from ravenmem.store.local import LocalStore
 from ravenmem.types import Filter, Region
-from tests.store.store_helpers import make_records, robot_stream
+from tests.store.store_helpers import ivf_stream
 
 DIM = 32
 
@@ -20,12 +19,8 @@ DIM = 32
 def test_a_disc_search_with_a_floor_finds_what_the_columns_find(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    store = open_store(str(tmp_path / "m"), DIM, ann_threshold=1_000, background=False)
+    store, emb, recs = ivf_stream(tmp_path / "m", 4_000, 3_000, DIM)
     assert isinstance(store, LocalStore)
-    emb = robot_stream(4_000, DIM, seed=7, step=0.15, jump_every=500)
-    recs = make_records(4_000)
-    for s in range(0, 3_000, 1_000):
-        store.add(recs[s : s + 1_000], emb[s : s + 1_000])
     boxed = LocalStore._accepted
     tested: list[int] = []
 

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ravenmem.store import _sql, _tail, open_store
+from ravenmem.store import _sql, _tail
 from ravenmem.store._tail import Tail
 from ravenmem.store.local import LocalStore
 from ravenmem.types import Filter, Region
-from tests.store.store_helpers import make_records, robot_stream
+from tests.store.store_helpers import ivf_stream
 
 DIM = 32
 
@@ -52,12 +52,8 @@ def test_exact_searches_of_the_recent_past_are_scored_from_ram(
     and gives the scan's answer; one reaching further back scans; memories added or deleted
     since are in or out of the answer at once."""
     monkeypatch.setattr(_tail, "TAIL_BYTES", 500 * 8 * DIM)  # the newest 500 of 3,000
-    store = open_store(str(tmp_path / "m"), DIM, ann_threshold=1_000, background=False)
+    store, emb, recs = ivf_stream(tmp_path / "m", 3_600, 3_000, DIM)
     assert isinstance(store, LocalStore)
-    emb = robot_stream(3_600, DIM, seed=7, step=0.15, jump_every=500)
-    recs = make_records(3_600)
-    for s in range(0, 3_000, 1_000):
-        store.add(recs[s : s + 1_000], emb[s : s + 1_000])
     read: list[int] = []
     for name in ("fetch_vectors", "read_vectors"):
         real = getattr(_sql, name)

@@ -165,12 +165,12 @@ def _pool(
         if min_score is not None:
             thr = max(thr, float(min_score))
         want = [i for i, sc in scored if sc >= thr]
-        cams = cameras_of(mem, want) if want else None
-        if cams is not None and len(cams) == len(want):
+        if not want:
+            return Sightings.none(), thr, best
+        cams = cameras_of(mem, want)
+        if len(cams) == len(want):
             score = dict(scored)
             return Sightings.of(cams, np.array([score[i] for i in cams.ids.tolist()])), thr, best
-        if cams is None:
-            return Sightings.none(), thr, best
         have = set(cams.ids.tolist())
         scored = [(i, sc) for i, sc in scored if sc < thr or i in have]
     return Sightings.none(), math.inf, 0.0

@@ -54,11 +54,6 @@ class ChangeConfig:
             raise InputError(f"changes: episode_gap_s must be > 0 (or None), got {self.episode_gap_s}")
 
 
-def chrono(h: Hit) -> tuple[float, int]:
-    """Chronological order of hits (time, then id)."""
-    return (h.memory.t, h.memory.id)
-
-
 def _scores(mem: Core, q: np.ndarray, found: Cameras) -> tuple[Cameras, np.ndarray]:
     """The memories of `found` still stored, with their scores: from one exact scan
     (`exact_scores`), else from each one's embedding."""

@@ -48,8 +48,8 @@ class ListBoxes:
         """The ids in `lists` that the filter accepts (sorted): the columns' tests (`select`),
         applied to those lists' memories only."""
         ids = np.concatenate([self._ids(int(lst)) for lst in lists]) if len(lists) else np.zeros(0, np.int64)
-        pos = self._positions(ids)
         cols = self.cols
+        pos = cols.positions(ids)
         ok = pos >= 0
         pos = np.where(ok, pos, 0)
         t = cols.col("t")[pos]
@@ -71,16 +71,8 @@ class ListBoxes:
             return np.zeros(0, np.int64)
         return faiss.rev_swig_ptr(lists.get_ids(lst), size).view(np.int64)
 
-    def _positions(self, ids: np.ndarray) -> np.ndarray:
-        """Each id's row in the columns (-1 when absent); at once when the ids are a run."""
-        cols = self.cols
-        if cols.n and int(cols.ids[-1]) - int(cols.ids[0]) + 1 == cols.n:  # no id missing
-            pos = ids - int(cols.ids[0])
-            return np.where((pos >= 0) & (pos < cols.n), pos, -1)
-        return cols.positions(ids)
-
     def _read_box(self, lst: int) -> None:
-        pos = self._positions(self._ids(lst))
+        pos = self.cols.positions(self._ids(lst))
         pos = pos[pos >= 0]
         x, y = self.cols.col("x")[pos], self.cols.col("y")[pos]
         ok = np.isfinite(x) & np.isfinite(y)  # a damaged row (NaN) is in no disc

@@ -106,8 +106,12 @@ class Columns:
         self.n += m
 
     def positions(self, ids: np.ndarray) -> np.ndarray:
-        """The row of each id (-1 for an id not held), in the order given."""
+        """The row of each id (-1 for an id not held), in the order given; by subtraction when
+        the held ids are a run (no id missing between the first and the last)."""
         ids = np.asarray(ids, np.int64)
+        if self.n and int(self._ids[self.n - 1]) - int(self._ids[0]) + 1 == self.n:
+            pos = ids - int(self._ids[0])
+            return np.where((pos >= 0) & (pos < self.n), pos, -1)
         pos = np.searchsorted(self.ids, ids)
         found = np.zeros(len(ids), bool)
         inside = pos < self.n

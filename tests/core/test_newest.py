@@ -119,15 +119,19 @@ def test_later_sightings_of_a_place_reach_its_newest_and_are_kept(memory, spot) 
     inside = [r for r in recs if abs(r.pose.x - spot) <= 1.5 and scores[r.id] >= thr]
     assert inside
     later = Later(mem, u, thr, None, pool=40, steps=8, margin=1.5)
-    got = later.find(inside[0].t, region, lambda hits: np.ones(len(hits), bool))
+    got, complete = later.find(inside[0].t, region, lambda hits: np.ones(len(hits), bool))
     assert got.key(-1) == (inside[-1].t, inside[-1].id)
     assert set(got.ids.tolist()) <= {r.id for r in inside}
-    assert len(later.find(inside[-1].t + 0.5, region, lambda hits: np.ones(len(hits), bool))) == 0
+    if complete:  # said to be all of them: brute force's
+        assert got.ids.tolist() == [r.id for r in inside]
+    none, complete = later.find(inside[-1].t + 0.5, region, lambda hits: np.ones(len(hits), bool))
+    assert len(none) == 0 and complete  # nothing after the newest, and that is sure
     # asked again inside what was searched, from when on it holds every sighting: the same
     # answer as brute force, without a search
     searches, (complete_from, _, _) = len(later.known), later.known[0]
     inner = Region(spot + 0.5, 0.0, 1.0)
-    again = later.find(complete_from, inner, lambda hits: hits.ids % 2 == 0)
+    again, complete = later.find(complete_from, inner, lambda hits: hits.ids % 2 == 0)
+    assert complete
     want = [
         r.id
         for r in recs
@@ -135,6 +139,20 @@ def test_later_sightings_of_a_place_reach_its_newest_and_are_kept(memory, spot) 
     ]
     assert want and again.ids.tolist() == [i for i in want if i % 2 == 0]
     assert len(later.known) == searches
+
+
+def test_later_sightings_cut_short_say_so(memory) -> None:
+    """A search that stops at its best `pool` (one step, more sightings than that) does not
+    say it holds every sighting: `grow` would otherwise take the place's later views for
+    views without the thing unscored."""
+    mem, emb, u = memory
+    recs, scores = brute(mem, emb, u)
+    inside = [r for r in recs if abs(r.pose.x - 3.0) <= 1.5 and scores[r.id] >= 0.5]
+    assert len(inside) > 5
+    got, complete = Later(mem, u, 0.5, None, pool=5, steps=1, margin=1.5).find(
+        inside[0].t, Region(3.0, 0.0, 1.5), lambda hits: np.ones(len(hits), bool)
+    )
+    assert 0 < len(got) < len(inside) and not complete
 
 
 def test_last_seen_ends_every_place_at_its_newest_sighting(memory) -> None:

@@ -11,6 +11,7 @@ import pytest
 
 import ravenmem
 from ravenmem.errors import InputError
+from ravenmem.memory import changes, views
 from ravenmem.memory.views import ChangeConfig, _apart, next_in_time, overlapping, overlaps
 from ravenmem.types import Filter, Frame, MemoryRecord, Pose
 from tests.conftest import ColorEmbedder, solid
@@ -238,3 +239,32 @@ def test_an_answer_reads_only_the_records_it_shows(tmp_path, monkeypatch) -> Non
         mem.close()
     with pytest.raises(InputError, match="ask before closing"):
         _ = later.places[0].sightings
+
+
+def test_revisits_of_a_place_whose_sightings_are_all_in_hand_are_not_scored(tmp_path, monkeypatch) -> None:
+    """When a place's last search for later sightings found all of them (`grow` says so), none
+    of its later views shows the thing: its revisits are decided without scoring those views,
+    and they are the ones scoring every view finds, with a small pool too (searches that stop
+    at their best `pool` and say they are not complete)."""
+    frames, emb = _loops()
+    mem = ravenmem.create(tmp_path / "m.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    mem.add_frames(frames, embeddings=emb)
+    scored: list[int] = []
+    score = views._scores
+    monkeypatch.setattr(views, "_scores", lambda m, q, found: scored.append(len(found)) or score(m, q, found))
+    grow = changes.grow
+    try:
+        for colour, cfg in itertools.product(("red", "green"), (None, ChangeConfig(pool=3))):
+            monkeypatch.setattr(changes, "grow", grow)
+            scored.clear()
+            quick = mem.last_seen(colour, config=cfg)
+            skipped = not scored
+            monkeypatch.setattr(changes, "grow", lambda *a: grow(*a) and False)  # never sure
+            scored.clear()
+            every = mem.last_seen(colour, config=cfg)
+            assert scored and _decided(quick) == _decided(every) and quick.status == every.status
+            assert any(p.revisits for p in every.places)
+            if cfg is None:
+                assert skipped  # each place's later sightings were all in hand
+    finally:
+        mem.close()

@@ -446,6 +446,44 @@ def test_a_score_floor_reads_only_the_vectors_near_it(
         store.close()
 
 
+def test_a_floor_search_keeps_every_code_the_best_k_kept(tmp_path: Path) -> None:
+    """A floor search collects the codes of lists whose codes are all trusted that come within
+    the codes' error of the floor (a range search), with the best k of the other lists: every
+    code the best k of all lists kept (near the floor, or untrusted) is still kept, at most k,
+    and of the trusted lists only codes near the floor."""
+    store, emb = filled(tmp_path / "m", 3_000, ann_threshold=1_000, background=False)
+    vi = store._vi
+    ranged: list[int] = []
+    in_range = vi._in_range
+    vi._in_range = lambda *a: ranged.append(1) or in_range(*a)  # type: ignore[method-assign]
+    try:
+        rng, used = np.random.default_rng(5), 0
+        for qi in rng.choice(3_000, 8, replace=False):
+            q = (emb[qi] + 0.3 * rng.normal(size=DIM) / np.sqrt(DIM)).astype(np.float32)[None]
+            q /= np.linalg.norm(q)
+            err = vi.score_error(q[0])
+            best = vi.search(q, 400, store.nprobe)
+            for cut, k in ((5, 400), (60, 400), (60, 20)):
+                floor = best[cut][1] + err + 1e-6  # the codes down to best[cut] may reach it
+                lists = np.argsort(-(vi.centroids @ q[0]))[: store.nprobe]
+                lists = lists[vi.reachable(lists, vi.centroids[lists] @ q[0], q[0], floor)]
+                every = vi._preassigned(q, k, lists, vi.centroids[lists] @ q[0], None)
+                trusted = dict(
+                    zip([i for i, _ in every], vi.trusted(np.array([i for i, _ in every])), strict=True)
+                )
+                kept = {i for i, sc in every if sc >= floor - err or not trusted[i]}
+                ranged.clear()
+                got = vi.search(q, k, store.nprobe, floor=floor)
+                used += bool(ranged)
+                ids = [i for i, _ in got]
+                sure = np.isfinite(vi._reach[vi.list_of[np.array(ids, np.int64)]])
+                assert kept <= set(ids) and len(ids) <= k
+                assert all(sc >= floor - err - 1e-6 for (_, sc), ok in zip(got, sure, strict=True) if ok)
+        assert used >= 12  # most asked both kinds of lists
+    finally:
+        store.close()
+
+
 def test_candidates_reads_only_that_many_vectors(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`candidates=k` re-ranks the codes' best k, not `rerank` x k: k vectors are read, and the
     hits carry their exact scores, best first; most of the exact top k are among them."""

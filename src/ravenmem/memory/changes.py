@@ -110,12 +110,13 @@ class Changes(Core):
         places = [Place(0, seen.take(g), load=self.stored) for g in group_sightings(self, seen, s)]
         gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
         later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, 2.0 * s.view_radius)
-        for p in sorted(places, key=lambda p: p.found.key(-1)):  # earliest first (see Later)
-            grow(p, s, later)
+        known = {
+            id(p): grow(p, s, later) for p in sorted(places, key=lambda p: p.found.key(-1))
+        }  # earliest first (see Later)
         for p in merge(places):  # a place that took others in grows again from its new last
-            grow(p, s, later)
+            known[id(p)] = grow(p, s, later)
         for p in places:  # revisits once, of the places left (they read only their sightings)
-            revisits(self, p, q, thr, s, asof, gap)
+            revisits(self, p, q, thr, s, asof, gap, known[id(p)])
         places.sort(key=lambda p: p.found.key(-1), reverse=True)
         for i, p in enumerate(places, 1):
             p.index = i

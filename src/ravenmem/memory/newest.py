@@ -89,18 +89,21 @@ class Later:
         self.pool, self.steps, self.margin = pool, steps, margin
         self.known: list[tuple[float, Region, Sightings]] = []  # complete from, disc, sightings
 
-    def find(self, after: float, region: Region, keep: Callable[[Sightings], np.ndarray]) -> Sightings:
+    def find(
+        self, after: float, region: Region, keep: Callable[[Sightings], np.ndarray]
+    ) -> tuple[Sightings, bool]:
         """Sightings from `after` on inside `region` that pass `keep` (which says it of all of
-        them at once)."""
+        them at once), and whether they are all there (a search that found every sighting in
+        the range, not its best `pool` of them)."""
         for lo, disc, hits in self.known:
             if lo <= after and math.hypot(region.x - disc.x, region.y - disc.y) + region.r <= disc.r:
-                return _kept(hits.take((hits.t >= after) & _inside(hits, region)), keep)
+                return _kept(hits.take((hits.t >= after) & _inside(hits, region)), keep), True
         wide = Region(region.x, region.y, region.r + self.margin)
         filt = Filter(after=after, before=self.before, region=wide)
         hits, complete = _window(self.mem, self.q, filt, self.thr, self.pool, self.steps)
         if complete is not None:
             self.known.append((complete, wide, hits))
-        return _kept(hits.take(_inside(hits, region)), keep)
+        return _kept(hits.take(_inside(hits, region)), keep), complete is not None and complete <= after
 
 
 def exact_scores(mem: Core, q: np.ndarray, found: Cameras) -> dict[int, float]:

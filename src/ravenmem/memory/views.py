@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -226,16 +226,22 @@ def _disc(p: Place, s: ChangeConfig) -> tuple[Region, np.ndarray]:
 
 
 def _views(
-    mem: Core, q: np.ndarray, found: Cameras, cams: np.ndarray, s: ChangeConfig
-) -> tuple[Cameras, np.ndarray]:
-    """The memories of `found` whose view overlaps one of `cams` (poses as `_poses` gives them),
-    with their scores, in `found`'s order."""
+    mem: Core, q: np.ndarray, found: Cameras, cams: np.ndarray, s: ChangeConfig, thr: float, known: bool
+) -> Cameras:
+    """The memories of `found` whose view overlaps one of `cams` (poses as `_poses` gives them)
+    and that do not show the thing (score below `thr`), in `found`'s order. `known`: every
+    later sighting of the place is in hand (`grow`), so no later view of it shows the thing
+    and none is scored."""
     near = found.take(overlapping_poses(found.poses, cams, s))
-    return _scores(mem, q, near) if len(near) else (near, np.zeros(0))
+    if known or not len(near):
+        return near
+    kept, scores = _scores(mem, q, near)
+    return kept.take(scores < thr)
 
 
-def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> Sightings:
-    """Every later view of the place, inside its disc, that shows the thing (up to the newest)."""
+def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> tuple[Sightings, bool]:
+    """Every later view of the place, inside its disc, that shows the thing (up to the newest),
+    and whether that is all of them (`Later.find`)."""
     disc, poses = _disc(p, s)
     last = p.found.key(-1)
 
@@ -246,10 +252,19 @@ def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> Sightings:
 
 
 def _newest_views(
-    mem: Core, q: np.ndarray, p: Place, disc: Region, poses: np.ndarray, s: ChangeConfig, asof: Filter
-) -> tuple[Cameras, np.ndarray]:
-    """The newest views of the place after its last sighting, with their scores: time windows
-    growing backwards from the end, inside the place's disc (`_disc`: `disc`, `poses`)."""
+    mem: Core,
+    q: np.ndarray,
+    p: Place,
+    disc: Region,
+    poses: np.ndarray,
+    s: ChangeConfig,
+    asof: Filter,
+    thr: float,
+    known: bool,
+) -> Cameras:
+    """The newest views of the place after its last sighting that do not show the thing (as
+    `_views`): time windows growing backwards from the end, inside the place's disc (`_disc`:
+    `disc`, `poses`)."""
     last = p.found.key(-1)
     lo = last[0]
     hi = asof.before if asof.before is not None else mem.time_span()[1]
@@ -257,52 +272,63 @@ def _newest_views(
     for _ in range(s.recency_windows + 4):
         start = max(lo, hi - width)
         found = cameras(mem, start, s.pool, Filter(after=start, before=hi, region=disc))
-        got, scores = _views(mem, q, found.take(_after(found, last)), poses, s)
+        got = _views(mem, q, found.take(_after(found, last)), poses, s, thr, known)
         if len(got) or start <= lo:
-            return got, scores
+            return got
         width *= 4.0
-    return Cameras.of([]), np.zeros(0)
+    return Cameras.of([])
 
 
-def grow(p: Place, s: ChangeConfig, later: Later) -> None:
+def grow(p: Place, s: ChangeConfig, later: Later) -> bool:
     """Add the place's later sightings (its own views after its last sighting that show the
-    thing), round by round until none is new."""
+    thing), round by round until none is new. Returns whether they are all in hand: the last
+    round's search found every sighting from the place's last one on (`Later.find`)."""
     for _ in range(s.max_rounds):
-        more = _later_sightings(p, s, later)
+        more, complete = _later_sightings(p, s, later)
         if not len(more):
-            break
+            return complete
         p.found = p.found.union(more)
+    return False
 
 
 def revisits(
-    mem: Core, p: Place, q: np.ndarray, thr: float, s: ChangeConfig, asof: Filter, gap: float
+    mem: Core,
+    p: Place,
+    q: np.ndarray,
+    thr: float,
+    s: ChangeConfig,
+    asof: Filter,
+    gap: float,
+    known: bool = False,
 ) -> None:
     """The later views of the place without the thing (`Place.revisits`, `revisit_count`) and
-    whether the robot came back to it at all (`later_visit`): decided on cameras (poses and
-    scores); records are read only for the revisits kept."""
+    whether the robot came back to it at all (`later_visit`): decided on cameras (poses, and
+    scores unless `known`: every later sighting of the place is in hand, see `grow`); records
+    are read, and scored, only for the revisits kept."""
     views, last = p.found.poses, p.found.key(-1)
     end = _visit_end(mem, views, last, s, asof)
     start = last[0] + gap if end is None else max(end, last[0] + gap)
     disc, poses = _disc(p, s)
-    first, scores = _views(
-        mem, q, cameras(mem, start, s.pool, Filter(before=asof.before, region=disc)), poses, s
-    )
-    miss = scores < thr
-    without = list(zip(first.ids[miss].tolist(), scores[miss].tolist(), strict=True))
+    first = cameras(mem, start, s.pool, Filter(before=asof.before, region=disc))
+    without = _views(mem, q, first, poses, s, thr, known).ids.tolist()
     count = len(without)
     if without:
-        newest, ns = _newest_views(mem, q, p, disc, poses, s, asof)
-        gone = np.flatnonzero(ns < thr)
-        if len(gone) and int(newest.ids[gone[-1]]) not in {i for i, _ in without}:
-            without.append((int(newest.ids[gone[-1]]), float(ns[gone[-1]])))
+        newest = _newest_views(mem, q, p, disc, poses, s, asof, thr, known)
+        if len(newest) and int(newest.ids[-1]) not in set(without):
+            without.append(int(newest.ids[-1]))
             count = max(count + 1, len(without))
     keep = s.max_revisits
     kept = without if len(without) <= keep else without[: keep - 1] + without[-1:]
-    recs = {r.id: r for r in sample(mem, [i for i, _ in kept])}
-    p.revisits = [Hit(memory=recs[i], score=sc) for i, sc in kept if i in recs]
+    p.revisits = [_revisit(r, q) for r in sample(mem, kept, embeddings=True)]
     p.revisit_count = count
     first_end = _visit_end(mem, views, p.found.key(0), s, asof)
     p.later_visit = first_end is not None and last[0] >= first_end
+
+
+def _revisit(r: MemoryRecord, q: np.ndarray) -> Hit:
+    """A revisit as a hit: the record (its embedding dropped) and its score."""
+    assert r.embedding is not None
+    return Hit(memory=replace(r, embedding=None), score=float(np.dot(r.embedding, q)))
 
 
 def _visit_end(

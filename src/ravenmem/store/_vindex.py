@@ -343,7 +343,7 @@ class VectorIndex:
             scores = self.centroids @ q[0]
             lists = np.argsort(-scores)[: self.nlist if exact else nprobe]
             keep = lists[self.reachable(lists, scores[lists], q[0], floor)]
-            return self._preassigned(q, want, keep, scores[keep], None) if len(keep) else []
+            return self._probe(q, want, keep, scores[keep], None, floor) if len(keep) else []
         sel, _buffer = _selector(allowed, contiguous)
         if self.kind == "flat":
             return self._run(q, want, faiss.SearchParameters(sel=sel))
@@ -361,10 +361,30 @@ class VectorIndex:
         if not exact:  # the budget, but never fewer lists than an unfiltered search probes
             budget = filter_budget * nprobe * self.ntotal / self.nlist
             m = min(m, max(nprobe, int(np.searchsorted(np.cumsum(per_list[lists]), budget)) + 1))
-        hits = self._preassigned(q, want, lists[:m], scores[:m], sel)
+        hits = self._probe(q, want, lists[:m], scores[:m], sel, floor)
         if len(hits) < want and m < len(lists):
-            hits = self._preassigned(q, want, lists, scores, sel)
+            hits = self._probe(q, want, lists, scores, sel, floor)
         return hits
+
+    def _probe(
+        self, q: np.ndarray, k: int, lists: np.ndarray, scores: np.ndarray, sel: Any, floor: float | None
+    ) -> list[tuple[int, float]]:
+        """The best k codes of `lists`; with a floor, of the lists whose codes are all trusted
+        only those within `score_error` of it (a range search: no heap of k, and a place's
+        floor search, k = 800 over lists of background views none of which comes near the
+        floor, cost half again as much that way), with the best k of the other lists' codes.
+        The caller keeps the codes near the floor and the untrusted ones: all it kept before
+        (the best k of every list), and an untrusted code the trusted lists' codes pushed out
+        of the best k is now kept too."""
+        sure = np.isfinite(self._reach[lists]) if floor is not None else None
+        if floor is None or sure is None or not sure.any():
+            return self._preassigned(q, k, lists, scores, sel)
+        radius = floor - self.score_error(q[0]) - _ROUNDING
+        hits = self._in_range(q, radius, lists[sure], scores[sure], sel)
+        if not sure.all():
+            hits += self._preassigned(q, k, lists[~sure], scores[~sure], sel)
+            hits.sort(key=lambda h: (-h[1], h[0]))
+        return hits[:k]
 
     def _preassigned(
         self, q: np.ndarray, k: int, lists: np.ndarray, scores: np.ndarray, sel: Any
@@ -390,6 +410,35 @@ class VectorIndex:
                 None,
             )
         return _pairs(ids[0], dist[0])
+
+    def _in_range(
+        self, q: np.ndarray, radius: float, lists: np.ndarray, scores: np.ndarray, sel: Any
+    ) -> list[tuple[int, float]]:
+        """Every code of `lists` scoring above `radius`, best first (older first on ties)."""
+        x = np.ascontiguousarray(q, np.float32)
+        iq = np.ascontiguousarray(lists[None, :], np.int64)
+        dq = np.ascontiguousarray(scores[None, :], np.float32)
+        res = faiss.RangeSearchResult(1)
+        params = faiss.SearchParametersIVF(nprobe=len(lists))
+        if sel is not None:
+            params.sel = sel
+        with _one_thread():
+            self.index.range_search_preassigned_c(
+                1,
+                faiss.swig_ptr(x),
+                float(radius),
+                faiss.swig_ptr(iq),
+                faiss.swig_ptr(dq),
+                res,
+                False,
+                params,
+                None,
+            )
+        n = int(faiss.rev_swig_ptr(res.lims, 2)[1])
+        ids = faiss.rev_swig_ptr(res.labels, n).copy() if n else np.zeros(0, np.int64)
+        dist = faiss.rev_swig_ptr(res.distances, n).copy() if n else np.zeros(0, np.float32)
+        order = np.lexsort((ids, -dist))
+        return _pairs(ids[order], dist[order])
 
     def _run(self, q: np.ndarray, k: int, params: Any) -> list[tuple[int, float]]:
         with _one_thread():

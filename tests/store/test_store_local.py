@@ -643,3 +643,23 @@ def test_a_columns_file_of_the_earlier_layout_is_reloaded_with_the_orientation(
     assert cams.ids.tolist() == [r.id for r in recs]
     assert np.allclose(cams.poses, want, atol=1e-6, equal_nan=True) and not np.isnan(want[:, 3]).all()
     assert path.read_bytes()[:8] == b"RVMCOLS2"
+
+
+def test_selected_ids_are_a_read_only_snapshot(tmp_path: Path) -> None:
+    """`select` of a time range is a view of the columns, not a copy: read-only, and what it
+    held stays while the store forgets and adds (a forget makes new columns, an add writes
+    past the view)."""
+    store, emb = filled(tmp_path / "m", 1_200)
+    try:
+        recs = make_records(1_200)
+        window = store.select(Filter(after=recs[100].t, before=recs[900].t))
+        every = store.select()
+        held = window.copy(), every.copy()
+        with pytest.raises(ValueError, match="read-only"):
+            window[0] = -1
+        store.delete(window[::3].tolist())
+        store.add(make_records(50, t0=recs[-1].t + 1.0), emb[:50])
+        assert np.array_equal(window, held[0]) and np.array_equal(every, held[1])
+        assert len(store.select(Filter(after=recs[100].t, before=recs[900].t))) < len(window)
+    finally:
+        store.close()

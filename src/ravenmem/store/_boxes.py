@@ -9,9 +9,11 @@ mode's search for a place's later sightings tested the disc against the 500k pos
 time range (0.9 ms) to learn which memories it accepts; those lists' 25k memories say it too.
 
 A box is read the first time a search asks about its list (from the columns) and again after
-an add to the list (`VectorIndex.adds`, which every add goes through); a delete leaves it a
-little wider than it must be, which costs nothing but a look at a list that holds no accepted
-memory. New poses (`set_poses`: new columns) or a new index start afresh.
+an add to the list (`VectorIndex.adds`, which every add goes through) or a removal of rows
+(`Columns.removals`); with it the list's memories' ids, times and positions are kept side by
+side, so that the test reads a few contiguous arrays, not the columns at scattered rows (in a
+question at 1M, 0.9 ms for 25k rows). New poses (`set_poses`: new columns) or a new index start
+afresh.
 """
 
 from __future__ import annotations
@@ -34,9 +36,15 @@ class ListBoxes:
         self.vi, self.cols = vi, cols
         self._box = np.zeros((vi.nlist, 4))  # x min, x max, y min, y max
         self._read = np.full(vi.nlist, -1, np.int64)  # vi.adds of each list when its box was read
+        self._removals = cols.removals
+        empty = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0))
+        self._rows = [empty] * vi.nlist  # per list: ids, t, x, y of its memories
 
     def meeting(self, region: Region) -> np.ndarray:
         """The lists whose box meets the disc's bounding square (ascending)."""
+        if self.cols.removals != self._removals:
+            self._read[:] = -1
+            self._removals = self.cols.removals
         for lst in np.flatnonzero(self._read != self.vi.adds):
             self._read_box(int(lst))
         b, r = self._box, region.r
@@ -45,22 +53,19 @@ class ListBoxes:
         return np.flatnonzero(meet)
 
     def accepted(self, lists: np.ndarray, filt: Filter) -> np.ndarray:
-        """The ids in `lists` that the filter accepts (sorted): the columns' tests (`select`),
-        applied to those lists' memories only."""
-        ids = np.concatenate([self._ids(int(lst)) for lst in lists]) if len(lists) else np.zeros(0, np.int64)
-        cols = self.cols
-        pos = cols.positions(ids)
-        ok = pos >= 0
-        pos = np.where(ok, pos, 0)
-        t = cols.col("t")[pos]
+        """The ids in `lists` (as `meeting` gave them) that the filter accepts (sorted): the
+        columns' tests (`select`), applied to those lists' memories only."""
+        if not len(lists):
+            return np.zeros(0, np.int64)
+        ids, t, x, y = (np.concatenate(c) for c in zip(*[self._rows[int(lst)] for lst in lists], strict=True))
+        ok = np.ones(len(ids), bool)
         if filt.after is not None:
             ok &= t >= filt.after
         if filt.before is not None:
             ok &= t <= filt.before
         if filt.region is not None:  # the disc as `Columns.inside` tests it
             reg = filt.region
-            dx = cols.col("x")[pos] - reg.x
-            dy = cols.col("y")[pos] - reg.y
+            dx, dy = x - reg.x, y - reg.y
             ok &= dx * dx + dy * dy <= reg.r * reg.r
         return np.sort(ids[ok], kind="stable")  # runs of ascending ids: a merge
 
@@ -72,9 +77,11 @@ class ListBoxes:
         return faiss.rev_swig_ptr(lists.get_ids(lst), size).view(np.int64)
 
     def _read_box(self, lst: int) -> None:
-        pos = self.cols.positions(self._ids(lst))
-        pos = pos[pos >= 0]
-        x, y = self.cols.col("x")[pos], self.cols.col("y")[pos]
+        ids = self._ids(lst)
+        pos = self.cols.positions(ids)
+        ids, pos = ids[pos >= 0], pos[pos >= 0]
+        t, x, y = self.cols.col("t")[pos], self.cols.col("x")[pos], self.cols.col("y")[pos]
+        self._rows[lst] = (ids.copy(), t, x, y)
         ok = np.isfinite(x) & np.isfinite(y)  # a damaged row (NaN) is in no disc
         x, y = x[ok], y[ok]
         if len(x):

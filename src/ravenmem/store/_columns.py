@@ -57,6 +57,7 @@ class Columns:
         self._xyzt = np.empty((4, 0), np.float64)
         self._turn = np.empty((5, 0), np.float32)  # yaw, qx, qy, qz, qw (NaN: no quaternion)
         self.t_sorted = True
+        self.removals = 0  # how many `remove` calls dropped rows (what was read of them is stale)
         self._trees: dict[bool, tuple[cKDTree, int]] = {}
 
     # --- columns -------------------------------------------------------------------------------
@@ -127,11 +128,13 @@ class Columns:
         keep = np.ones(self.n, bool)
         keep[pos] = False
         m = int(keep.sum())
-        self._ids[:m] = self._ids[: self.n][keep]
-        self._xyzt[:, :m] = self._xyzt[:, : self.n][:, keep]
-        self._turn[:, :m] = self._turn[:, : self.n][:, keep]
-        self.n = m
+        ids, xyzt, turn = np.empty_like(self._ids), np.empty_like(self._xyzt), np.empty_like(self._turn)
+        ids[:m] = self._ids[: self.n][keep]  # new arrays: a view handed out (`select`) stays as it was
+        xyzt[:, :m] = self._xyzt[:, : self.n][:, keep]
+        turn[:, :m] = self._turn[:, : self.n][:, keep]
+        self._ids, self._xyzt, self._turn, self.n = ids, xyzt, turn, m
         self._trees.clear()
+        self.removals += 1
         return len(pos)
 
     # --- cache file ----------------------------------------------------------------------------

@@ -103,7 +103,8 @@ class Store(Protocol):
 
     def select(self, filt: Filter | None = None) -> np.ndarray:
         """Sorted int64 ids of the memories a filter accepts (all ids without one), e.g. to
-        forget everything before a time or inside a region."""
+        forget everything before a time or inside a region. Callers do not change it (the
+        embedded store hands out a read-only view)."""
         ...
 
     def search_vector(

@@ -300,12 +300,17 @@ class LocalStore(IndexLifecycle):
         return n
 
     def select(self, filt: Filter | None = None) -> np.ndarray:
-        """Ids (sorted, int64) of the memories a filter accepts; every id without one."""
+        """Ids (sorted, int64) of the memories a filter accepts; every id without one. Read-only,
+        and a time range is a view of the columns, not a copy (half a million ids copied cost
+        0.4 ms of a question): later adds and removals leave it as it was (`Columns.remove`
+        makes new arrays)."""
         filt = check_filter(filt)
         with self._lock:
             self._check_open()
             cols = self._columns()
-            return (cols.ids if filt is None else cols.select_ids(filt)[0]).copy()
+            out = (cols.ids if filt is None else cols.select_ids(filt)[0]).view()
+            out.flags.writeable = False
+            return out
 
     # --- tools -----------------------------------------------------------------------------------
     def search_vector(

@@ -12,7 +12,16 @@ import pytest
 import ravenmem
 from ravenmem.errors import InputError
 from ravenmem.memory import changes, views
-from ravenmem.memory.views import ChangeConfig, _apart, next_in_time, overlapping, overlaps
+from ravenmem.memory.places import Sightings
+from ravenmem.memory.views import (
+    ChangeConfig,
+    _apart,
+    group_sightings,
+    next_in_time,
+    overlap_rows,
+    overlapping,
+    overlaps,
+)
 from ravenmem.types import Filter, Frame, MemoryRecord, Pose
 from tests.conftest import ColorEmbedder, solid
 
@@ -266,5 +275,60 @@ def test_revisits_of_a_place_whose_sightings_are_all_in_hand_are_not_scored(tmp_
             assert any(p.revisits for p in every.places)
             if cfg is None:
                 assert skipped  # each place's later sightings were all in hand
+    finally:
+        mem.close()
+
+
+def _groups_one_by_one(mem: object, seen: Sightings, s: ChangeConfig) -> list[list[int]]:
+    """The grouping rule as first written: each sighting, best first, joins the first seed it
+    overlaps (`overlaps`' arithmetic) or becomes one; then neighbours in time with no memory
+    between them join."""
+    n, rows = len(seen), seen.poses.tolist()
+    parent = list(range(n))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    seeds: list[int] = []
+    for i in sorted(range(n), key=lambda i: -seen.scores[i]):
+        home = next((j for j in seeds if overlap_rows(rows[i], rows[j], s)), None)
+        if home is None:
+            seeds.append(i)
+        else:
+            parent[root(i)] = root(home)
+    for i in range(n - 1):
+        if root(i) != root(i + 1) and next_in_time(mem, seen.key(i), seen.key(i + 1)):  # type: ignore[arg-type]
+            parent[root(i)] = root(i + 1)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    return list(groups.values())
+
+
+def test_grouping_into_places_is_the_one_by_one_rule(tmp_path) -> None:
+    """`group_sightings` (seeds claiming every overlapping sighting at once) makes the places
+    the one-by-one rule makes, on sightings drawn from a memory with quaternion and yaw-only
+    poses, runs of neighbours in time and tied scores."""
+    frames, emb = _loops()
+    mem = ravenmem.create(tmp_path / "m.mem", embedder=ColorEmbedder(), ocr=False, thumb_size=0)
+    mem.add_frames(frames, embeddings=emb)
+    rng, several, joined = np.random.default_rng(3), 0, 0
+    try:
+        cams = mem.store.cameras(T0, 2000)  # type: ignore[attr-defined]
+        for trial in range(30):
+            rows = np.sort(rng.choice(len(cams), int(rng.integers(2, 120)), replace=False))
+            if trial % 3 == 0:  # runs of neighbours in time
+                start = int(rng.integers(0, len(cams) - 40))
+                rows = np.unique(np.concatenate([rows, np.arange(start, start + 30)]))
+            scores = rng.choice([0.5, 0.6, 0.7], len(rows)) if trial % 2 else rng.random(len(rows))
+            seen = Sightings.of(cams.take(rows), scores)
+            s = ChangeConfig(view_radius=float(rng.choice([0.6, 1.5, 4.0])))
+            got = [g.tolist() for g in group_sightings(mem, seen, s)]
+            assert got == _groups_one_by_one(mem, seen, s)
+            several += len(got) > 1
+            joined += any(len(g) > 1 for g in got)
+        assert several > 20 and joined > 20  # neither one place nor one per sighting
     finally:
         mem.close()

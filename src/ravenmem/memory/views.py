@@ -17,7 +17,7 @@ from ..store.base import Cameras
 from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
 from .newest import Later, exact_scores
-from .places import Place, Sightings
+from .places import Place, Sightings, among
 from .protocol import MAX_K
 
 _PAGE = 256  # memories read per step of a walk forward in time, at most
@@ -148,9 +148,20 @@ def group_sightings(mem: Core, seen: Sightings, s: ChangeConfig) -> list[np.ndar
     """Places, as rows of `seen` (chronological): each sighting joins the best-scored earlier
     seed whose view it overlaps (no chains: a robot turning on the spot does not make one place
     of every direction), and sightings that follow each other in time with no memory in between
-    are one place (the robot kept the thing in view while it moved)."""
+    are one place (the robot kept the thing in view while it moved). Seeds are taken best
+    first, each claiming at once every lower-scored sighting left that overlaps it: one pass
+    per seed (a few), not one test per sighting and seed."""
     n = len(seen)
-    parent = list(range(n))
+    seed_of = np.arange(n)
+    left = np.argsort(-seen.scores, kind="stable")
+    seeds: list[int] = []
+    while len(left):
+        seed, rest = int(left[0]), left[1:]
+        seeds.append(seed)
+        claimed = overlapping_poses(seen.poses[rest], seen.poses[seed : seed + 1], s)
+        seed_of[rest[claimed]] = seed
+        left = rest[~claimed]
+    parent = {sd: sd for sd in seeds}
 
     def root(i: int) -> int:
         while parent[i] != i:
@@ -158,25 +169,18 @@ def group_sightings(mem: Core, seen: Sightings, s: ChangeConfig) -> list[np.ndar
             i = parent[i]
         return i
 
-    rows, scores = seen.poses.tolist(), seen.scores.tolist()
-    seeds: list[int] = []
-    for i in sorted(range(n), key=lambda i: -scores[i]):
-        home = next((j for j in seeds if overlap_rows(rows[i], rows[j], s)), None)
-        if home is None:
-            seeds.append(i)
-        else:
-            parent[root(i)] = root(home)
     ids, t = seen.ids.tolist(), seen.t.tolist()
     apart = _apart(mem, ids)
-    for i in range(n - 1):
-        if root(i) == root(i + 1) or apart[i]:
-            continue
-        if next_in_time(mem, (t[i], ids[i]), (t[i + 1], ids[i + 1])):
-            parent[root(i)] = root(i + 1)
-    groups: dict[int, list[int]] = {}
-    for i in range(n):
-        groups.setdefault(root(i), []).append(i)
-    return [np.array(g, np.int64) for g in groups.values()]
+    for i in np.flatnonzero((seed_of[:-1] != seed_of[1:]) & ~apart).tolist():
+        a, b = root(int(seed_of[i])), root(int(seed_of[i + 1]))
+        if a != b and next_in_time(mem, (t[i], ids[i]), (t[i + 1], ids[i + 1])):
+            parent[a] = b
+    lut = np.zeros(n, np.int64)
+    for sd in seeds:
+        lut[sd] = root(sd)
+    place = lut[seed_of]
+    _, first = np.unique(place, return_index=True)
+    return [np.flatnonzero(place == place[i]) for i in np.sort(first)]
 
 
 def _apart(mem: Core, ids: list[int]) -> np.ndarray:
@@ -356,17 +360,14 @@ def _visit_end(
 def merge(places: list[Place]) -> list[Place]:
     """Places that grew into each other (a later sighting of one is a sighting of another)
     become one; returns the places that took others in (their revisits must be redone)."""
-    owner: dict[int, Place] = {}
     grown: list[Place] = []
+    seen: list[Place] = []  # the places before this one (those still in `places` share no id)
     for p in list(places):
-        for other in {owner[i] for i in p.found.ids.tolist() if i in owner}:
-            if other not in places:
-                continue
+        for other in [o for o in seen if o in places and among(p.found.ids, o.found.ids).any()]:
             p.found = p.found.union(other.found)
             places.remove(other)
             grown = [g for g in grown if g is not other]
             if p not in grown:
                 grown.append(p)
-        for i in p.found.ids.tolist():
-            owner[i] = p
+        seen.append(p)
     return grown

@@ -35,6 +35,9 @@ def test_a_tail_keeps_the_newest_and_says_what_it_covers() -> None:
     q = rng.normal(size=4).astype(np.float32)
     got, sc = tail.scores(np.array([28, 29, 30, 31]), q)  # 31 is not stored: left out
     assert got.tolist() == [28, 29, 30] and np.allclose(sc, vecs[27:30] @ q)
+    for want in ([27, 28, 29], [27, 29, 30], [30], [26, 28, 30]):  # runs (read in place) or not
+        got, sc = tail.scores(np.array(want), q)
+        assert got.tolist() == want and np.allclose(sc, vecs[np.array(want) - 1] @ q)
     tail.append(np.arange(31, 51, dtype=np.int64), rng.normal(size=(20, 4)).astype(np.float32))
     assert tail.ids.tolist() == list(range(43, 51)) and tail.after == 42  # a batch over capacity
 

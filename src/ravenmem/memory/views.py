@@ -128,13 +128,16 @@ def overlapping_poses(a: np.ndarray, b: np.ndarray, s: ChangeConfig) -> np.ndarr
     out = np.zeros(len(a), bool)
     if not len(a) or not len(b):
         return out
-    close = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) <= s.view_radius
+    close = np.hypot(a[:, 0, None] - b[:, 0], a[:, 1, None] - b[:, 1]) <= s.view_radius
     i, j = np.nonzero(close)  # turns only for the pairs close enough (mostly a few)
-    pa, pb = a[i], b[j]
-    turn = np.abs(np.mod(pb[:, 2] - pa[:, 2] + math.pi, 2.0 * math.pi) - math.pi)
-    dot = np.abs(pa[:, 3] * pb[:, 3] + pa[:, 4] * pb[:, 4] + pa[:, 5] * pb[:, 5] + pa[:, 6] * pb[:, 6])
+    if not len(i):
+        return out
+    turn = np.abs(np.mod(b[j, 2] - a[i, 2] + math.pi, 2.0 * math.pi) - math.pi)
+    qa, qb = a[:, 3:].T, b[:, 3:].T
+    dot = np.abs(qa[0][i] * qb[0][j] + qa[1][i] * qb[1][j] + qa[2][i] * qb[2][j] + qa[3][i] * qb[3][j])
     both = ~np.isnan(dot)
-    turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot[both]))
+    if both.any():
+        turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot[both]))
     out[i[np.degrees(turn) <= s.view_angle_deg]] = True
     return out
 
@@ -218,13 +221,11 @@ def next_in_time(mem: Core, a: tuple[float, int], b: tuple[float, int]) -> bool:
 def _disc(p: Place, s: ChangeConfig) -> tuple[Region, np.ndarray]:
     """The cameras a later view is compared with (the last 16 sightings and the best one, as
     `_poses` gives them), and a disc around them that holds every camera overlapping one."""
-    n = len(p.found)
-    rows = list(range(max(0, n - 16), n))
-    if p.best_row not in rows:
-        rows.append(p.best_row)
-    poses = p.found.poses[rows]
-    x, y = poses[:, 0].copy(), poses[:, 1].copy()
-    cx, cy = float(x.mean()), float(y.mean())
+    poses, best = p.found.poses, p.best_row
+    lo = max(0, len(poses) - 16)
+    poses = poses[lo:] if best >= lo else np.concatenate([poses[lo:], poses[best : best + 1]])
+    x, y = poses[:, 0], poses[:, 1]
+    cx, cy = float(x.sum()) / len(x), float(y.sum()) / len(y)  # the mean, without its overhead
     reach = float(np.hypot(x - cx, y - cy).max())
     return Region(cx, cy, reach + s.view_radius), poses
 

@@ -49,6 +49,10 @@ class Tail:
     def scores(self, allowed: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(ids, cosines) of the `allowed` ids held here (those no longer stored are left out)."""
         ids = self.ids
+        lo = int(np.searchsorted(ids, allowed[0])) if len(allowed) else 0
+        hi = lo + len(allowed)
+        if len(allowed) and hi <= self.n and ids[lo] == allowed[0] and ids[hi - 1] == allowed[-1]:
+            return ids[lo:hi], self._vecs[lo:hi] @ q  # a run of the held ids (a time window): no gather
         at = np.minimum(np.searchsorted(ids, allowed), max(self.n - 1, 0))
         held = at[ids[at] == allowed] if self.n else at[:0]
         return ids[held], self._vecs[held] @ q

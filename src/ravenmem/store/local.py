@@ -348,7 +348,11 @@ class LocalStore(IndexLifecycle):
             if exact and not vi.exact_scores and allowed is not None:
                 tail = self._tail_covering(allowed)
                 if tail is not None:  # the newest memories: exact scores from RAM
-                    return above(_top(*tail.scores(allowed, q[0]), k), floor)
+                    ids, scores = tail.scores(allowed, q[0])
+                    if floor is not None:  # those below it first: a thousand sorted for a few
+                        keep = scores.astype(np.float64) >= floor
+                        ids, scores = ids[keep], scores[keep]
+                    return _top(ids, scores, k)
             if exact and not vi.exact_scores:
                 if floor is None or not self._codes_cover(allowed, q[0], floor):
                     return above(self._scan(q, k, allowed, contiguous), floor)

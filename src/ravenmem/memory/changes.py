@@ -193,24 +193,26 @@ def _recent(
     )
 
 
-def _episodes(places: list[Place], gap: float) -> dict[int, int]:
-    """Memory id -> pass: sightings of the thing (any place) in a row with no gap over `gap` s."""
+def _episodes(places: list[Place], gap: float) -> list[np.ndarray]:
+    """Per place, the pass of each sighting: sightings of the thing (any place) in a row with
+    no gap over `gap` s are one pass."""
     ids = np.concatenate([p.found.ids for p in places])
     t = np.concatenate([p.found.t for p in places])
     order = np.lexsort((ids, t))
-    ep = np.concatenate([[0], np.cumsum(np.diff(t[order]) > gap)])
-    return dict(zip(ids[order].tolist(), ep.tolist(), strict=True))
+    ep = np.empty(len(ids), np.int64)
+    ep[order] = np.concatenate([[0], np.cumsum(np.diff(t[order]) > gap)])
+    return np.split(ep, np.cumsum([len(p.found) for p in places])[:-1])
 
 
-def _judge(w: Whereabouts, episode: dict[int, int]) -> None:
+def _judge(w: Whereabouts, passes: list[np.ndarray]) -> None:
     """Place verdicts (moved / gone when a later visit looked without seeing it, else still
-    there / not revisited), then the thing's status. `w.places` is newest first."""
-    passes = [np.array([episode[i] for i in p.found.ids.tolist()]) for p in w.places]
-    for p in w.places:
+    there / not revisited), then the thing's status. `w.places` is newest first; `passes`
+    are their sightings' passes (`_episodes`)."""
+    for p, p_pass in zip(w.places, passes, strict=True):
         if not p.revisits:
             p.verdict = "still there" if p.later_visit else "not revisited"
             continue
-        t1, t2, ep = float(p.found.t[-1]), p.revisits[0].memory.t, episode[int(p.found.ids[-1])]
+        t1, t2, ep = float(p.found.t[-1]), p.revisits[0].memory.t, int(p_pass[-1])
         newest: tuple[tuple[float, int], Place, int] | None = None
         first: tuple[tuple[float, int], Place, int] | None = None
         for q, q_pass in zip(w.places, passes, strict=True):
@@ -233,10 +235,10 @@ def _judge(w: Whereabouts, episode: dict[int, int]) -> None:
     top = w.places[0]
     w.status = top.verdict
     if top.verdict != "gone":
-        ep, t_last = episode[int(top.found.ids[-1])], float(top.found.t[-1])
-        for q in w.places[1:]:
+        ep, t_last = int(passes[0][-1]), float(top.found.t[-1])
+        for q, q_pass in zip(w.places[1:], passes[1:], strict=True):
             later = [h for h in q.revisits if h.memory.t > t_last]
-            if later and episode[int(q.found.ids[-1])] == ep:
+            if later and int(q_pass[-1]) == ep:
                 w.status = "gone"
                 w.status_note = (
                     f"last seen at {fmt_time(t_last)} from place {top.index} (m{int(top.found.ids[-1])}); "

@@ -133,11 +133,12 @@ def overlapping_poses(a: np.ndarray, b: np.ndarray, s: ChangeConfig) -> np.ndarr
     if not len(i):
         return out
     turn = np.abs(np.mod(b[j, 2] - a[i, 2] + math.pi, 2.0 * math.pi) - math.pi)
-    qa, qb = a[:, 3:].T, b[:, 3:].T
-    dot = np.abs(qa[0][i] * qb[0][j] + qa[1][i] * qb[1][j] + qa[2][i] * qb[2][j] + qa[3][i] * qb[3][j])
-    both = ~np.isnan(dot)
-    if both.any():
-        turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot[both]))
+    has_a, has_b = ~np.isnan(a[:, 3]), ~np.isnan(b[:, 3])  # a quaternion: four numbers or none
+    if has_a.any() and has_b.any():  # the 3-D turn where both poses carry one
+        both = has_a[i] & has_b[j]
+        qa, qb, i2, j2 = a[:, 3:].T, b[:, 3:].T, i[both], j[both]
+        dot = np.abs(qa[0][i2] * qb[0][j2] + qa[1][i2] * qb[1][j2] + qa[2][i2] * qb[2][j2] + qa[3][i2] * qb[3][j2])
+        turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot))
     out[i[np.degrees(turn) <= s.view_angle_deg]] = True
     return out
 

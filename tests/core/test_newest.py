@@ -102,12 +102,17 @@ def test_the_newest_sighting_is_the_brute_force_one(memory, after_frac) -> None:
     after = T0 + after_frac * N
     truth = [r for r in recs if r.t >= after and scores[r.id] >= thr]
     assert len(truth) > (40 if after_frac < 0.9 else 10)  # mostly more than one search returns
-    got = newest_sightings(mem, u, after, None, thr, pool=40)
+    got, complete = newest_sightings(mem, u, after, None, thr, pool=40)
     assert len(got), "a sighting exists"
     assert got.key(-1) == (truth[-1].t, truth[-1].id)
     assert all(scores[i] >= thr for i in got.ids.tolist())
-    # the window it read is complete: every sighting from its first one on is there
+    # the window it read is complete: every sighting from its first one on is there, and from
+    # the time it says on (what the latest mode answers later questions inside it from)
     assert got.ids.tolist() == [r.id for r in truth if (r.t, r.id) >= got.key(0)]
+    assert complete is not None and complete <= got.t[0]
+    assert [i for i in got.ids.tolist() if mem.store.cameras_of([i]).t[0] >= complete] == [
+        r.id for r in truth if r.t >= complete
+    ]
 
 
 @pytest.mark.parametrize("spot", [3.0, 12.0, 21.0])
@@ -175,3 +180,25 @@ def test_last_seen_ends_every_place_at_its_newest_sighting(memory) -> None:
     old = [p for p in w.places if abs(p.last.pose.x - 3.0) <= 1.0]
     assert all(p.verdict == "moved" for p in old)
     assert old or not mem.old_better  # the best matches are at the old spot: it is a place
+
+
+def test_the_newest_window_answers_later_asks_inside_it(memory, monkeypatch) -> None:
+    """`Later.knows` the newest window's sightings (every one from its start on, anywhere):
+    a place asking from inside that range is answered from them without a search, the same
+    as brute force; one asking from before it searches."""
+    mem, emb, u = memory
+    recs, scores = brute(mem, emb, u)
+    thr = 0.5
+    recent, complete = newest_sightings(mem, u, T0 + 0.9 * N, None, thr, pool=40)
+    assert complete is not None and len(recent)
+    later = Later(mem, u, thr, None, pool=40, steps=8, margin=1.5)
+    later.knows(complete, None, recent)
+    searches: list[object] = []
+    search = mem.store.search_vector
+    monkeypatch.setattr(mem.store, "search_vector", lambda *a, **kw: searches.append(a) or search(*a, **kw))
+    spot = float(recent.poses[0, 0])
+    got, sure = later.find(complete, Region(spot, 0.0, 1.5), lambda hits: np.ones(len(hits), bool))
+    want = [r.id for r in recs if r.t >= complete and scores[r.id] >= thr and abs(r.pose.x - spot) <= 1.5]
+    assert sure and got.ids.tolist() == want and want and not searches
+    later.find(complete - 5.0, Region(spot, 0.0, 1.5), lambda hits: np.ones(len(hits), bool))
+    assert searches

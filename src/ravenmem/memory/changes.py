@@ -104,12 +104,15 @@ class Changes(Core):
         index = seen_index(self, s.floor_sample)  # whole-memory facts, read once per state
         floor = index.floor(q)
         pool, thr, best = _pool(self, scored, floor, s.match_ratio, min_score)
-        seen = pool.union(_recent(self, q, pool, filt, thr, s))
+        recent, complete = _recent(self, q, pool, filt, thr, s)
+        seen = pool.union(recent)
         if not len(seen):
             return Whereabouts(label, [], thr, floor, best)
         places = [Place(0, seen.take(g), load=self.stored) for g in group_sightings(self, seen, s)]
         gap = s.episode_gap_s if s.episode_gap_s is not None else 30.0 * index.spacing
         later = Later(self, q, thr, asof.before, s.pool, s.max_rounds, 2.0 * s.view_radius)
+        if complete is not None:  # the newest window answers for places seen only in it
+            later.knows(complete, filt.region, recent)
         known = {
             id(p): grow(p, s, later) for p in sorted(places, key=lambda p: p.found.key(-1))
         }  # earliest first (see Later)
@@ -184,9 +187,10 @@ def _recent(
     filt: Filter,
     thr: float,
     s: ChangeConfig,
-) -> Sightings:
+) -> tuple[Sightings, float | None]:
     """The newest sightings: only memories after the newest sighting in the pool can be newer,
-    so the search goes on from there (`newest_sightings`: a few searches, each later)."""
+    so the search goes on from there (`newest_sightings`: a few searches, each later); and
+    from when on they are all there."""
     start = float(pool.t.max()) if len(pool) else filt.after
     return newest_sightings(
         mem, q, start, filt.before, thr, region=filt.region, pool=s.pool, steps=s.max_rounds

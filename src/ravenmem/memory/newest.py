@@ -56,9 +56,10 @@ def newest_sightings(
     region: Region | None = None,
     pool: int = 200,
     steps: int = 8,
-) -> Sightings:
+) -> tuple[Sightings, float | None]:
     """Sightings (score >= `thr`) from `after` to `before` inside `region`, from the newest
-    window back from the end that holds any (step 2 of the module docstring)."""
+    window back from the end that holds any (step 2 of the module docstring), and from when
+    on they are all there (None when the window's searches ran out first)."""
     ids = mem.store.select(Filter(after=after, before=before, region=region))
     end, size, hi = len(ids), MAX_K, before
     for _ in range(steps):
@@ -66,11 +67,11 @@ def newest_sightings(
             break
         start = max(0, end - size)
         lo = after if start == 0 else _time_of(mem, int(ids[start]), after, hi)
-        got, _ = _window(mem, q, Filter(after=lo, before=hi, region=region), thr, pool, steps)
+        got, complete = _window(mem, q, Filter(after=lo, before=hi, region=region), thr, pool, steps)
         if len(got) or start == 0 or lo == after:
-            return got
+            return got, complete
         end, size, hi = start, size * _GROW, lo
-    return Sightings.none()
+    return Sightings.none(), None
 
 
 class Later:
@@ -87,7 +88,12 @@ class Later:
     ) -> None:
         self.mem, self.q, self.thr, self.before = mem, q, thr, before
         self.pool, self.steps, self.margin = pool, steps, margin
-        self.known: list[tuple[float, Region, Sightings]] = []  # complete from, disc, sightings
+        self.known: list[tuple[float, Region | None, Sightings]] = []  # complete from, disc, sightings
+
+    def knows(self, complete: float, region: Region | None, hits: Sightings) -> None:
+        """Every sighting inside `region` (None: anywhere) from `complete` on is among `hits`
+        (`newest_sightings`' newest window): a later ask inside them is answered from them."""
+        self.known.append((complete, region, hits))
 
     def find(
         self, after: float, region: Region, keep: Callable[[Sightings], np.ndarray]
@@ -96,7 +102,9 @@ class Later:
         them at once), and whether they are all there (a search that found every sighting in
         the range, not its best `pool` of them)."""
         for lo, disc, hits in self.known:
-            if lo <= after and math.hypot(region.x - disc.x, region.y - disc.y) + region.r <= disc.r:
+            if lo <= after and (
+                disc is None or math.hypot(region.x - disc.x, region.y - disc.y) + region.r <= disc.r
+            ):
                 return _kept(hits.take((hits.t >= after) & _inside(hits, region)), keep), True
         wide = Region(region.x, region.y, region.r + self.margin)
         filt = Filter(after=after, before=self.before, region=wide)

@@ -137,7 +137,9 @@ def overlapping_poses(a: np.ndarray, b: np.ndarray, s: ChangeConfig) -> np.ndarr
     if has_a.any() and has_b.any():  # the 3-D turn where both poses carry one
         both = has_a[i] & has_b[j]
         qa, qb, i2, j2 = a[:, 3:].T, b[:, 3:].T, i[both], j[both]
-        dot = np.abs(qa[0][i2] * qb[0][j2] + qa[1][i2] * qb[1][j2] + qa[2][i2] * qb[2][j2] + qa[3][i2] * qb[3][j2])
+        dot = np.abs(
+            qa[0][i2] * qb[0][j2] + qa[1][i2] * qb[1][j2] + qa[2][i2] * qb[2][j2] + qa[3][i2] * qb[3][j2]
+        )
         turn[both] = 2.0 * np.arccos(np.minimum(1.0, dot))
     out[i[np.degrees(turn) <= s.view_angle_deg]] = True
     return out

@@ -57,7 +57,7 @@ from ..timeparse import fmt_time
 from ..types import Filter, check_picture
 from .core import Core, check_text
 from .newest import Later, cameras_of, newest_sightings
-from .places import Place, Sightings, Verdict, Whereabouts
+from .places import Place, Sightings, Verdict, Whereabouts, read_rows
 from .protocol import MAX_K, Near, TimeLike
 from .seen_index import seen_index
 from .views import ChangeConfig, group_sightings, grow, merge, revisits
@@ -129,9 +129,11 @@ class Changes(Core):
                 p.found = p.found.grouped(groups)
             self.grouped([h for p in places for h in p.revisits])
         out = Whereabouts(label, places, thr, floor, best)
-        _judge(out, _episodes(places, gap))
-        for p in places:  # the records an answer shows: one read per place
-            p.read([0, len(p.found) - 1, p.best_row])
+        since = _judge(out, _episodes(places, gap))
+        shown = [(p, [0, len(p.found) - 1, p.best_row]) for p in places]
+        read_rows(shown + [(other, [row]) for _, _, other, row in since])  # the records an answer shows
+        for p, name, other, row in since:
+            setattr(p, name, other.hit(row))
         return out
 
 
@@ -208,10 +210,13 @@ def _episodes(places: list[Place], gap: float) -> list[np.ndarray]:
     return np.split(ep, np.cumsum([len(p.found) for p in places])[:-1])
 
 
-def _judge(w: Whereabouts, passes: list[np.ndarray]) -> None:
+def _judge(w: Whereabouts, passes: list[np.ndarray]) -> list[tuple[Place, str, Place, int]]:
     """Place verdicts (moved / gone when a later visit looked without seeing it, else still
     there / not revisited), then the thing's status. `w.places` is newest first; `passes`
-    are their sightings' passes (`_episodes`)."""
+    are their sightings' passes (`_episodes`). Returns where a moved place's thing was seen
+    since, as (place, `seen_since` or `newest_since`, the other place, its row): hits made
+    once the answer's records are read together."""
+    since: list[tuple[Place, str, Place, int]] = []
     for p, p_pass in zip(w.places, passes, strict=True):
         if not p.revisits:
             p.verdict = "still there" if p.later_visit else "not revisited"
@@ -232,8 +237,8 @@ def _judge(w: Whereabouts, passes: list[np.ndarray]) -> None:
                 first = (q.found.key(lo), q, lo)
         if newest is not None and first is not None:
             # seen elsewhere on a later pass, or after it was found missing here: moved
-            p.verdict, p.moved_to, p.newest_since = "moved", newest[1].index, newest[1].hit(newest[2])
-            p.seen_since = first[1].hit(first[2])
+            p.verdict, p.moved_to = "moved", newest[1].index
+            since += [(p, "newest_since", newest[1], newest[2]), (p, "seen_since", first[1], first[2])]
         else:  # seen elsewhere only on the pass it was last seen here (another view of it): gone
             p.verdict = "gone"
     top = w.places[0]
@@ -251,3 +256,4 @@ def _judge(w: Whereabouts, passes: list[np.ndarray]) -> None:
                     "without it"
                 )
                 break
+    return since

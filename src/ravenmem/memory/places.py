@@ -97,6 +97,22 @@ class Sightings:
         return Sightings(self.ids, self.t, self.poses, self.scores, counts, spans)
 
 
+def read_rows(wanted: Sequence[tuple[Place, Sequence[int]]]) -> None:
+    """Read the records of several places' rows not read yet with one store call (what an
+    answer shows: each place's first, last and best sighting, where it was seen since)."""
+    owners: dict[int, list[Place]] = {}
+    for p, rows in wanted:
+        for r in rows:
+            i = int(p.found.ids[r])
+            if i not in p._records:
+                owners.setdefault(i, []).append(p)
+    load = next((p.load for p, _ in wanted if p.load is not None), None)
+    if owners and load is not None:
+        for rec in load(list(owners)):
+            for p in owners[rec.id]:
+                p._records[rec.id] = rec
+
+
 def among(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Per id of `a`, whether it is one of `b`: a search in `b` sorted (`np.isin` costs ten
     times as much on a few hundred ids, and a question asked it a dozen times)."""

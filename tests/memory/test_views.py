@@ -332,3 +332,17 @@ def test_grouping_into_places_is_the_one_by_one_rule(tmp_path) -> None:
         assert several > 20 and joined > 20  # neither one place nor one per sighting
     finally:
         mem.close()
+
+
+def test_the_first_camera_looking_away_is_found_the_same_from_a_few_views_first() -> None:
+    """`_first_away` (tests the sightings taken about then first, then the rest of them only
+    for the cameras those miss) finds the camera that every sighting's overlap test finds."""
+    rng = np.random.default_rng(9)
+    s = ChangeConfig()
+    for _ in range(200):
+        n, m = int(rng.integers(1, 20)), int(rng.integers(1, 60))
+        cams = np.column_stack([rng.uniform(0, 6, (n, 2)), rng.uniform(-3, 3, n), np.full((n, 4), np.nan)])
+        seen = np.column_stack([rng.uniform(0, 6, (m, 2)), rng.uniform(-3, 3, m), np.full((m, 4), np.nan)])
+        near = seen[: int(rng.integers(0, m + 1))]
+        away = np.flatnonzero(~views.overlapping_poses(cams, seen, s))
+        assert views._first_away(cams, seen, near, s) == (int(away[0]) if len(away) else None)

@@ -314,7 +314,7 @@ def revisits(
     scores unless `known`: every later sighting of the place is in hand, see `grow`); records
     are read, and scored, only for the revisits kept."""
     views, last = p.found.poses, p.found.key(-1)
-    end = _visit_end(mem, views, last, s, asof)
+    end = _visit_end(mem, views, last, s, asof, views[-16:])
     start = last[0] + gap if end is None else max(end, last[0] + gap)
     disc, poses = _disc(p, s)
     first = cameras(mem, start, s.pool, Filter(before=asof.before, region=disc))
@@ -329,7 +329,7 @@ def revisits(
     kept = without if len(without) <= keep else without[: keep - 1] + without[-1:]
     p.revisits = [_revisit(r, q) for r in sample(mem, kept, embeddings=True)]
     p.revisit_count = count
-    first_end = _visit_end(mem, views, p.found.key(0), s, asof)
+    first_end = _visit_end(mem, views, p.found.key(0), s, asof, views[:16])
     p.later_visit = first_end is not None and last[0] >= first_end
 
 
@@ -340,24 +340,37 @@ def _revisit(r: MemoryRecord, q: np.ndarray) -> Hit:
 
 
 def _visit_end(
-    mem: Core, views: np.ndarray, start: tuple[float, int], s: ChangeConfig, asof: Filter
+    mem: Core, views: np.ndarray, start: tuple[float, int], s: ChangeConfig, asof: Filter, near: np.ndarray
 ) -> float | None:
     """When the robot first looked away from the place after `start` ((time, id) of one of its
     sightings): the time of the first later memory that overlaps none of the place's sightings
-    (`views`, as `_poses` gives them; None if it never did)."""
+    (`views`, as `_poses` gives them; None if it never did). `near`: a few of them, those
+    taken about when `start` was: a memory that overlaps one of those is not away, and only
+    the others are tested against every sighting, first ones first."""
     cursor, read, size = start, 0, 16  # mostly the robot looks away at once
     while read < s.max_walk:
         page = cameras(mem, cursor[0], size, asof)
         fresh = page.take(_after(page, cursor))
-        away = np.flatnonzero(~overlapping_poses(fresh.poses, views, s))
-        if len(away):
-            return float(fresh.t[int(away[0])])
+        away = _first_away(fresh.poses, views, near, s)
+        if away is not None:
+            return float(fresh.t[away])
         read += len(fresh)
         if len(page) < size or (not len(fresh) and size >= _PAGE):
             return None
         if len(fresh):
             cursor = (float(fresh.t[-1]), int(fresh.ids[-1]))
         size = min(_PAGE, 4 * size)
+    return None
+
+
+def _first_away(cams: np.ndarray, views: np.ndarray, near: np.ndarray, s: ChangeConfig) -> int | None:
+    """The first row of `cams` that overlaps none of `views` (`near`: some of them)."""
+    maybe = np.flatnonzero(~overlapping_poses(cams, near, s))
+    for chunk in (maybe[:2], maybe[2:8], maybe[8:]):  # mostly the first one is away
+        if len(chunk):
+            away = chunk[~overlapping_poses(cams[chunk], views, s)]
+            if len(away):
+                return int(away[0])
     return None
 
 

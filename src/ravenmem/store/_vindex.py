@@ -315,9 +315,9 @@ class VectorIndex:
     ) -> list[tuple[int, float]]:
         """Top-k (id, inner product), restricted exactly to the `allowed` ids when given.
 
-        `allowed` is sorted; `contiguous` says that no indexed id between its first and last
-        is outside it (a time window on a chronological store), so a range test replaces the
-        bitmap. IVF with a filter ranks only the lists that hold allowed ids by centroid
+        `allowed` holds unique ids (sorted when `contiguous`); `contiguous` says that no
+        indexed id between its first and last is outside it (a time window on a chronological
+        store), so a range test replaces the bitmap. IVF with a filter ranks only the lists that hold allowed ids by centroid
         similarity and probes the best of them until `filter_budget` times as many allowed
         vectors are compared as an unfiltered search compares (nprobe average lists), and at
         least `nprobe` of them: a wide window on a big store (10 % of 10M memories) fills the
@@ -519,13 +519,13 @@ def _pairs(ids: np.ndarray, dist: np.ndarray) -> list[tuple[int, float]]:
 
 
 def _selector(allowed: np.ndarray, contiguous: bool) -> tuple[Any, np.ndarray | None]:
-    """A FAISS id selector for sorted `allowed` ids (and the buffer it reads, to keep alive):
-    a range test when contiguous, else a bitmap. The bitmap's bits are packed only over the
-    span of the allowed ids, not over a bool mask as long as the largest id, which at 10M
-    memories cost more than the search itself."""
+    """A FAISS id selector for `allowed` ids (and the buffer it reads, to keep alive): a range
+    test when contiguous (sorted), else a bitmap (any order). The bitmap's bits are packed
+    only over the span of the allowed ids, not over a bool mask as long as the largest id,
+    which at 10M memories cost more than the search itself."""
     if contiguous:
         return faiss.IDSelectorRange(int(allowed[0]), int(allowed[-1]) + 1), None
-    lo, hi = int(allowed[0]) >> 3, int(allowed[-1]) >> 3
+    lo, hi = int(allowed.min()) >> 3, int(allowed.max()) >> 3
     span = np.zeros((hi - lo + 1) * 8, bool)
     span[allowed - lo * 8] = True
     bitmap = np.zeros(hi + 1, np.uint8)

@@ -372,11 +372,12 @@ class LocalStore(IndexLifecycle):
     def _accepted(
         self, filt: Filter, q: np.ndarray, floor: float | None, exact: bool
     ) -> tuple[np.ndarray, bool]:
-        """(sorted ids a search may score, contiguous): the filter's (`Columns.select_ids`),
+        """(ids a search may score, contiguous): the filter's (`Columns.select_ids`, sorted),
         except that an IVF search in a disc with a floor gets only those in the lists that
         can hold a hit: lists whose memories' box meets the disc (`ListBoxes`) and that can
-        reach the floor (`VectorIndex.reachable`). The lists it then probes, and so its hits,
-        are the same; the positions tested are those lists' few, not all of the time range's."""
+        reach the floor (`VectorIndex.reachable`), list by list, unsorted (the search's id
+        selector takes any order). The lists it then probes, and so its hits, are the same;
+        the positions tested are those lists' few, not all of the time range's."""
         vi = self._vi
         if (
             filt.region is None

@@ -259,7 +259,7 @@ def _later_sightings(p: Place, s: ChangeConfig, later: Later) -> tuple[Sightings
     return later.find(last[0], disc, later_views)
 
 
-def _newest_views(
+def _newest_view(
     mem: Core,
     q: np.ndarray,
     p: Place,
@@ -269,10 +269,10 @@ def _newest_views(
     asof: Filter,
     thr: float,
     known: bool,
-) -> Cameras:
-    """The newest views of the place after its last sighting that do not show the thing (as
-    `_views`): time windows growing backwards from the end, inside the place's disc (`_disc`:
-    `disc`, `poses`)."""
+) -> int | None:
+    """The newest view of the place after its last sighting that does not show the thing (as
+    `_views` decides it): time windows growing backwards from the end, inside the place's
+    disc (`_disc`: `disc`, `poses`)."""
     last = p.found.key(-1)
     lo = last[0]
     hi = asof.before if asof.before is not None else mem.time_span()[1]
@@ -280,11 +280,20 @@ def _newest_views(
     for _ in range(s.recency_windows + 4):
         start = max(lo, hi - width)
         found = cameras(mem, start, s.pool, Filter(after=start, before=hi, region=disc))
-        got = _views(mem, q, found.take(_after(found, last)), poses, s, thr, known)
-        if len(got) or start <= lo:
-            return got
+        found = found.take(_after(found, last))
+        if known:  # the last camera that overlaps: the newest few tested first
+            for rows in (np.arange(max(0, len(found) - 4), len(found)), np.arange(max(0, len(found) - 4))):
+                hit = rows[overlapping_poses(found.poses[rows], poses, s)]
+                if len(hit):
+                    return int(found.ids[hit[-1]])
+        else:
+            got = _views(mem, q, found, poses, s, thr, known)
+            if len(got):
+                return int(got.ids[-1])
+        if start <= lo:
+            return None
         width *= 4.0
-    return Cameras.of([])
+    return None
 
 
 def grow(p: Place, s: ChangeConfig, later: Later) -> bool:
@@ -321,13 +330,13 @@ def revisits(
     without = _views(mem, q, first, poses, s, thr, known).ids.tolist()
     count = len(without)
     if without:
-        newest = _newest_views(mem, q, p, disc, poses, s, asof, thr, known)
-        if len(newest) and int(newest.ids[-1]) not in set(without):
-            without.append(int(newest.ids[-1]))
+        newest = _newest_view(mem, q, p, disc, poses, s, asof, thr, known)
+        if newest is not None and newest not in set(without):
+            without.append(newest)
             count = max(count + 1, len(without))
     keep = s.max_revisits
     kept = without if len(without) <= keep else without[: keep - 1] + without[-1:]
-    p.revisits = [_revisit(r, q) for r in sample(mem, kept, embeddings=True)]
+    p.revisits = [_revisit(r, q) for r in sample(mem, kept, embeddings=True)] if kept else []
     p.revisit_count = count
     first_end = _visit_end(mem, views, p.found.key(0), s, asof, views[:16])
     p.later_visit = first_end is not None and last[0] >= first_end

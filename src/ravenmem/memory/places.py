@@ -76,7 +76,8 @@ class Sightings:
         """These and the memories of `more` not among them, chronological."""
         if not len(more):
             return self
-        new = more.take(~among(more.ids, self.ids))
+        after = len(self) > 0 and more.key(0) > self.key(-1)  # a place's later sightings: appended
+        new = more if after else more.take(~among(more.ids, self.ids))
         if not len(self):
             return new
         both = Sightings(
@@ -85,7 +86,7 @@ class Sightings:
             np.concatenate([self.poses, new.poses]),
             np.concatenate([self.scores, new.scores]),
         )
-        return both.take(np.lexsort((both.ids, both.t)))
+        return both if after else both.take(np.lexsort((both.ids, both.t)))
 
     def grouped(self, groups: dict[int, tuple[int, float, float]]) -> Sightings:
         """With `counts` and `spans` from consolidated groups (rep -> count, first_t, last_t)."""

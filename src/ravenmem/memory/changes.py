@@ -60,7 +60,7 @@ from .newest import Later, cameras_of, newest_sightings
 from .places import Place, Sightings, Verdict, Whereabouts, read_rows
 from .protocol import MAX_K, Near, TimeLike
 from .seen_index import seen_index
-from .views import ChangeConfig, group_sightings, grow, merge, revisits
+from .views import ChangeConfig, group_sightings, grow, merge, read_revisits, revisits
 
 __all__ = ["ChangeConfig", "Changes", "Place", "Verdict", "Whereabouts"]
 
@@ -118,8 +118,8 @@ class Changes(Core):
         }  # earliest first (see Later)
         for p in merge(places):  # a place that took others in grows again from its new last
             known[id(p)] = grow(p, s, later)
-        for p in places:  # revisits once, of the places left (they read only their sightings)
-            revisits(self, p, q, thr, s, asof, gap, known[id(p)])
+        kept = [revisits(self, p, q, thr, s, asof, gap, known[id(p)]) for p in places]  # once, of those left
+        read_revisits(places, kept, q)
         places.sort(key=lambda p: p.found.key(-1), reverse=True)
         for i, p in enumerate(places, 1):
             p.index = i

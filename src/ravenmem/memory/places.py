@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -29,7 +29,7 @@ Verdict = Literal["still there", "moved", "gone", "not revisited"]
 VERDICTS: tuple[Verdict, ...] = ("still there", "moved", "gone", "not revisited")
 
 
-Load = Callable[[Sequence[int]], list[MemoryRecord]]  # records of the ids still stored
+Load = Callable[[Sequence[int], bool], list[MemoryRecord]]  # records still stored (with embeddings?)
 
 
 @dataclass(frozen=True)
@@ -98,9 +98,13 @@ class Sightings:
         return Sightings(self.ids, self.t, self.poses, self.scores, counts, spans)
 
 
-def read_rows(wanted: Sequence[tuple[Place, Sequence[int]]]) -> None:
+def read_rows(
+    wanted: Sequence[tuple[Place, Sequence[int]]], extra: Sequence[int] = ()
+) -> dict[int, MemoryRecord]:
     """Read the records of several places' rows not read yet with one store call (what an
-    answer shows: each place's first, last and best sighting, where it was seen since)."""
+    answer shows: each place's first, last and best sighting, where it was seen since), and
+    those of the `extra` ids with their embeddings (revisits, scored from them); returns the
+    latter."""
     owners: dict[int, list[Place]] = {}
     for p, rows in wanted:
         for r in rows:
@@ -108,10 +112,14 @@ def read_rows(wanted: Sequence[tuple[Place, Sequence[int]]]) -> None:
             if i not in p._records:
                 owners.setdefault(i, []).append(p)
     load = next((p.load for p, _ in wanted if p.load is not None), None)
-    if owners and load is not None:
-        for rec in load(list(owners)):
-            for p in owners[rec.id]:
-                p._records[rec.id] = rec
+    if load is None or not (owners or extra):
+        return {}
+    got = {r.id: r for r in load([*owners, *(i for i in extra if i not in owners)], bool(extra))}
+    for i, held in owners.items():
+        if i in got:
+            for p in held:
+                p._records[i] = replace(got[i], embedding=None)
+    return {i: got[i] for i in extra if i in got}
 
 
 def among(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -151,7 +159,7 @@ class Place:
         if not want or self.load is None:
             return
         try:
-            self._records.update((r.id, r) for r in self.load(want))
+            self._records.update((r.id, r) for r in self.load(want, False))
         except InputError as e:  # the memory was closed since the question
             raise InputError(
                 f"{e}: a place's sightings are read from the memory when first asked for; "

@@ -17,7 +17,7 @@ from ..store.base import Cameras
 from ..types import Filter, Hit, MemoryRecord, Region
 from .core import Core
 from .newest import Later, exact_scores
-from .places import Place, Sightings, among
+from .places import Place, Sightings, among, read_rows
 from .protocol import MAX_K
 
 _PAGE = 256  # memories read per step of a walk forward in time, at most
@@ -317,11 +317,11 @@ def revisits(
     asof: Filter,
     gap: float,
     known: bool = False,
-) -> None:
-    """The later views of the place without the thing (`Place.revisits`, `revisit_count`) and
-    whether the robot came back to it at all (`later_visit`): decided on cameras (poses, and
-    scores unless `known`: every later sighting of the place is in hand, see `grow`); records
-    are read, and scored, only for the revisits kept."""
+) -> list[int]:
+    """The later views of the place without the thing (`revisit_count`; returns the ids of
+    those kept for `Place.revisits`, see `read_revisits`) and whether the robot came back to
+    it at all (`later_visit`): decided on cameras (poses, and scores unless `known`: every
+    later sighting of the place is in hand, see `grow`)."""
     views, last = p.found.poses, p.found.key(-1)
     end = _visit_end(mem, views, last, s, asof, views[-16:])
     start = last[0] + gap if end is None else max(end, last[0] + gap)
@@ -336,10 +336,19 @@ def revisits(
             count = max(count + 1, len(without))
     keep = s.max_revisits
     kept = without if len(without) <= keep else without[: keep - 1] + without[-1:]
-    p.revisits = [_revisit(r, q) for r in sample(mem, kept, embeddings=True)] if kept else []
     p.revisit_count = count
     first_end = _visit_end(mem, views, p.found.key(0), s, asof, views[:16])
     p.later_visit = first_end is not None and last[0] >= first_end
+    return kept
+
+
+def read_revisits(places: list[Place], kept: list[list[int]], q: np.ndarray) -> None:
+    """Each place's revisits kept (`revisits`), as hits scored from their vectors: read in one
+    store call with the records every answer shows (each place's first, last and best
+    sighting)."""
+    got = read_rows([(p, [0, len(p.found) - 1, p.best_row]) for p in places], [i for k in kept for i in k])
+    for p, ids in zip(places, kept, strict=True):
+        p.revisits = [_revisit(got[i], q) for i in ids if i in got]
 
 
 def _revisit(r: MemoryRecord, q: np.ndarray) -> Hit:

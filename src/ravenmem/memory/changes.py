@@ -57,7 +57,7 @@ from ..timeparse import fmt_time
 from ..types import Filter, check_picture
 from .core import Core, check_text
 from .newest import Later, cameras_of, newest_sightings
-from .places import Place, Sightings, Verdict, Whereabouts, read_rows
+from .places import Place, Sightings, Verdict, Whereabouts, among, read_rows
 from .protocol import MAX_K, Near, TimeLike
 from .seen_index import seen_index
 from .views import ChangeConfig, group_sightings, grow, merge, read_revisits, revisits
@@ -165,20 +165,21 @@ def _pool(
     """The pool's sightings (the rest of the pool is below the threshold and never shown), the
     threshold and the best score they set. A memory no longer stored is left out, and the
     threshold is set again without it when it was the best."""
-    while scored:
-        best = max(sc for _, sc in scored)
+    ids = np.array([i for i, _ in scored], np.int64)
+    scores = np.array([sc for _, sc in scored], np.float64)
+    while len(ids):
+        best = float(scores.max())
         thr = floor + ratio * (best - floor) if best > floor + 1e-6 else math.inf
         if min_score is not None:
             thr = max(thr, float(min_score))
-        want = [i for i, sc in scored if sc >= thr]
-        if not want:
+        want = scores >= thr
+        if not want.any():
             return Sightings.none(), thr, best
-        cams = cameras_of(mem, want)
-        if len(cams) == len(want):
-            score = dict(scored)
-            return Sightings.of(cams, np.array([score[i] for i in cams.ids.tolist()])), thr, best
-        have = set(cams.ids.tolist())
-        scored = [(i, sc) for i, sc in scored if sc < thr or i in have]
+        cams = cameras_of(mem, ids[want].tolist())  # the stored ones, in the order given
+        if len(cams) == int(want.sum()):
+            return Sightings.of(cams, scores[want]), thr, best
+        keep = ~want | among(ids, cams.ids)
+        ids, scores = ids[keep], scores[keep]
     return Sightings.none(), math.inf, 0.0
 
 

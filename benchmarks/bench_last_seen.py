@@ -43,7 +43,17 @@ import ravenmem  # noqa: E402
 from ravenmem.memory import changes, core  # noqa: E402
 from ravenmem.store import _sql, local  # noqa: E402
 
-STEPS = ("_pool", "seen_index", "_recent", "group_sightings", "grow", "merge", "revisits", "_judge")
+STEPS = (
+    "_pool",
+    "seen_index",
+    "_recent",
+    "group_sightings",
+    "grow",
+    "merge",
+    "revisits",
+    "read_revisits",
+    "_judge",
+)
 STORE_CALLS = ("search_vector", "_rescore", "_records", "by_time", "select")
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ravenmem.errors import InputError
-from ravenmem.store import _columns, open_store
+from ravenmem.store import _columns, _vindex, open_store
 from ravenmem.store._vindex import VectorIndex
 from ravenmem.store.local import LocalStore
 from ravenmem.types import Filter, Region
@@ -447,10 +447,10 @@ def test_a_score_floor_reads_only_the_vectors_near_it(
 
 
 def test_a_floor_search_keeps_every_code_the_best_k_kept(tmp_path: Path) -> None:
-    """A floor search collects the codes of lists whose codes are all trusted that come within
-    the codes' error of the floor (a range search), with the best k of the other lists: every
-    code the best k of all lists kept (near the floor, or untrusted) is still kept, at most k,
-    and of the trusted lists only codes near the floor."""
+    """A filtered floor search collects the codes of lists whose codes are all trusted that
+    come within the codes' error of the floor (a range search), with the best k of the other
+    lists: every code the best k of all lists kept (near the floor, or untrusted) is still
+    kept, at most k, and of the trusted lists only codes near the floor."""
     store, emb = filled(tmp_path / "m", 3_000, ann_threshold=1_000, background=False)
     vi = store._vi
     ranged: list[int] = []
@@ -462,18 +462,21 @@ def test_a_floor_search_keeps_every_code_the_best_k_kept(tmp_path: Path) -> None
             q = (emb[qi] + 0.3 * rng.normal(size=DIM) / np.sqrt(DIM)).astype(np.float32)[None]
             q /= np.linalg.norm(q)
             err = vi.score_error(q[0])
-            best = vi.search(q, 400, store.nprobe)
+            allowed = np.arange(int(qi) % 2, 3_000, 2) + 1  # every other memory
+            best = vi.search(q, 400, store.nprobe, allowed)
             for cut, k in ((5, 400), (60, 400), (60, 20)):
                 floor = best[cut][1] + err + 1e-6  # the codes down to best[cut] may reach it
-                lists = np.argsort(-(vi.centroids @ q[0]))[: store.nprobe]
+                lists = np.flatnonzero(np.bincount(vi.list_of[allowed], minlength=vi.nlist))
                 lists = lists[vi.reachable(lists, vi.centroids[lists] @ q[0], q[0], floor)]
-                every = vi._preassigned(q, k, lists, vi.centroids[lists] @ q[0], None)
+                sel, _keep = _vindex._selector(allowed, False)
+                every = vi._preassigned(q, k, lists, vi.centroids[lists] @ q[0], sel)
                 trusted = dict(
                     zip([i for i, _ in every], vi.trusted(np.array([i for i, _ in every])), strict=True)
                 )
                 kept = {i for i, sc in every if sc >= floor - err or not trusted[i]}
                 ranged.clear()
-                got = vi.search(q, k, store.nprobe, floor=floor)
+                got = vi.search(q, k, store.nprobe, allowed, floor=floor)
+                assert {i for i, _ in got} <= set(allowed.tolist())
                 used += bool(ranged)
                 ids = [i for i, _ in got]
                 sure = np.isfinite(vi._reach[vi.list_of[np.array(ids, np.int64)]])

@@ -369,18 +369,19 @@ class VectorIndex:
     def _probe(
         self, q: np.ndarray, k: int, lists: np.ndarray, scores: np.ndarray, sel: Any, floor: float | None
     ) -> list[tuple[int, float]]:
-        """The best k codes of `lists`; with a floor, of the lists whose codes are all trusted
-        only those within `score_error` of it (a range search: no heap of k, and a place's
-        floor search, k = 800 over lists of background views none of which comes near the
-        floor, cost half again as much that way), with the best k of the other lists' codes.
-        The caller keeps the codes near the floor and the untrusted ones: all it kept before
-        (the best k of every list), and an untrusted code the trusted lists' codes pushed out
-        of the best k is now kept too."""
-        sure = np.isfinite(self._reach[lists]) if floor is not None else None
+        """The best k codes of `lists`; in a filtered search with a floor, of the lists whose
+        codes are all trusted only those within `score_error` of it (a range search: no heap
+        of k; a place's floor search, k = 800 over lists of background views none of which
+        comes near the floor, cost half again as much with one), with the best k of the other
+        lists' codes. The caller keeps the codes near the floor and the untrusted ones: all it
+        kept before (the best k of every list), and an untrusted code the trusted lists' codes
+        pushed out of the best k is now kept too. Unfiltered, a floor keeps many codes of the
+        lists nearest the query, and collecting them all cost as much as the heap saved."""
+        sure = np.isfinite(self._reach[lists]) if floor is not None and sel is not None else None
         if floor is None or sure is None or not sure.any():
             return self._preassigned(q, k, lists, scores, sel)
         radius = floor - self.score_error(q[0]) - _ROUNDING
-        hits = self._in_range(q, radius, lists[sure], scores[sure], sel)
+        hits = self._in_range(q, k, radius, lists[sure], scores[sure], sel)
         if not sure.all():
             hits += self._preassigned(q, k, lists[~sure], scores[~sure], sel)
             hits.sort(key=lambda h: (-h[1], h[0]))
@@ -412,9 +413,11 @@ class VectorIndex:
         return _pairs(ids[0], dist[0])
 
     def _in_range(
-        self, q: np.ndarray, radius: float, lists: np.ndarray, scores: np.ndarray, sel: Any
+        self, q: np.ndarray, k: int, radius: float, lists: np.ndarray, scores: np.ndarray, sel: Any
     ) -> list[tuple[int, float]]:
-        """Every code of `lists` scoring above `radius`, best first (older first on ties)."""
+        """The best k codes of `lists` scoring above `radius`, best first (older first on
+        ties): all of them when fewer (a floor near the typical score keeps many: they are cut
+        to k before they are sorted)."""
         x = np.ascontiguousarray(q, np.float32)
         iq = np.ascontiguousarray(lists[None, :], np.int64)
         dq = np.ascontiguousarray(scores[None, :], np.float32)
@@ -437,6 +440,9 @@ class VectorIndex:
         n = int(faiss.rev_swig_ptr(res.lims, 2)[1])
         ids = faiss.rev_swig_ptr(res.labels, n).copy() if n else np.zeros(0, np.int64)
         dist = faiss.rev_swig_ptr(res.distances, n).copy() if n else np.zeros(0, np.float32)
+        if n > k:
+            best = np.argpartition(-dist, k - 1)[:k]
+            ids, dist = ids[best], dist[best]
         order = np.lexsort((ids, -dist))
         return _pairs(ids[order], dist[order])
 

@@ -156,7 +156,7 @@ def report(mem: ravenmem.Memory, n: int, build: float, reps: int, label: str = "
     p = lambda xs, q: 1000 * float(np.percentile(xs, q))  # noqa: E731
     print(
         f"{n:>9} {build:>8.1f} | {p(st, 50):>11.1f} {p(st, 90):>6.1f} | {p(ls, 50):>9.1f} "
-        f"{p(ls, 90):>6.1f} | {p(ls, 50) / p(st, 50):>4.1f}x | " + "; ".join(checks) + label,
+        f"{p(ls, 90):>6.1f} | {p(ls, 50) / p(st, 50):>4.2f}x | " + "; ".join(checks) + label,
         flush=True,
     )
 
@@ -176,7 +176,7 @@ def main() -> None:
     folder.mkdir(parents=True, exist_ok=True)
     print(f"latest mode vs text tool, patrol loop, dim {args.dim}; p50 / p90 ms over {args.reps} calls")
     print(
-        f"{'memories':>9} {'build s':>8} | {'search_text':>11} {'p90':>6} | {'last_seen':>9} {'p90':>6} | ratio | verdicts"
+        f"{'memories':>9} {'build s':>8} | {'search_text':>11} {'p90':>6} | {'last_seen':>9} {'p90':>6} | ratio  | verdicts"
     )
     try:
         for n in [int(s) for s in args.sizes.split(",") if s]:

@@ -20,9 +20,13 @@ all be old (a thing seen far more often, or a little better, before it moved).
 3. Later sightings of one place (`Later.find`, inside its disc): one search over the
    whole range (exact when it is short), and nothing found there means nothing (a place is
    mostly not seen again), as the latest mode always decided; else as a wide window above.
-   One question's searches are kept and answer its other places inside them (`Later`).
+   One question's searches are kept and answer its other places inside them (`Later`), as
+   does the newest window of step 2 (every sighting from its start on, anywhere:
+   `Later.knows`); `Later.find` says whether what it returns is every sighting of the range.
 4. Views of a place already in hand are scored by one exact scan of the span and disc that
-   hold them (`exact_scores`: vectors only), not by reading each record again.
+   hold them (`exact_scores`: vectors only), not by reading each record again, and only when
+   they must be: when a place's last search found every later sighting, none of its later
+   views shows the thing.
 
 Windows follow the filter's ids (the store's in-RAM columns) and their times, so they tile the
 range whatever the order of ids; on a store whose ids follow time each holds the count it says.

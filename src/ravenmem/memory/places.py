@@ -117,8 +117,9 @@ def read_rows(
     got = {r.id: r for r in load([*owners, *(i for i in extra if i not in owners)], bool(extra))}
     for i, held in owners.items():
         if i in got:
+            rec = got[i] if got[i].embedding is None else replace(got[i], embedding=None)
             for p in held:
-                p._records[i] = replace(got[i], embedding=None)
+                p._records[i] = rec
     return {i: got[i] for i in extra if i in got}
 
 
@@ -155,11 +156,8 @@ class Place:
 
     def read(self, rows: Sequence[int]) -> None:
         """Read the records of `found`'s `rows` not read yet (one store call)."""
-        want = [int(self.found.ids[r]) for r in rows if int(self.found.ids[r]) not in self._records]
-        if not want or self.load is None:
-            return
         try:
-            self._records.update((r.id, r) for r in self.load(want, False))
+            read_rows([(self, rows)])
         except InputError as e:  # the memory was closed since the question
             raise InputError(
                 f"{e}: a place's sightings are read from the memory when first asked for; "

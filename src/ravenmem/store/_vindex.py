@@ -390,13 +390,8 @@ class VectorIndex:
     def _preassigned(
         self, q: np.ndarray, k: int, lists: np.ndarray, scores: np.ndarray, sel: Any
     ) -> list[tuple[int, float]]:
-        x = np.ascontiguousarray(q, np.float32)
-        iq = np.ascontiguousarray(lists[None, :], np.int64)
-        dq = np.ascontiguousarray(scores[None, :], np.float32)
+        x, iq, dq, params = _probe_args(q, lists, scores, sel)
         dist, ids = np.empty((1, k), np.float32), np.empty((1, k), np.int64)
-        params = faiss.SearchParametersIVF(nprobe=len(lists))
-        if sel is not None:
-            params.sel = sel
         with _one_thread():
             self.index.search_preassigned_c(
                 1,
@@ -418,13 +413,8 @@ class VectorIndex:
         """The best k codes of `lists` scoring above `radius`, best first (older first on
         ties): all of them when fewer (a floor near the typical score keeps many: they are cut
         to k before they are sorted)."""
-        x = np.ascontiguousarray(q, np.float32)
-        iq = np.ascontiguousarray(lists[None, :], np.int64)
-        dq = np.ascontiguousarray(scores[None, :], np.float32)
+        x, iq, dq, params = _probe_args(q, lists, scores, sel)
         res = faiss.RangeSearchResult(1)
-        params = faiss.SearchParametersIVF(nprobe=len(lists))
-        if sel is not None:
-            params.sel = sel
         with _one_thread():
             self.index.range_search_preassigned_c(
                 1,
@@ -516,6 +506,20 @@ def _longest_residual(index: Any, lst: int, codes: np.ndarray) -> float:
     else:  # IVF-Flat keeps the vectors themselves
         vecs = np.ascontiguousarray(codes).view(np.float32) - index.quantizer.reconstruct(lst)
     return float(np.sqrt(np.einsum("ij,ij->i", vecs, vecs).max()))
+
+
+def _probe_args(q: np.ndarray, lists: np.ndarray, scores: np.ndarray, sel: Any) -> tuple[Any, ...]:
+    """What FAISS's preassigned searches take for one query probing `lists` (their centroid
+    `scores`), restricted by the id selector `sel` when given: query, lists, scores, params."""
+    params = faiss.SearchParametersIVF(nprobe=len(lists))
+    if sel is not None:
+        params.sel = sel
+    return (
+        np.ascontiguousarray(q, np.float32),
+        np.ascontiguousarray(lists[None, :], np.int64),
+        np.ascontiguousarray(scores[None, :], np.float32),
+        params,
+    )
 
 
 def _pairs(ids: np.ndarray, dist: np.ndarray) -> list[tuple[int, float]]:
